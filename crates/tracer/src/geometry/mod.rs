@@ -1,0 +1,11 @@
+//! Rays, triangles, the triangle mesh as the renderer stores it, and the BVH over it.
+
+mod bvh;
+mod mesh;
+mod ray;
+mod triangle;
+
+pub use bvh::Bvh;
+pub use mesh::{Mesh, MeshError};
+pub use ray::Ray;
+pub use triangle::{intersect_watertight, RayPrecomp, TriangleHit};

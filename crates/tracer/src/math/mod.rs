@@ -1,0 +1,21 @@
+//! Small math helpers on top of `glam`: orthonormal frames, luminance, and ray-origin offsetting.
+
+mod frame;
+mod offset;
+
+pub use frame::Frame;
+pub use offset::offset_ray_origin;
+
+use glam::Vec3;
+
+/// Rec. 709 / sRGB luminance of a linear RGB value.
+#[inline]
+pub fn luminance(c: Vec3) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// Mirror `v` about the normal `n` (both pointing away from the surface).
+#[inline]
+pub fn reflect(v: Vec3, n: Vec3) -> Vec3 {
+    2.0 * v.dot(n) * n - v
+}

@@ -1,0 +1,30 @@
+use glam::Vec2;
+use std::f32::consts::{FRAC_PI_4, PI};
+
+/// Uniform point on the unit disk by the polar map r = √ξ₁, φ = 2πξ₂ (density 1/π).
+///
+/// The square root is what makes it uniform: the area within radius r grows as r², so the radius's CDF
+/// is r² and its inverse is √ξ.
+#[inline]
+pub fn sample_uniform_disk(u: Vec2) -> Vec2 {
+    let r = u.x.sqrt();
+    let (s, c) = (2.0 * PI * u.y).sin_cos();
+    Vec2::new(r * c, r * s)
+}
+
+/// Uniform point on the unit disk by Shirley–Chiu's concentric map (density 1/π). Same law as
+/// [`sample_uniform_disk`], but it keeps strata compact, which low-discrepancy points reward.
+#[inline]
+pub fn sample_concentric_disk(u: Vec2) -> Vec2 {
+    let o = 2.0 * u - Vec2::ONE;
+    if o.x == 0.0 && o.y == 0.0 {
+        return Vec2::ZERO;
+    }
+    let (r, theta) = if o.x.abs() > o.y.abs() {
+        (o.x, FRAC_PI_4 * (o.y / o.x))
+    } else {
+        (o.y, 2.0 * FRAC_PI_4 - FRAC_PI_4 * (o.x / o.y))
+    };
+    let (s, c) = theta.sin_cos();
+    Vec2::new(r * c, r * s)
+}

@@ -1,0 +1,150 @@
+//! Ray queries against the scene: closest hit, shadow (visibility) rays, and the surface
+//! interaction at a hit.
+
+use super::Scene;
+use crate::geometry::{intersect_watertight, Ray, RayPrecomp};
+use crate::sampler::hash_u32;
+use glam::{Vec2, Vec3, Vec4};
+
+/// A ray's closest intersection.
+#[derive(Clone, Copy, Debug)]
+pub struct Hit {
+    pub t: f32,
+    pub triangle: u32,
+    pub b1: f32,
+    pub b2: f32,
+}
+
+/// Everything the integrator needs to know about a hit point.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceInteraction {
+    pub p: Vec3,
+    /// Unit geometric normal on the front (counter-clockwise) side.
+    pub ng: Vec3,
+    /// Unit interpolated shading normal, on the same side as `ng` (equal to it without normals).
+    pub ns: Vec3,
+    pub uv: [Vec2; 2],
+    pub tangent: Option<Vec4>,
+    pub material: u32,
+    pub triangle: u32,
+    /// The ray arrived from the front side.
+    pub front: bool,
+}
+
+impl Scene {
+    /// Whether a ray passes through the (alpha-tested) surface of `triangle` at barycentrics
+    /// (b1, b2). `u` drives stochastic (BLEND) coverage.
+    #[inline]
+    fn passes_through(&self, triangle: usize, b1: f32, b2: f32, u: f32) -> bool {
+        let m = &self.materials[self.mesh.material[triangle] as usize];
+        if !m.has_alpha() {
+            return false;
+        }
+        let uv = self.uv_at(triangle, b1, b2);
+        // Decorrelate the coverage decision of different surfaces along one ray.
+        let u = if matches!(m.alpha_mode, crate::material::AlphaMode::Blend) {
+            let h = hash_u32(u.to_bits() ^ hash_u32(triangle as u32));
+            crate::sampler::bits_to_unit(h)
+        } else {
+            u
+        };
+        m.passes_through(&self.textures, &uv, u)
+    }
+
+    /// The closest surface hit by `ray` in (0, t_max). `alpha_u` ∈ [0,1) drives stochastic alpha.
+    #[inline]
+    pub fn intersect(&self, ray: &Ray, t_max: f32, alpha_u: f32) -> Option<Hit> {
+        let pre = RayPrecomp::new(ray);
+        let positions = &self.mesh.positions;
+        let mut best = Hit { t: t_max, triangle: u32::MAX, b1: 0.0, b2: 0.0 };
+        let any_alpha = self.any_alpha;
+        self.bvh.closest(ray.o, ray.d, t_max, |id, _| {
+            // Accept ties (t equal to the best so far) and break them by triangle index, so the
+            // result never depends on traversal order.
+            let limit = if best.triangle == u32::MAX { best.t } else { next_up(best.t) };
+            match intersect_watertight(&pre, &positions[id], limit) {
+                Some(h) if h.t < best.t || (h.t == best.t && (id as u32) < best.triangle) => {
+                    if any_alpha && self.passes_through(id, h.b1, h.b2, alpha_u) {
+                        return f32::INFINITY;
+                    }
+                    best = Hit { t: h.t, triangle: id as u32, b1: h.b1, b2: h.b2 };
+                    h.t
+                }
+                _ => f32::INFINITY,
+            }
+        });
+        (best.triangle != u32::MAX).then_some(best)
+    }
+
+    /// True if nothing blocks the segment from `ray.o` along `ray.d` up to distance `t_max`.
+    #[inline]
+    pub fn visible(&self, ray: &Ray, t_max: f32, alpha_u: f32) -> bool {
+        let pre = RayPrecomp::new(ray);
+        let positions = &self.mesh.positions;
+        let any_alpha = self.any_alpha;
+        !self.bvh.any(ray.o, ray.d, t_max, |id, tm| match intersect_watertight(&pre, &positions[id], tm) {
+            Some(h) if !(any_alpha && self.passes_through(id, h.b1, h.b2, alpha_u)) => h.t,
+            _ => f32::INFINITY,
+        })
+    }
+
+    #[inline]
+    fn uv_at(&self, tri: usize, b1: f32, b2: f32) -> [Vec2; 2] {
+        let b0 = 1.0 - b1 - b2;
+        let interp = |t: &[Vec2; 3]| t[0] * b0 + t[1] * b1 + t[2] * b2;
+        [
+            self.mesh.uv0.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
+            self.mesh.uv1.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
+        ]
+    }
+
+    /// The surface at a hit of `ray`.
+    #[inline]
+    pub fn surface(&self, ray: &Ray, hit: &Hit) -> SurfaceInteraction {
+        let tri = hit.triangle as usize;
+        let [a, b, c] = self.mesh.positions[tri];
+        let (b1, b2) = (hit.b1, hit.b2);
+        let b0 = 1.0 - b1 - b2;
+        // Interpolating the vertices is more accurate than o + t·d far from the origin.
+        let p = a * b0 + b * b1 + c * b2;
+        let ng = (b - a).cross(c - a).normalize();
+        let ns = match &self.mesh.normals {
+            Some(n) => {
+                let [n0, n1, n2] = n[tri];
+                let s = (n0 * b0 + n1 * b1 + n2 * b2).normalize_or_zero();
+                if s == Vec3::ZERO || !s.is_finite() {
+                    ng
+                } else if s.dot(ng) < 0.0 {
+                    // Normals that disagree with the winding: trust the winding for the side.
+                    -s
+                } else {
+                    s
+                }
+            }
+            None => ng,
+        };
+        let tangent = self.mesh.tangents.as_ref().map(|t| {
+            let [t0, t1, t2] = t[tri];
+            t0 * b0 + t1 * b1 + t2 * b2
+        });
+        SurfaceInteraction {
+            p,
+            ng,
+            ns,
+            uv: self.uv_at(tri, b1, b2),
+            tangent,
+            material: self.mesh.material[tri],
+            triangle: hit.triangle,
+            front: ray.d.dot(ng) < 0.0,
+        }
+    }
+}
+
+#[inline]
+fn next_up(x: f32) -> f32 {
+    if x.is_finite() && x >= 0.0 {
+        f32::from_bits(x.to_bits() + 1)
+    } else {
+        x
+    }
+}

@@ -1,0 +1,131 @@
+//! The renderable scene: world-space triangles with their BVH, materials, textures, lights and the
+//! camera. Built once (from glTF by [`crate::gltf`], or by hand in tests) and then only read, from any
+//! number of threads.
+
+mod intersect;
+
+pub use intersect::{Hit, SurfaceInteraction};
+
+use crate::camera::Camera;
+use crate::geometry::{Bvh, Mesh, MeshError};
+use crate::light::{AreaLights, Lights, PunctualLight};
+use crate::material::{Material, Texture};
+use glam::Vec3;
+
+/// What a loader hands to [`Scene::build`].
+#[derive(Clone, Debug, Default)]
+pub struct SceneParts {
+    pub mesh: Mesh,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub punctual_lights: Vec<PunctualLight>,
+    /// `None`: frame the scene with a default camera.
+    pub camera: Option<Camera>,
+    /// Things the loader ignored or worked around, reported once each.
+    pub warnings: Vec<String>,
+}
+
+/// Facts about a built scene, for logs and reports.
+#[derive(Clone, Debug, Default)]
+pub struct SceneInfo {
+    pub triangles: usize,
+    /// Zero-area (or non-finite) triangles dropped at build time.
+    pub degenerate_dropped: usize,
+    pub emissive_triangles: usize,
+    pub punctual_lights: usize,
+    pub bvh_nodes: usize,
+    /// Approximate bytes held by geometry, BVH and textures.
+    pub bytes: usize,
+    pub warnings: Vec<String>,
+    pub bounds_min: Vec3,
+    pub bounds_max: Vec3,
+}
+
+/// Why a scene cannot be built.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    #[error("triangle {triangle} refers to material {material}, but the scene has {count} materials")]
+    MaterialIndex { triangle: usize, material: u32, count: usize },
+}
+
+/// A scene ready to render.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub mesh: Mesh,
+    pub bvh: Bvh,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub lights: Lights,
+    pub camera: Camera,
+    pub info: SceneInfo,
+    /// Some material has alpha (MASK or BLEND): intersection must test coverage.
+    any_alpha: bool,
+    /// Some material has a volume: paths track whether they are inside one.
+    pub(crate) any_volume: bool,
+}
+
+impl Scene {
+    /// Drops degenerate triangles, builds the BVH and the light distributions.
+    pub fn build(parts: SceneParts) -> Result<Scene, SceneError> {
+        let SceneParts { mut mesh, materials, textures, punctual_lights, camera, warnings } = parts;
+        mesh.validate()?;
+        if let Some((triangle, &material)) =
+            mesh.material.iter().enumerate().find(|(_, &m)| m as usize >= materials.len())
+        {
+            return Err(SceneError::MaterialIndex { triangle, material, count: materials.len() });
+        }
+        // Drop zero-area and non-finite triangles: they cannot be hit, sampled or shaded.
+        let keep: Vec<u32> = (0..mesh.len())
+            .filter(|&i| {
+                let a = mesh.area(i);
+                a > 0.0 && a.is_finite() && mesh.positions[i].iter().all(|v| v.is_finite())
+            })
+            .map(|i| i as u32)
+            .collect();
+        let degenerate_dropped = mesh.len() - keep.len();
+        if degenerate_dropped > 0 {
+            mesh.reorder(&keep);
+            tracing::info!(degenerate_dropped, "dropped zero-area triangles");
+        }
+        let (bvh, order) = Bvh::build(&mesh);
+        mesh.reorder(&order);
+
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for tri in &mesh.positions {
+            for v in tri {
+                lo = lo.min(*v);
+                hi = hi.max(*v);
+            }
+        }
+        if mesh.is_empty() {
+            lo = Vec3::ZERO;
+            hi = Vec3::ZERO;
+        }
+        let radius = 0.5 * (hi - lo).length();
+        let area = AreaLights::new(&mesh, &materials, &textures);
+        let lights = Lights::new(area, punctual_lights, radius.max(1e-3));
+        let camera = camera.unwrap_or_else(|| Camera::framing(0.5 * (lo + hi), radius.max(1e-3)));
+        let info = SceneInfo {
+            triangles: mesh.len(),
+            degenerate_dropped,
+            emissive_triangles: lights.area.triangles.len(),
+            punctual_lights: lights.punctual.len(),
+            bvh_nodes: bvh.node_count(),
+            bytes: mesh.bytes() + bvh.bytes() + textures.iter().map(Texture::bytes).sum::<usize>(),
+            warnings,
+            bounds_min: lo,
+            bounds_max: hi,
+        };
+        let any_alpha = materials.iter().any(Material::has_alpha);
+        let any_volume = materials.iter().any(|m| m.volume.is_some() && m.transmission > 0.0);
+        Ok(Scene { mesh, bvh, materials, textures, lights, camera, info, any_alpha, any_volume })
+    }
+
+    /// Replaces the camera (e.g. one chosen by name).
+    pub fn with_camera(mut self, camera: Camera) -> Self {
+        self.camera = camera;
+        self
+    }
+}

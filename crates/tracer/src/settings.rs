@@ -1,0 +1,161 @@
+//! Render settings: everything besides the scene that determines the bits of an image.
+
+use std::fmt;
+use std::str::FromStr;
+
+/// How direct lighting is estimated at each path vertex. All strategies are unbiased and converge to
+/// the same image; they differ only in variance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum DirectStrategy {
+    /// Uniform hemisphere (sphere, for transmissive surfaces) directions, pdf 1/2π.
+    Hemisphere,
+    /// Cosine-weighted directions, pdf cos θ / π.
+    Cosine,
+    /// BSDF importance sampling only: emission is found by the path's own continuation ray.
+    Bsdf,
+    /// A point on a light's area, pdf 1/A, with the cos θ cos θ' / r² change of variables.
+    Light,
+    /// Light and BSDF sampling combined with the power heuristic.
+    #[default]
+    Mis,
+}
+
+impl DirectStrategy {
+    pub const ALL: [DirectStrategy; 5] = [
+        DirectStrategy::Hemisphere,
+        DirectStrategy::Cosine,
+        DirectStrategy::Bsdf,
+        DirectStrategy::Light,
+        DirectStrategy::Mis,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            DirectStrategy::Hemisphere => "hemisphere",
+            DirectStrategy::Cosine => "cosine",
+            DirectStrategy::Bsdf => "bsdf",
+            DirectStrategy::Light => "light",
+            DirectStrategy::Mis => "mis",
+        }
+    }
+}
+
+impl fmt::Display for DirectStrategy {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for DirectStrategy {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        DirectStrategy::ALL
+            .into_iter()
+            .find(|d| d.name() == s)
+            .ok_or_else(|| format!("unknown direct-lighting strategy {s:?} (expected hemisphere, cosine, bsdf, light or mis)"))
+    }
+}
+
+/// Russian roulette: unbiased path termination (survivors are divided by the survival probability).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub enum RussianRoulette {
+    /// Never terminate early (paths end by escaping, by absorption, or at `max_depth`).
+    Off,
+    /// From the third bounce on, survive with probability min(1, max component of the throughput),
+    /// floored at 5%.
+    #[default]
+    Auto,
+    /// From the second bounce on, survive with this fixed probability in (0, 1].
+    Fixed(f32),
+}
+
+impl fmt::Display for RussianRoulette {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            RussianRoulette::Off => f.write_str("off"),
+            RussianRoulette::Auto => f.write_str("auto"),
+            RussianRoulette::Fixed(p) => write!(f, "{p}"),
+        }
+    }
+}
+
+impl FromStr for RussianRoulette {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "off" => Ok(RussianRoulette::Off),
+            "auto" => Ok(RussianRoulette::Auto),
+            _ => match s.parse::<f32>() {
+                Ok(p) if p > 0.0 && p <= 1.0 => Ok(RussianRoulette::Fixed(p)),
+                _ => Err(format!("invalid Russian roulette {s:?} (expected off, auto, or a survival probability in (0, 1])")),
+            },
+        }
+    }
+}
+
+/// The sample generator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum SamplerKind {
+    /// Owen-scrambled Sobol (randomized quasi-Monte Carlo).
+    #[default]
+    Sobol,
+    /// Independent uniform random numbers (plain Monte Carlo).
+    Independent,
+}
+
+impl fmt::Display for SamplerKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            SamplerKind::Sobol => "sobol",
+            SamplerKind::Independent => "independent",
+        })
+    }
+}
+
+impl FromStr for SamplerKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "sobol" => Ok(SamplerKind::Sobol),
+            "independent" => Ok(SamplerKind::Independent),
+            _ => Err(format!("unknown sampler {s:?} (expected sobol or independent)")),
+        }
+    }
+}
+
+/// A hard safety cap on path length when `max_depth` is unlimited, so a scene of perfectly white,
+/// perfectly closed walls with roulette off still terminates. Not reachable in any physical scene
+/// before the throughput underflows.
+pub const SAFETY_MAX_DEPTH: u32 = 1 << 16;
+
+/// Everything besides the scene that determines an image's bits.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderSettings {
+    pub width: u32,
+    pub height: u32,
+    pub seed: u64,
+    pub direct: DirectStrategy,
+    pub rr: RussianRoulette,
+    /// Maximum number of bounces (0 = emission seen directly only). `None` is unlimited: the default
+    /// and the only unbiased choice; a cap drops the light of longer paths.
+    pub max_depth: Option<u32>,
+    pub sampler: SamplerKind,
+}
+
+impl RenderSettings {
+    pub fn new(width: u32, height: u32) -> Self {
+        RenderSettings {
+            width,
+            height,
+            seed: 0,
+            direct: DirectStrategy::Mis,
+            rr: RussianRoulette::Auto,
+            max_depth: None,
+            sampler: SamplerKind::Sobol,
+        }
+    }
+
+    pub(crate) fn depth_limit(&self) -> u32 {
+        self.max_depth.unwrap_or(SAFETY_MAX_DEPTH).min(SAFETY_MAX_DEPTH)
+    }
+}
