@@ -28,5 +28,6 @@ pub mod settings;
 pub mod stats;
 
 pub use accumulation::{Accumulation, PixelAccum};
+pub use render::{render_image, render_sample, render_tile, Tile};
 pub use scene::Scene;
 pub use settings::{DirectStrategy, RenderSettings, RussianRoulette, SamplerKind};

@@ -1,1 +1,108 @@
-//! The render API.
+//! The render API that workers call: `render_tile(scene, settings, tile, sample range) → accumulation`.
+//!
+//! A pixel's samples depend only on (seed, pixel, sample index), and accumulation is exact integer
+//! arithmetic, so any tiling, any split of the sample range, and any number of threads give the same
+//! bits.
+
+mod tile;
+
+pub use tile::{Tile, TileError};
+
+use crate::accumulation::{Accumulation, InvalidSample, PixelAccum, MAX_RECORDED_INVALID};
+use crate::integrator::{trace_path, PathResult};
+use crate::sampler::{dims, PixelSampler};
+use crate::scene::Scene;
+use crate::settings::RenderSettings;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use std::ops::Range;
+
+/// Renders samples `samples` of every pixel of `tile`. Rows are rendered in parallel on the current
+/// rayon thread pool (install a pool to choose the thread count); the result does not depend on it.
+pub fn render_tile(scene: &Scene, settings: &RenderSettings, tile: Tile, samples: Range<u32>) -> Accumulation {
+    let rows: Vec<(Vec<PixelAccum>, u64, u64, Vec<InvalidSample>)> = (tile.y0..tile.y0 + tile.height)
+        .into_par_iter()
+        .map(|y| render_row(scene, settings, y, tile.x0..tile.x0 + tile.width, samples.clone()))
+        .collect();
+    let mut acc = Accumulation::new(tile.x0, tile.y0, tile.width, tile.height);
+    acc.pixels.clear();
+    for (pixels, rays, invalid_count, invalid) in rows {
+        acc.pixels.extend_from_slice(&pixels);
+        acc.rays += rays;
+        acc.invalid_count += invalid_count;
+        if acc.invalid.len() < MAX_RECORDED_INVALID {
+            acc.invalid.extend(invalid);
+            acc.invalid.truncate(MAX_RECORDED_INVALID);
+        }
+    }
+    acc
+}
+
+fn render_row(
+    scene: &Scene,
+    settings: &RenderSettings,
+    y: u32,
+    xs: Range<u32>,
+    samples: Range<u32>,
+) -> (Vec<PixelAccum>, u64, u64, Vec<InvalidSample>) {
+    let mut pixels = Vec::with_capacity(xs.len());
+    let mut rays = 0u64;
+    let mut invalid_count = 0u64;
+    let mut invalid = Vec::new();
+    for x in xs {
+        let mut p = PixelAccum::default();
+        for index in samples.clone() {
+            let r = render_sample(scene, settings, x, y, index);
+            rays += r.rays as u64;
+            if !p.add_sample(r.radiance) {
+                invalid_count += 1;
+                if invalid.len() < MAX_RECORDED_INVALID {
+                    invalid.push(InvalidSample { x, y, index });
+                }
+                tracing::warn!(x, y, index, radiance = ?r.radiance, "invalid sample dropped (NaN, infinite, negative or huge)");
+            }
+        }
+        pixels.push(p);
+    }
+    (pixels, rays, invalid_count, invalid)
+}
+
+/// Renders one sample of one pixel, alone: the same value it has inside any tile or range. Use it to
+/// re-render a sample reported as invalid.
+#[inline]
+pub fn render_sample(scene: &Scene, settings: &RenderSettings, x: u32, y: u32, index: u32) -> PathResult {
+    let sampler = PixelSampler::new(settings.sampler, settings.seed, x, y, index);
+    let jitter = sampler.get2(dims::PIXEL);
+    let film = Vec2::new(x as f32, y as f32) + jitter;
+    let ray = scene.camera.generate_ray(film, settings.width, settings.height);
+    if !ray.d.is_finite() {
+        return PathResult { radiance: Vec3::splat(f32::NAN), rays: 0, vertices: 0 };
+    }
+    trace_path(scene, settings, &sampler, ray)
+}
+
+/// Renders samples `samples` of the whole image, `tile_size` pixels square at a time, in parallel.
+/// `progress` is called with the number of pixel-samples finished after each tile.
+pub fn render_image(
+    scene: &Scene,
+    settings: &RenderSettings,
+    tile_size: u32,
+    samples: Range<u32>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Accumulation {
+    let tiles = Tile::grid(settings.width, settings.height, tile_size.max(1));
+    let done: Vec<Accumulation> = tiles
+        .par_iter()
+        .map(|&t| {
+            let acc = render_tile(scene, settings, t, samples.clone());
+            progress(t.pixel_count() * samples.len() as u64);
+            acc
+        })
+        .collect();
+    let mut image = Accumulation::new(0, 0, settings.width, settings.height);
+    for acc in &done {
+        // Tiles come from the image's own grid, so they always fit.
+        let _ = image.merge(acc);
+    }
+    image
+}

@@ -123,6 +123,12 @@ impl Scene {
         Ok(Scene { mesh, bvh, materials, textures, lights, camera, info, any_alpha, any_volume })
     }
 
+    /// True if some material has alpha (MASK or BLEND).
+    #[inline]
+    pub fn any_alpha(&self) -> bool {
+        self.any_alpha
+    }
+
     /// Replaces the camera (e.g. one chosen by name).
     pub fn with_camera(mut self, camera: Camera) -> Self {
         self.camera = camera;

@@ -1,0 +1,208 @@
+//! `pathfarm render`: render a scene on this machine, in progressive passes, to EXR or PNG.
+
+use crate::resolver::DirectoryResolver;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use pathfarm_tracer::gltf::{self, LoadOptions};
+use pathfarm_tracer::output::{encode_exr, encode_png, ExrChannels};
+use pathfarm_tracer::{render_image, render_sample, Accumulation, DirectStrategy, RenderSettings, RussianRoulette, SamplerKind, Scene};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+/// Render settings shared by `render` and (later) `submit`.
+#[derive(Args, Clone, Debug)]
+pub struct SettingsArgs {
+    #[arg(long, default_value_t = 256)]
+    pub width: u32,
+    #[arg(long, default_value_t = 256)]
+    pub height: u32,
+    /// Samples (camera paths) per pixel.
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Direct-lighting strategy: hemisphere, cosine, bsdf, light or mis.
+    #[arg(long, default_value = "mis")]
+    pub direct: DirectStrategy,
+    /// Russian roulette: off, auto, or a fixed survival probability in (0, 1].
+    #[arg(long, default_value = "auto")]
+    pub rr: RussianRoulette,
+    /// Maximum number of bounces. Unlimited by default; a cap is biased (it drops longer paths).
+    #[arg(long)]
+    pub max_depth: Option<u32>,
+    /// Sample generator: sobol (Owen-scrambled) or independent.
+    #[arg(long, default_value = "sobol")]
+    pub sampler: SamplerKind,
+}
+
+impl SettingsArgs {
+    pub fn to_settings(&self) -> RenderSettings {
+        RenderSettings {
+            width: self.width,
+            height: self.height,
+            seed: self.seed,
+            direct: self.direct,
+            rr: self.rr,
+            max_depth: self.max_depth,
+            sampler: self.sampler,
+        }
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// The scene: a .gltf (with embedded data or files next to it) or a .glb.
+    pub scene: PathBuf,
+    #[command(flatten)]
+    pub settings: SettingsArgs,
+    /// Worker threads (default: one per core).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Stop after the pass during which this many seconds of rendering have elapsed; every pixel
+    /// keeps the same number of samples.
+    #[arg(long)]
+    pub time_limit: Option<f64>,
+    /// Tile size in pixels (does not change the result).
+    #[arg(long, default_value_t = 32)]
+    pub tile: u32,
+    /// Camera name (default: the scene's first camera).
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// PNG exposure in stops (the PNG tone map is ×2^exposure, clamp, sRGB).
+    #[arg(long, default_value_t = 0.0)]
+    pub exposure: f32,
+    /// Add `variance` and `samples` channels to an EXR output.
+    #[arg(long)]
+    pub extra_channels: bool,
+    /// Re-render one sample alone and print it: X,Y,INDEX (for debugging a reported invalid sample).
+    #[arg(long, value_name = "X,Y,INDEX")]
+    pub debug_sample: Option<String>,
+    /// Output file: .exr (float32 linear) or .png (tone-mapped sRGB).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Reads and loads a scene file.
+pub fn load_scene(path: &Path, camera: Option<String>) -> Result<Scene> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read scene {}", path.display()))?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let resolver = DirectoryResolver { base };
+    let scene = gltf::load(&bytes, &resolver, &LoadOptions { camera })
+        .with_context(|| format!("cannot load {}", path.display()))?;
+    Ok(scene)
+}
+
+pub fn run(args: RenderArgs) -> Result<()> {
+    let settings = args.settings.to_settings();
+    if settings.width == 0 || settings.height == 0 {
+        bail!("--width and --height must be positive");
+    }
+    if settings.spp == 0 && args.debug_sample.is_none() {
+        bail!("--spp must be positive");
+    }
+    if let Some(threads) = args.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(threads.max(1)).build_global().context("cannot start threads")?;
+    }
+    let t_load = Instant::now();
+    let scene = load_scene(&args.scene, args.camera.clone())?;
+    let info = &scene.info;
+    tracing::info!(
+        triangles = info.triangles,
+        degenerate_dropped = info.degenerate_dropped,
+        emissive_triangles = info.emissive_triangles,
+        punctual_lights = info.punctual_lights,
+        megabytes = info.bytes as f64 / 1e6,
+        seconds = t_load.elapsed().as_secs_f64(),
+        "scene loaded"
+    );
+
+    if let Some(spec) = &args.debug_sample {
+        let parts: Vec<u32> = spec.split(',').map(|s| s.trim().parse()).collect::<Result<_, _>>().context("--debug-sample expects X,Y,INDEX")?;
+        let [x, y, index] = parts[..] else { bail!("--debug-sample expects X,Y,INDEX") };
+        if x >= settings.width || y >= settings.height {
+            bail!("pixel ({x}, {y}) is outside the {}x{} image", settings.width, settings.height);
+        }
+        let r = render_sample(&scene, &settings, x, y, index);
+        println!(
+            "sample ({x}, {y}) #{index}: radiance = ({}, {}, {}), {} vertices, {} rays",
+            r.radiance.x, r.radiance.y, r.radiance.z, r.vertices, r.rays
+        );
+        return Ok(());
+    }
+    let Some(out) = args.out.clone() else { bail!("--out FILE.exr|FILE.png is required") };
+    let ext = out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    if !matches!(ext.as_deref(), Some("exr") | Some("png")) {
+        bail!("--out must end in .exr or .png, not {}", out.display());
+    }
+
+    let (acc, elapsed) = render_progressive(&scene, &settings, settings_spp(&args), args.tile, args.time_limit);
+    let samples = acc.total_samples();
+    let secs = elapsed.as_secs_f64();
+    let bytes = match ext.as_deref() {
+        Some("png") => encode_png(&acc, args.exposure)?,
+        _ => encode_exr(&acc, ExrChannels { variance: args.extra_channels, samples: args.extra_channels })?,
+    };
+    std::fs::write(&out, bytes).with_context(|| format!("cannot write {}", out.display()))?;
+    if acc.invalid_count > 0 {
+        tracing::warn!(count = acc.invalid_count, first = ?acc.invalid.first(), "invalid samples were dropped; re-render one with --debug-sample X,Y,INDEX");
+    }
+    let rel = acc.relative_error().map_or("n/a".to_string(), |e| format!("{:.2}%", e * 100.0));
+    println!(
+        "rendered {} in {:.3} s: {} spp, {:.2} M samples/s, {:.2} M rays/s, estimated relative error {}, {} invalid samples",
+        out.display(),
+        secs,
+        samples / (settings.width as u64 * settings.height as u64),
+        samples as f64 / secs / 1e6,
+        acc.rays as f64 / secs / 1e6,
+        rel,
+        acc.invalid_count
+    );
+    Ok(())
+}
+
+fn settings_spp(args: &RenderArgs) -> u32 {
+    args.settings.spp
+}
+
+/// Renders in passes of growing sample ranges ([0,1), [1,2), [2,4), … up to `spp`), so a time limit
+/// ends on a pass boundary with every pixel equally sampled. Returns the image and the render time.
+pub fn render_progressive(
+    scene: &Scene,
+    settings: &RenderSettings,
+    spp: u32,
+    tile: u32,
+    time_limit: Option<f64>,
+) -> (Accumulation, Duration) {
+    let pixels = settings.width as u64 * settings.height as u64;
+    let bar = ProgressBar::new(pixels * spp as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent}% {msg} ETA {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let done = AtomicU64::new(0);
+    let start = Instant::now();
+    let mut image = Accumulation::new(0, 0, settings.width, settings.height);
+    let mut begin = 0u32;
+    while begin < spp {
+        let end = if begin == 0 { 1 } else { (begin * 2).min(spp) };
+        let pass = render_image(scene, settings, tile, begin..end, &|n| {
+            let total = done.fetch_add(n, Ordering::Relaxed) + n;
+            bar.set_position(total);
+        });
+        // Same-size accumulations always merge.
+        let _ = image.merge(&pass);
+        begin = end;
+        let secs = start.elapsed().as_secs_f64();
+        bar.set_message(format!("{begin} spp, {:.2} M samples/s", image.total_samples() as f64 / secs / 1e6));
+        if let Some(limit) = time_limit {
+            if secs >= limit {
+                tracing::info!(spp = begin, seconds = secs, "time limit reached");
+                break;
+            }
+        }
+    }
+    bar.finish_and_clear();
+    (image, start.elapsed())
+}

@@ -1,0 +1,172 @@
+//! Direct-lighting estimators at one path vertex. Each returns the contribution *before* the path
+//! throughput is applied.
+
+use crate::bsdf::Bsdf;
+use crate::geometry::Ray;
+use crate::math::{offset_ray_origin, Frame};
+use crate::sampler::{dims, PixelSampler};
+use crate::sampling::{
+    cosine_hemisphere_pdf, power_heuristic, sample_cosine_hemisphere, sample_uniform_hemisphere,
+    uniform_hemisphere_pdf,
+};
+use crate::scene::Scene;
+use crate::settings::DirectStrategy;
+use glam::{Vec2, Vec3};
+
+/// The path vertex being lit.
+pub(crate) struct Vertex<'a> {
+    pub p: Vec3,
+    /// Unit geometric normal (front side).
+    pub ng: Vec3,
+    pub wo: Vec3,
+    pub bsdf: &'a Bsdf,
+    /// Absorption of the medium the vertex is in (shadow rays through it are attenuated).
+    pub medium: Option<Vec3>,
+}
+
+impl Vertex<'_> {
+    /// A ray leaving the vertex towards `wi`, its origin offset to the side `wi` goes to.
+    #[inline]
+    fn spawn(&self, wi: Vec3) -> Ray {
+        let side = if wi.dot(self.ng) > 0.0 { self.ng } else { -self.ng };
+        Ray::new(offset_ray_origin(self.p, side), wi)
+    }
+
+    #[inline]
+    fn transmittance(&self, dist: f32) -> Vec3 {
+        match self.medium {
+            Some(sigma) if dist.is_finite() => (-sigma * dist).exp(),
+            _ => Vec3::ONE,
+        }
+    }
+}
+
+/// Shadow rays stop this fraction short of the light so they do not hit the light's own triangle.
+const SHADOW_EPSILON: f32 = 1e-4;
+
+/// One punctual light chosen in proportion to power. Delta lights can only be reached this way, so
+/// every strategy calls it.
+pub(crate) fn direct_punctual(scene: &Scene, v: &Vertex, s: &PixelSampler, depth: u32, rays: &mut u32) -> Vec3 {
+    let Some((light, pmf)) = scene.lights.choose_punctual(s.bounce1(depth, dims::PUNCTUAL_SELECT)) else {
+        return Vec3::ZERO;
+    };
+    let Some(ls) = light.sample_li(v.p) else { return Vec3::ZERO };
+    let f = v.bsdf.eval(v.wo, ls.wi);
+    if f == Vec3::ZERO {
+        return Vec3::ZERO;
+    }
+    let ray = v.spawn(ls.wi);
+    *rays += 1;
+    let t_max = if ls.dist.is_finite() { ls.dist * (1.0 - SHADOW_EPSILON) } else { f32::INFINITY };
+    if !scene.visible(&ray, t_max, s.bounce1(depth, dims::ALPHA)) {
+        return Vec3::ZERO;
+    }
+    f * ls.li * v.transmittance(ls.dist) / pmf
+}
+
+/// A point on an area light chosen by power, pdf P(light)/A converted to solid angle by
+/// r² / |cos θ'|, with a shadow ray. With `mis`, weighted by the power heuristic against the BSDF.
+pub(crate) fn direct_area_light(
+    scene: &Scene,
+    v: &Vertex,
+    s: &PixelSampler,
+    depth: u32,
+    mis: bool,
+    rays: &mut u32,
+) -> Vec3 {
+    let u_sel = s.bounce1(depth, dims::LIGHT_SELECT);
+    let Some(ls) = scene.lights.area.sample(&scene.mesh, u_sel, s.bounce2(depth, dims::LIGHT_POINT)) else {
+        return Vec3::ZERO;
+    };
+    let d = ls.point - v.p;
+    let dist2 = d.length_squared();
+    if dist2 <= 0.0 {
+        return Vec3::ZERO;
+    }
+    let dist = dist2.sqrt();
+    let wi = d / dist;
+    let cos_l = -wi.dot(ls.normal);
+    if cos_l == 0.0 {
+        return Vec3::ZERO;
+    }
+    let tri = ls.triangle as usize;
+    let material = &scene.materials[scene.mesh.material[tri] as usize];
+    let uv = light_uv(scene, tri, ls.barycentrics);
+    let le = material.emission(&scene.textures, &uv, cos_l > 0.0);
+    if le == Vec3::ZERO {
+        return Vec3::ZERO;
+    }
+    let f = v.bsdf.eval(v.wo, wi);
+    if f == Vec3::ZERO {
+        return Vec3::ZERO;
+    }
+    let pdf = ls.pdf_area * dist2 / cos_l.abs();
+    if !(pdf > 0.0 && pdf.is_finite()) {
+        return Vec3::ZERO;
+    }
+    *rays += 1;
+    if !scene.visible(&v.spawn(wi), dist * (1.0 - SHADOW_EPSILON), s.bounce1(depth, dims::ALPHA)) {
+        return Vec3::ZERO;
+    }
+    let w = if mis { power_heuristic(pdf, v.bsdf.pdf(v.wo, wi)) } else { 1.0 };
+    f * le * v.transmittance(dist) * (w / pdf)
+}
+
+fn light_uv(scene: &Scene, tri: usize, b: Vec3) -> [Vec2; 2] {
+    let interp = |t: &[Vec2; 3]| t[0] * b.x + t[1] * b.y + t[2] * b.z;
+    [
+        scene.mesh.uv0.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
+        scene.mesh.uv1.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
+    ]
+}
+
+/// Direct lighting by sampling a direction (uniform or cosine-weighted about the geometric normal on
+/// the viewer's side) and tracing it to whatever emitter it hits. On surfaces that transmit through a
+/// non-delta lobe both hemispheres are sampled, each with probability ½, so light from behind is not
+/// missed.
+pub(crate) fn direct_by_direction(
+    scene: &Scene,
+    v: &Vertex,
+    s: &PixelSampler,
+    depth: u32,
+    strategy: DirectStrategy,
+    rays: &mut u32,
+) -> Vec3 {
+    let mut n = if v.wo.dot(v.ng) >= 0.0 { v.ng } else { -v.ng };
+    let mut side_pdf = 1.0;
+    if v.bsdf.has_non_delta_transmission() {
+        side_pdf = 0.5;
+        if s.bounce1(depth, dims::DIRECT_SIDE) < 0.5 {
+            n = -n;
+        }
+    }
+    let u = s.bounce2(depth, dims::DIRECT_DIR);
+    let (local, pdf) = match strategy {
+        DirectStrategy::Cosine => {
+            let w = sample_cosine_hemisphere(u);
+            (w, cosine_hemisphere_pdf(w.z))
+        }
+        _ => (sample_uniform_hemisphere(u), uniform_hemisphere_pdf()),
+    };
+    let pdf = pdf * side_pdf;
+    if pdf <= 0.0 {
+        return Vec3::ZERO;
+    }
+    let wi = Frame::from_z(n).to_world(local);
+    let f = v.bsdf.eval(v.wo, wi);
+    if f == Vec3::ZERO {
+        return Vec3::ZERO;
+    }
+    let ray = v.spawn(wi);
+    *rays += 1;
+    let Some(hit) = scene.intersect(&ray, f32::INFINITY, s.bounce1(depth, dims::ALPHA)) else {
+        return Vec3::ZERO;
+    };
+    let si = scene.surface(&ray, &hit);
+    let material = &scene.materials[si.material as usize];
+    if !material.is_emissive() {
+        return Vec3::ZERO;
+    }
+    let le = material.emission(&scene.textures, &si.uv, si.front);
+    f * le * v.transmittance(hit.t) / pdf
+}

@@ -1,0 +1,142 @@
+use super::direct::{direct_area_light, direct_by_direction, direct_punctual, Vertex};
+use super::EmissionWeight;
+use crate::bsdf::Bsdf;
+use crate::geometry::Ray;
+use crate::math::offset_ray_origin;
+use crate::sampler::{dims, PixelSampler};
+use crate::sampling::power_heuristic;
+use crate::scene::Scene;
+use crate::settings::{DirectStrategy, RenderSettings, RussianRoulette};
+use glam::Vec3;
+
+/// The outcome of one camera path.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PathResult {
+    /// Radiance carried to the camera (may be invalid: NaN or infinite values are caught by the
+    /// caller).
+    pub radiance: Vec3,
+    /// Rays traced (closest-hit and shadow).
+    pub rays: u32,
+    /// Path vertices (surface hits).
+    pub vertices: u32,
+}
+
+/// Traces one camera path starting with `ray`, drawing every random decision from `sampler`.
+pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampler, camera_ray: Ray) -> PathResult {
+    let mut out = PathResult::default();
+    let mut l = Vec3::ZERO;
+    let mut beta = Vec3::ONE;
+    let mut ray = camera_ray;
+    let mut emission = EmissionWeight::Full;
+    // Absorption coefficient of the volume the path is inside, if any.
+    let mut medium: Option<Vec3> = None;
+    let depth_limit = settings.depth_limit();
+    let strategy = settings.direct;
+    let has_area = !scene.lights.area.is_empty();
+    let has_punctual = !scene.lights.punctual.is_empty();
+
+    let mut depth = 0u32;
+    loop {
+        let alpha_u = if scene.any_alpha() { sampler.bounce1(depth, dims::ALPHA) } else { 0.0 };
+        out.rays += 1;
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY, alpha_u) else { break };
+        out.vertices += 1;
+        let si = scene.surface(&ray, &hit);
+        if let Some(sigma) = medium {
+            beta *= (-sigma * hit.t).exp();
+        }
+        let material = &scene.materials[si.material as usize];
+
+        // 1. Emission seen by this ray.
+        if material.is_emissive() {
+            let le = material.emission(&scene.textures, &si.uv, si.front);
+            if le != Vec3::ZERO {
+                let w = match emission {
+                    EmissionWeight::Full => 1.0,
+                    EmissionWeight::Skip => 0.0,
+                    EmissionWeight::Mis { bsdf_pdf } => {
+                        let cos_l = ray.d.dot(si.ng).abs();
+                        let light_pdf = scene.lights.area.pdf_area(si.material) * hit.t * hit.t / cos_l;
+                        power_heuristic(bsdf_pdf, light_pdf)
+                    }
+                };
+                l += beta * le * w;
+            }
+        }
+        if depth >= depth_limit {
+            break;
+        }
+
+        let shading = material.shade(&scene.textures, &si.uv, si.ns, si.tangent);
+        let bsdf = Bsdf::new(shading.params, shading.normal, si.ng, si.tangent.map(|t| t.truncate()));
+        let wo = -ray.d;
+        let vertex = Vertex { p: si.p, ng: si.ng, wo, bsdf: &bsdf, medium };
+
+        // 2. Direct lighting for the non-delta lobes.
+        if bsdf.has_non_delta() {
+            if has_punctual {
+                l += beta * direct_punctual(scene, &vertex, sampler, depth, &mut out.rays);
+            }
+            match strategy {
+                DirectStrategy::Light | DirectStrategy::Mis if has_area => {
+                    let mis = strategy == DirectStrategy::Mis;
+                    l += beta * direct_area_light(scene, &vertex, sampler, depth, mis, &mut out.rays);
+                }
+                DirectStrategy::Hemisphere | DirectStrategy::Cosine if has_area => {
+                    l += beta * direct_by_direction(scene, &vertex, sampler, depth, strategy, &mut out.rays);
+                }
+                _ => {}
+            }
+        }
+
+        // 3. Continue the path.
+        let u_lobe = sampler.bounce1(depth, dims::BSDF_LOBE);
+        let Some(bs) = bsdf.sample(wo, u_lobe, sampler.bounce2(depth, dims::BSDF_DIR)) else { break };
+        if bs.weight == Vec3::ZERO {
+            break;
+        }
+        beta *= bs.weight;
+        emission = if bs.delta {
+            EmissionWeight::Full
+        } else {
+            match strategy {
+                DirectStrategy::Bsdf => EmissionWeight::Full,
+                DirectStrategy::Mis => EmissionWeight::Mis { bsdf_pdf: bs.pdf },
+                DirectStrategy::Light | DirectStrategy::Hemisphere | DirectStrategy::Cosine => {
+                    if has_area {
+                        EmissionWeight::Skip
+                    } else {
+                        EmissionWeight::Full
+                    }
+                }
+            }
+        };
+        if bs.transmitted && scene.any_volume {
+            // Crossing the boundary of a volume: entering from the front side, leaving from the back.
+            if let Some(v) = material.volume.filter(|_| !bsdf.params().thin_walled) {
+                medium = if wo.dot(si.ng) > 0.0 { Some(v.sigma_a) } else { None };
+            }
+        }
+
+        // 4. Russian roulette.
+        let survive = match settings.rr {
+            RussianRoulette::Off => 1.0,
+            RussianRoulette::Auto if depth >= 2 => beta.max_element().min(1.0),
+            RussianRoulette::Auto => 1.0,
+            RussianRoulette::Fixed(p) if depth >= 1 => p,
+            RussianRoulette::Fixed(_) => 1.0,
+        };
+        if survive < 1.0 {
+            if sampler.bounce1(depth, dims::ROULETTE) >= survive {
+                break;
+            }
+            beta /= survive;
+        }
+
+        let side = if bs.wi.dot(si.ng) > 0.0 { si.ng } else { -si.ng };
+        ray = Ray::new(offset_ray_origin(si.p, side), bs.wi);
+        depth += 1;
+    }
+    out.radiance = l;
+    out
+}

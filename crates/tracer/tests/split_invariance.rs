@@ -1,0 +1,101 @@
+//! The accumulation of a pixel's samples is the same bits however the work is split: by sample
+//! range, by tile, by thread count, and whenever it is rendered.
+
+mod common;
+
+use common::*;
+use pathfarm_tracer::{render_image, render_tile, Accumulation, RenderSettings, SamplerKind, Scene, Tile};
+
+/// A small deterministic generator for the random partitions (the test itself must be reproducible).
+struct SplitMix(u64);
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n
+    }
+}
+
+fn scenes() -> Vec<(&'static str, Scene)> {
+    vec![("furnace box", furnace_box(0.7, 0.5)), ("point-lit sphere", sphere_with_point_light(1.0, 0.6, 5.0))]
+}
+
+fn pixels_equal(a: &Accumulation, b: &Accumulation) -> bool {
+    a.pixels == b.pixels && a.rays == b.rays && a.invalid_count == b.invalid_count
+}
+
+#[test]
+fn random_partitions_of_the_sample_range_and_tiles_give_identical_bits() {
+    let mut rng = SplitMix(42);
+    for (name, scene) in scenes() {
+        for sampler in [SamplerKind::Sobol, SamplerKind::Independent] {
+            let settings = RenderSettings { sampler, seed: 99, ..RenderSettings::new(24, 20) };
+            let spp = 13;
+            let reference = render_image(&scene, &settings, 8, 0..spp, &|_| {});
+            assert_eq!(reference.total_samples(), 24 * 20 * spp as u64);
+            for trial in 0..4 {
+                // Random cut points of [0, spp) and a random tile size for each piece.
+                let mut cuts: Vec<u32> = (0..rng.below(5) + 1).map(|_| rng.below(spp as u64) as u32).collect();
+                cuts.extend([0, spp]);
+                cuts.sort_unstable();
+                cuts.dedup();
+                let mut pieces: Vec<Accumulation> = Vec::new();
+                for w in cuts.windows(2) {
+                    let tile = 1 + rng.below(13) as u32;
+                    for t in Tile::grid(24, 20, tile) {
+                        pieces.push(render_tile(&scene, &settings, t, w[0]..w[1]));
+                    }
+                }
+                // Merge in a random order and grouping: pairwise merges of random pieces.
+                while pieces.len() > 1 {
+                    let i = rng.below(pieces.len() as u64) as usize;
+                    let a = pieces.swap_remove(i);
+                    let j = rng.below(pieces.len() as u64) as usize;
+                    let mut b = pieces.swap_remove(j);
+                    let mut merged = Accumulation::new(0, 0, 24, 20);
+                    merged.merge(&a).expect("fits");
+                    merged.merge(&b).expect("fits");
+                    b = merged;
+                    pieces.push(b);
+                }
+                let combined = pieces.pop().expect("one left");
+                assert!(pixels_equal(&combined, &reference), "{name}, {sampler}, trial {trial}: cuts {cuts:?} differ");
+            }
+        }
+    }
+}
+
+#[test]
+fn one_and_two_threads_give_identical_images() {
+    for (name, scene) in scenes() {
+        let settings = RenderSettings { seed: 5, ..RenderSettings::new(32, 24) };
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool")
+                .install(|| render_image(&scene, &settings, 7, 0..8, &|_| {}))
+        };
+        let one = run(1);
+        let two = run(2);
+        assert!(pixels_equal(&one, &two), "{name}: 1 and 2 threads differ");
+        assert_eq!(one.mean_image(), two.mean_image());
+    }
+}
+
+#[test]
+fn the_same_seed_gives_the_same_bits_and_another_seed_does_not() {
+    let scene = furnace_box(0.7, 0.5);
+    let a = RenderSettings { seed: 1, ..RenderSettings::new(16, 16) };
+    let b = RenderSettings { seed: 2, ..a.clone() };
+    let r1 = render_image(&scene, &a, 16, 0..4, &|_| {});
+    let r2 = render_image(&scene, &a, 5, 0..4, &|_| {});
+    let r3 = render_image(&scene, &b, 16, 0..4, &|_| {});
+    assert!(pixels_equal(&r1, &r2));
+    assert!(!pixels_equal(&r1, &r3), "different seeds must give different samples");
+}
