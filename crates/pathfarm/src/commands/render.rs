@@ -99,7 +99,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if settings.width == 0 || settings.height == 0 {
         bail!("--width and --height must be positive");
     }
-    if settings.spp == 0 && args.debug_sample.is_none() {
+    if args.settings.spp == 0 && args.debug_sample.is_none() {
         bail!("--spp must be positive");
     }
     if let Some(threads) = args.threads {

@@ -1,1 +1,256 @@
-//! glTF 2.0 loading.
+//! glTF 2.0 loading: `.gltf` (JSON, with embedded `data:` URIs or external files fetched through a
+//! [`ResourceResolver`]) and `.glb`, into [`SceneParts`] or a built [`Scene`].
+//!
+//! The tracer does no I/O: external URIs (percent-decoded, relative to the scene file as written) are
+//! handed to the caller's resolver, which decides what may be read ([`NoExternalResources`] refuses
+//! everything, for servers that accept self-contained scenes only).
+//!
+//! # What is loaded
+//! - The default scene (`scene`, else the first; with no scenes, every root node), its node hierarchy
+//!   with TRS or matrix transforms composed parent → child. A node mirrored by its world transform
+//!   (negative determinant) has two corners of each triangle swapped so counter-clockwise stays the
+//!   front face; normals go through the inverse transpose.
+//! - Primitives of mode TRIANGLES, TRIANGLE_STRIP and TRIANGLE_FAN (strips and fans are converted);
+//!   POINTS and LINES are skipped with a warning. Indexed or not; u8/u16/u32 indices. POSITION
+//!   (required), NORMAL, TEXCOORD_0/1 (float or normalized integers), TANGENT. Sparse accessors.
+//!   Integer attributes of KHR_mesh_quantization.
+//! - Per-triangle arrays are stored only when used: normals when some primitive has NORMAL (the others
+//!   get their flat normal), a UV set when some material's texture reads it, tangents when some material
+//!   has a normal map. Primitives without TANGENT get a per-triangle tangent from their UVs (dP/du,
+//!   with the handedness making cross(N, T)·w point to decreasing v, "up" in the image, as glTF
+//!   specifies). This is not MikkTSpace: maps baked against MikkTSpace tangents differ slightly
+//!   across smooth-shaded edges.
+//! - Materials: metallic-roughness, emissive × KHR_materials_emissive_strength, normal map, alpha
+//!   mode, double-sidedness, KHR_materials_specular, _ior, _transmission, _volume, and
+//!   KHR_texture_transform on every texture reference. Primitives without a material get
+//!   `Material::default()`, added once after the file's (used) materials.
+//! - Textures: PNG and JPEG, decoded once per image with limits ([`MAX_IMAGE_SIZE`],
+//!   [`MAX_IMAGE_ALLOC`]); sampler wrap modes and NEAREST magnification.
+//! - KHR_lights_punctual point, spot and directional lights.
+//! - The camera: the first camera node in traversal order, or the one named by [`LoadOptions::camera`];
+//!   its node's scale is stripped.
+//!
+//! The `gltf` crate parses and validates the JSON (`gltf::Document::from_json`, what
+//! `gltf::Gltf::from_slice` does); the GLB container is split here first so that lying lengths give
+//! clear errors, and `extensionsRequired` is checked here (the crate refuses some extensions this
+//! loader supports). All data is then read through bounds-checked code of this module rather than the
+//! crate's readers, which may panic on inconsistent files.
+//!
+//! # What is refused or ignored
+//! - `extensionsRequired` naming anything outside [`SUPPORTED_EXTENSIONS`] is an error.
+//! - Ignored with one warning each (in `SceneParts::warnings` and through `tracing::warn!`):
+//!   unsupported `extensionsUsed` (e.g. KHR_materials_clearcoat, _sheen, _unlit, KHR_draco as
+//!   optional), skins (bind pose), morph targets (base geometry), animations (rest pose), COLOR_0,
+//!   light `range`, TEXCOORD_2+ (TEXCOORD_1 is used). Occlusion textures, camera aspect ratio and
+//!   clip planes, and texture min filters are ignored silently.
+//!
+//! # Robustness
+//! Every length, offset, index and count in the file is checked before use, and every error names the
+//! object at fault (`mesh 3 "Chair", primitive 0: index 812 out of range (accessor 5 has 400
+//! vertices)`). The load never panics on any input; as a last line of defence a panic is caught and
+//! returned as [`GltfError::Internal`].
+
+mod accessors;
+mod camera;
+mod document;
+mod error;
+mod glb;
+mod lights;
+mod materials;
+mod mesh;
+mod nodes;
+mod resources;
+mod textures;
+
+pub use document::SUPPORTED_EXTENSIONS;
+pub use error::GltfError;
+pub use materials::texture_transform_matrix;
+pub use mesh::MAX_TRIANGLES;
+pub use textures::{MAX_IMAGE_ALLOC, MAX_IMAGE_SIZE};
+
+use crate::material::Material;
+use crate::scene::{Scene, SceneParts};
+use accessors::Accessors;
+use error::Warnings;
+use mesh::{MeshBuilder, Needs, PrimitiveMaterial};
+use resources::Resources;
+use std::collections::{BTreeSet, HashMap};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use textures::TextureCache;
+
+/// Fetches the bytes of an external URI (relative to the scene file). The tracer does no I/O itself.
+///
+/// `uri` is the glTF URI percent-decoded (`"my%20file.bin"` arrives as `"my file.bin"`); `data:` URIs
+/// never reach the resolver. Refusing absolute paths, `..` or URL schemes is the resolver's job.
+pub trait ResourceResolver {
+    fn resolve(&self, uri: &str) -> Result<Vec<u8>, String>;
+}
+
+/// A resolver that refuses every external URI (the server uses it; only data: URIs and GLB chunks work).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoExternalResources;
+
+impl ResourceResolver for NoExternalResources {
+    fn resolve(&self, _uri: &str) -> Result<Vec<u8>, String> {
+        Err(
+            "external resources are not allowed (embed them as data: URIs or use a .glb)"
+                .to_string(),
+        )
+    }
+}
+
+/// Choices made while loading.
+#[derive(Default, Clone, Debug)]
+pub struct LoadOptions {
+    /// Camera name (a camera's name, else the name of a node carrying a camera); default: the first
+    /// camera of the scene's nodes in traversal order.
+    pub camera: Option<String>,
+}
+
+/// Loads a glTF or GLB file into the parts of a scene (not yet built).
+pub fn load_parts(
+    bytes: &[u8],
+    resolver: &dyn ResourceResolver,
+    options: &LoadOptions,
+) -> Result<SceneParts, GltfError> {
+    guarded(|| load_parts_unguarded(bytes, resolver, options))
+}
+
+/// Loads a glTF or GLB file and builds the scene ([`load_parts`] + [`Scene::build`]).
+pub fn load(
+    bytes: &[u8],
+    resolver: &dyn ResourceResolver,
+    options: &LoadOptions,
+) -> Result<Scene, GltfError> {
+    let parts = load_parts(bytes, resolver, options)?;
+    guarded(|| Ok(Scene::build(parts)?))
+}
+
+fn guarded<T>(f: impl FnOnce() -> Result<T, GltfError>) -> Result<T, GltfError> {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(result) => result,
+        Err(payload) => {
+            let message = payload
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "panic".to_string());
+            Err(GltfError::Internal(message))
+        }
+    }
+}
+
+fn load_parts_unguarded(
+    bytes: &[u8],
+    resolver: &dyn ResourceResolver,
+    options: &LoadOptions,
+) -> Result<SceneParts, GltfError> {
+    let parsed = document::parse(bytes)?;
+    let root = &parsed.root;
+    let mut warnings = Warnings::default();
+    for w in parsed.warnings {
+        warnings.once(w);
+    }
+    let (roots, note) = nodes::scene_roots(root);
+    if let Some(note) = note {
+        warnings.once(note);
+    }
+    let instances = nodes::traverse(root, &roots)?;
+    document::feature_warnings(root, &instances, &mut warnings);
+    let mesh_of = |node: usize| root.nodes.get(node).and_then(|n| n.mesh).map(|m| m.value());
+
+    // What the scene's primitives use, from the JSON alone.
+    let mut used_materials = BTreeSet::new();
+    let mut default_material = false;
+    let mut any_normals = false;
+    let mut scanned = BTreeSet::new();
+    for inst in &instances {
+        let Some(m) = mesh_of(inst.node) else {
+            continue;
+        };
+        if !scanned.insert(m) {
+            continue;
+        }
+        for info in mesh::scan_mesh(root, m, &mut warnings) {
+            match info.material {
+                Some(i) => {
+                    used_materials.insert(i);
+                }
+                None => default_material = true,
+            }
+            any_normals |= info.has_normals;
+        }
+    }
+
+    let res = Resources::new(root, parsed.bin, resolver);
+    let mut texture_cache = TextureCache::new(root, &res);
+    let mut materials: Vec<Material> = Vec::new();
+    let mut material_map: HashMap<usize, PrimitiveMaterial> = HashMap::new();
+    for &i in &used_materials {
+        let m = materials::convert(root, i, &mut texture_cache, &mut warnings)?;
+        let normal_map_uv = m.normal_texture.as_ref().map(|(r, _)| r.texcoord);
+        material_map.insert(
+            i,
+            PrimitiveMaterial {
+                index: materials.len() as u32,
+                normal_map_uv,
+            },
+        );
+        materials.push(m);
+    }
+    let default_index = materials.len() as u32;
+    if default_material {
+        materials.push(Material::default());
+    }
+    let mut needs = Needs {
+        normals: any_normals,
+        ..Needs::default()
+    };
+    for m in &materials {
+        let refs = [
+            &m.base_color_texture,
+            &m.metallic_roughness_texture,
+            &m.emissive_texture,
+            &m.specular_texture,
+            &m.specular_color_texture,
+            &m.transmission_texture,
+        ];
+        for r in refs
+            .into_iter()
+            .flatten()
+            .chain(m.normal_texture.as_ref().map(|(r, _)| r))
+        {
+            needs.uv[(r.texcoord as usize).min(1)] = true;
+        }
+        needs.tangents |= m.normal_texture.is_some();
+    }
+
+    let acc = Accessors::new(root, &res);
+    let mut builder = MeshBuilder::new(&acc, needs);
+    let material_of = |m: Option<usize>| match m.and_then(|i| material_map.get(&i)) {
+        Some(pm) => *pm,
+        None => PrimitiveMaterial {
+            index: default_index,
+            normal_map_uv: None,
+        },
+    };
+    let mut punctual_lights = Vec::new();
+    for inst in &instances {
+        if let Some(m) = mesh_of(inst.node) {
+            builder.add_instance(m, &inst.world, &material_of, &mut warnings)?;
+        }
+        if let Some(light) = lights::node_light(root, inst.node, &inst.world, &mut warnings)? {
+            punctual_lights.push(light);
+        }
+    }
+    let mesh = builder.finish();
+    let camera = camera::choose(root, &instances, options.camera.as_deref())?;
+    Ok(SceneParts {
+        mesh,
+        materials,
+        textures: texture_cache.finish(),
+        punctual_lights,
+        camera,
+        warnings: warnings.into_vec(),
+    })
+}

@@ -11,7 +11,7 @@ mod sobol;
 
 pub use hash::{hash_u32, hash_words};
 pub use independent::independent_sample;
-pub use sobol::owen_sobol_sample;
+pub use sobol::{owen_sobol_pair, owen_sobol_sample};
 
 use crate::settings::SamplerKind;
 use glam::Vec2;
@@ -64,7 +64,13 @@ impl PixelSampler {
 
     #[inline]
     pub fn get2(&self, dim: u32) -> Vec2 {
-        Vec2::new(self.get1(dim), self.get1(dim + 1))
+        match self.kind {
+            SamplerKind::Sobol => {
+                let (a, b) = owen_sobol_pair(self.pixel_key, self.index, dim);
+                Vec2::new(a, b)
+            }
+            SamplerKind::Independent => Vec2::new(self.get1(dim), self.get1(dim + 1)),
+        }
     }
 
     /// Dimension `offset` of bounce `bounce` (see [`dims`]).

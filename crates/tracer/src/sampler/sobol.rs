@@ -48,19 +48,44 @@ const fn build_directions() -> [[u32; 32]; 4] {
     v
 }
 
+/// `BYTE_TABLES[d][k][b]`: the XOR of the direction numbers of dimension d selected by byte value b
+/// in byte position k of the index. Turns the 32-step generator matrix product into four lookups
+/// (the shuffled indices are full 32-bit numbers, so the bit loop would always run 32 times).
+static BYTE_TABLES: [[[u32; 256]; 4]; 4] = build_byte_tables();
+
+const fn build_byte_tables() -> [[[u32; 256]; 4]; 4] {
+    let mut t = [[[0u32; 256]; 4]; 4];
+    let mut d = 0;
+    while d < 4 {
+        let mut k = 0;
+        while k < 4 {
+            let mut b = 0;
+            while b < 256 {
+                let mut x = 0u32;
+                let mut bit = 0;
+                while bit < 8 {
+                    if (b >> bit) & 1 != 0 {
+                        x ^= DIRECTIONS[d][k * 8 + bit];
+                    }
+                    bit += 1;
+                }
+                t[d][k][b] = x;
+                b += 1;
+            }
+            k += 1;
+        }
+        d += 1;
+    }
+    t
+}
+
 #[inline]
 fn sobol(index: u32, dim: usize) -> u32 {
-    let mut x = 0u32;
-    let mut i = index;
-    let mut b = 0;
-    while i != 0 {
-        if i & 1 != 0 {
-            x ^= DIRECTIONS[dim][b];
-        }
-        i >>= 1;
-        b += 1;
-    }
-    x
+    let t = &BYTE_TABLES[dim];
+    t[0][(index & 0xff) as usize]
+        ^ t[1][((index >> 8) & 0xff) as usize]
+        ^ t[2][((index >> 16) & 0xff) as usize]
+        ^ t[3][(index >> 24) as usize]
 }
 
 /// Laine–Karras style hash that only propagates entropy from lower to higher bits: applied to
@@ -80,16 +105,37 @@ fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
     laine_karras_permutation(x.reverse_bits(), seed).reverse_bits()
 }
 
-/// Dimension `dim` of sample `index` for the pixel whose key is `pixel_key`, in [0, 1).
 #[inline]
-pub fn owen_sobol_sample(pixel_key: u32, index: u32, dim: u32) -> f32 {
-    let group = dim >> 2;
-    let component = (dim & 3) as usize;
-    let group_seed = hash_u32(pixel_key ^ hash_u32(group.wrapping_add(0x68bc_21eb)));
-    let shuffled = nested_uniform_scramble(index, group_seed);
+fn group_seed(pixel_key: u32, dim: u32) -> u32 {
+    hash_u32(pixel_key ^ hash_u32((dim >> 2).wrapping_add(0x68bc_21eb)))
+}
+
+#[inline]
+fn scrambled_component(shuffled: u32, group_seed: u32, component: usize) -> f32 {
     let x = sobol(shuffled, component);
     let comp_seed = hash_u32(group_seed ^ (component as u32 + 1).wrapping_mul(0x9e37_79b9));
     bits_to_unit(nested_uniform_scramble(x, comp_seed))
+}
+
+/// Dimension `dim` of sample `index` for the pixel whose key is `pixel_key`, in [0, 1).
+#[inline]
+pub fn owen_sobol_sample(pixel_key: u32, index: u32, dim: u32) -> f32 {
+    let seed = group_seed(pixel_key, dim);
+    let shuffled = nested_uniform_scramble(index, seed);
+    scrambled_component(shuffled, seed, (dim & 3) as usize)
+}
+
+/// Dimensions `dim` and `dim + 1` at once (same values as two [`owen_sobol_sample`] calls, sharing
+/// the index shuffle when both lie in one group of four).
+#[inline]
+pub fn owen_sobol_pair(pixel_key: u32, index: u32, dim: u32) -> (f32, f32) {
+    if dim & 3 == 3 {
+        return (owen_sobol_sample(pixel_key, index, dim), owen_sobol_sample(pixel_key, index, dim + 1));
+    }
+    let seed = group_seed(pixel_key, dim);
+    let shuffled = nested_uniform_scramble(index, seed);
+    let c = (dim & 3) as usize;
+    (scrambled_component(shuffled, seed, c), scrambled_component(shuffled, seed, c + 1))
 }
 
 #[cfg(test)]
@@ -98,11 +144,33 @@ mod tests {
 
     #[test]
     fn first_dimensions_are_the_known_sobol_sequence() {
-        // Unscrambled Sobol, dims 0 and 1, first 8 points (x 8).
+        // Unscrambled Sobol, dims 0 and 1, first 8 points (x 8), in index (not Gray-code) order.
         let d0: Vec<u32> = (0..8).map(|i| sobol(i, 0) >> 29).collect();
         let d1: Vec<u32> = (0..8).map(|i| sobol(i, 1) >> 29).collect();
         assert_eq!(d0, vec![0, 4, 2, 6, 1, 5, 3, 7]);
-        assert_eq!(d1, vec![0, 4, 6, 2, 3, 7, 5, 1]);
+        assert_eq!(d1, vec![0, 4, 6, 2, 5, 1, 3, 7]);
+    }
+
+    #[test]
+    fn byte_tables_match_the_bit_loop_and_pairs_match_singles() {
+        for d in 0..4 {
+            for i in [0u32, 1, 2, 3, 255, 256, 0xdead_beef, u32::MAX] {
+                let mut x = 0;
+                for b in 0..32 {
+                    if (i >> b) & 1 != 0 {
+                        x ^= DIRECTIONS[d][b];
+                    }
+                }
+                assert_eq!(sobol(i, d), x);
+            }
+        }
+        for dim in 0..9 {
+            for i in 0..50 {
+                let (a, b) = owen_sobol_pair(77, i, dim);
+                assert_eq!(a, owen_sobol_sample(77, i, dim));
+                assert_eq!(b, owen_sobol_sample(77, i, dim + 1));
+            }
+        }
     }
 
     #[test]

@@ -1,0 +1,85 @@
+//! The loader's error type. Every message names the glTF object at fault (with its index and, where it
+//! has one, its name) and says what is wrong with it.
+
+use crate::scene::SceneError;
+
+/// Why a glTF file could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum GltfError {
+    /// Neither a GLB container nor glTF JSON, or JSON that is not a glTF document.
+    #[error("not a glTF file: {0}")]
+    NotGltf(String),
+    /// A malformed GLB container (header or chunk lengths).
+    #[error("GLB: {0}")]
+    Glb(String),
+    /// The document breaks the glTF schema (as the `gltf` crate's validation reports it).
+    #[error("invalid glTF: {0}")]
+    Invalid(String),
+    /// `extensionsRequired` names an extension this loader cannot honour.
+    #[error("required extension {0} is not supported")]
+    UnsupportedExtension(String),
+    /// A buffer or image whose bytes cannot be had (bad data URI, resolver failure, short data).
+    #[error("{object}: {reason}")]
+    Resource { object: String, reason: String },
+    /// Malformed geometry or accessor data (out of bounds, out-of-range index, NaN, wrong type).
+    #[error("{object}: {reason}")]
+    Data { object: String, reason: String },
+    /// An image that cannot be decoded (corrupt, unsupported format, over the decode limits).
+    #[error("{object}: cannot decode: {reason}")]
+    Image { object: String, reason: String },
+    /// A node, camera, light or material with an unusable value (non-finite, degenerate, cyclic).
+    #[error("{object}: {reason}")]
+    Object { object: String, reason: String },
+    /// `LoadOptions::camera` names no camera of the scene.
+    #[error(
+        "camera {name:?} not found; the scene's cameras: {}",
+        list_or_none(available)
+    )]
+    CameraNotFound {
+        name: String,
+        available: Vec<String>,
+    },
+    /// The scene would exceed a hard limit of the loader (triangle count).
+    #[error("limit exceeded: {0}")]
+    Limit(String),
+    /// The loaded parts could not be built into a scene.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// A bug in the loader (a caught panic). Please report it with the file.
+    #[error("internal error while loading glTF (a bug in the loader): {0}")]
+    Internal(String),
+}
+
+fn list_or_none(names: &[String]) -> String {
+    if names.is_empty() {
+        "none".to_string()
+    } else {
+        names.join(", ")
+    }
+}
+
+/// `kind index "name"` (or `kind index` without a name), the way every message names an object.
+pub(crate) fn label(kind: &str, index: usize, name: Option<&str>) -> String {
+    match name {
+        Some(name) => format!("{kind} {index} {name:?}"),
+        None => format!("{kind} {index}"),
+    }
+}
+
+/// Warnings collected during a load, each reported once (and logged with `tracing::warn!`).
+#[derive(Debug, Default)]
+pub(crate) struct Warnings(Vec<String>);
+
+impl Warnings {
+    pub fn once(&mut self, message: impl Into<String>) {
+        let message = message.into();
+        if !self.0.contains(&message) {
+            tracing::warn!("glTF: {message}");
+            self.0.push(message);
+        }
+    }
+
+    pub fn into_vec(self) -> Vec<String> {
+        self.0
+    }
+}

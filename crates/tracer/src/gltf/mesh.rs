@@ -1,0 +1,479 @@
+//! Mesh primitives → world-space triangles.
+//!
+//! Each mesh is read once (however many nodes instance it) into local vertex arrays and index
+//! triples, validated (every index below the vertex count, every float finite), then emitted per
+//! instance: positions by the node's world matrix, normals by its inverse transpose, tangents by the
+//! matrix with the handedness sign flipped under a mirroring transform. A negative determinant swaps
+//! two corners so counter-clockwise stays the front face. Degenerate triangles are kept (the scene
+//! build drops and counts them).
+//!
+//! Tangents: a primitive whose material has a normal map but no TANGENT attribute gets a per-triangle
+//! tangent from its UVs (the standard dP/du, with the sign chosen so that cross(N, T)·w points to
+//! decreasing v, "up" in the image, as glTF specifies). This is not MikkTSpace: normal maps baked
+//! against MikkTSpace tangents show small differences across smooth-shaded edges.
+
+use super::accessors::Accessors;
+use super::error::{label, GltfError, Warnings};
+use crate::geometry::Mesh;
+use glam::{DMat3, DMat4, Vec2, Vec3, Vec4};
+use gltf::json;
+use json::mesh::{Mode, Semantic};
+use json::validation::Checked;
+use std::collections::HashMap;
+use std::rc::Rc;
+
+/// The most triangles a scene may have (instancing can multiply a small file's triangles).
+pub const MAX_TRIANGLES: usize = 100_000_000;
+
+pub(crate) fn mesh_label(root: &json::Root, mesh: usize) -> String {
+    label(
+        "mesh",
+        mesh,
+        root.meshes.get(mesh).and_then(|m| m.name.as_deref()),
+    )
+}
+
+pub(crate) fn primitive_label(root: &json::Root, mesh: usize, primitive: usize) -> String {
+    format!("{}, primitive {primitive}", mesh_label(root, mesh))
+}
+
+/// Which optional per-triangle arrays the scene stores.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Needs {
+    pub normals: bool,
+    pub uv: [bool; 2],
+    pub tangents: bool,
+}
+
+/// A primitive's material as the mesh builder sees it.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PrimitiveMaterial {
+    /// Index into the scene's materials.
+    pub index: u32,
+    /// The UV set of the material's normal map, if it has one.
+    pub normal_map_uv: Option<u8>,
+}
+
+/// A triangle primitive of a mesh, from the JSON alone (no data read).
+#[derive(Clone, Debug)]
+pub(crate) struct PrimitiveInfo {
+    pub primitive: usize,
+    /// glTF material index (`None`: the default material).
+    pub material: Option<usize>,
+    pub has_normals: bool,
+}
+
+/// The triangle primitives of mesh `mesh`; warns (once each) about what is skipped or ignored.
+pub(crate) fn scan_mesh(
+    root: &json::Root,
+    mesh: usize,
+    warnings: &mut Warnings,
+) -> Vec<PrimitiveInfo> {
+    let Some(m) = root.meshes.get(mesh) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for (i, p) in m.primitives.iter().enumerate() {
+        match p.mode {
+            Checked::Valid(Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) => {}
+            Checked::Valid(_) => {
+                warnings.once("points and lines primitives are not rendered; skipped");
+                continue;
+            }
+            Checked::Invalid => {
+                warnings.once(format!(
+                    "{}: invalid mode; skipped",
+                    primitive_label(root, mesh, i)
+                ));
+                continue;
+            }
+        }
+        if p.targets.as_ref().is_some_and(|t| !t.is_empty()) {
+            warnings.once("morph targets are not supported; the base geometry is used");
+        }
+        if p.attributes
+            .contains_key(&Checked::Valid(Semantic::Colors(0)))
+        {
+            warnings.once("vertex colors (COLOR_0) are not supported; ignored");
+        }
+        out.push(PrimitiveInfo {
+            primitive: i,
+            material: p.material.map(|m| m.value()),
+            has_normals: p
+                .attributes
+                .contains_key(&Checked::Valid(Semantic::Normals)),
+        });
+    }
+    out
+}
+
+/// One primitive's local data.
+#[derive(Debug)]
+struct Primitive {
+    info: PrimitiveInfo,
+    triangles: Vec<[u32; 3]>,
+    positions: Vec<Vec3>,
+    normals: Option<Vec<Vec3>>,
+    uv: [Option<Vec<Vec2>>; 2],
+    tangents: Option<Vec<Vec4>>,
+}
+
+/// Accumulates the scene's triangles.
+pub(crate) struct MeshBuilder<'r, 'a> {
+    acc: &'r Accessors<'r, 'a>,
+    needs: Needs,
+    mesh: Mesh,
+    cache: HashMap<usize, Rc<Vec<Primitive>>>,
+}
+
+impl<'r, 'a> MeshBuilder<'r, 'a> {
+    pub fn new(acc: &'r Accessors<'r, 'a>, needs: Needs) -> Self {
+        let mesh = Mesh {
+            normals: needs.normals.then(Vec::new),
+            uv0: needs.uv[0].then(Vec::new),
+            uv1: needs.uv[1].then(Vec::new),
+            tangents: needs.tangents.then(Vec::new),
+            ..Mesh::default()
+        };
+        MeshBuilder {
+            acc,
+            needs,
+            mesh,
+            cache: HashMap::new(),
+        }
+    }
+
+    pub fn finish(self) -> Mesh {
+        self.mesh
+    }
+
+    /// Adds every triangle primitive of mesh `mesh` under the world transform `world`.
+    pub fn add_instance(
+        &mut self,
+        mesh: usize,
+        world: &DMat4,
+        material: &dyn Fn(Option<usize>) -> PrimitiveMaterial,
+        warnings: &mut Warnings,
+    ) -> Result<(), GltfError> {
+        let prims = match self.cache.get(&mesh) {
+            Some(p) => p.clone(),
+            None => {
+                let mut scratch = Warnings::default();
+                let infos = scan_mesh(self.acc.root(), mesh, &mut scratch);
+                let mut prims = Vec::with_capacity(infos.len());
+                for info in infos {
+                    prims.push(self.read_primitive(mesh, info, warnings)?);
+                }
+                let prims = Rc::new(prims);
+                self.cache.insert(mesh, prims.clone());
+                prims
+            }
+        };
+        for p in prims.iter() {
+            let total = self.mesh.len().saturating_add(p.triangles.len());
+            if total > MAX_TRIANGLES {
+                return Err(GltfError::Limit(format!(
+                    "the scene has more than {MAX_TRIANGLES} triangles"
+                )));
+            }
+            let m = material(p.info.material);
+            self.emit(p, world, m, mesh, warnings);
+        }
+        Ok(())
+    }
+
+    fn read_primitive(
+        &self,
+        mesh: usize,
+        info: PrimitiveInfo,
+        warnings: &mut Warnings,
+    ) -> Result<Primitive, GltfError> {
+        let root = self.acc.root();
+        let plabel = primitive_label(root, mesh, info.primitive);
+        let perr = |reason: String| GltfError::Data {
+            object: plabel.clone(),
+            reason,
+        };
+        let Some(prim) = root
+            .meshes
+            .get(mesh)
+            .and_then(|m| m.primitives.get(info.primitive))
+        else {
+            return Err(perr("does not exist".into()));
+        };
+        let attr = |s: Semantic| prim.attributes.get(&Checked::Valid(s)).map(|i| i.value());
+        let Some(pos_index) = attr(Semantic::Positions) else {
+            return Err(perr("has no POSITION attribute".into()));
+        };
+        let positions: Vec<Vec3> = self
+            .acc
+            .read_vec::<3>(pos_index, &format!("POSITION of {plabel}"))?
+            .into_iter()
+            .map(Vec3::from)
+            .collect();
+        let n = positions.len();
+        let same_count = |index: usize, name: &str, got: usize| -> Result<(), GltfError> {
+            if got == n {
+                Ok(())
+            } else {
+                Err(GltfError::Data {
+                    object: self.acc.label(index, &format!("{name} of {plabel}")),
+                    reason: format!(
+                        "has {got} elements but POSITION (accessor {pos_index}) has {n}"
+                    ),
+                })
+            }
+        };
+        let mut normals = None;
+        if let (true, Some(i)) = (self.needs.normals, attr(Semantic::Normals)) {
+            let v = self.acc.read_vec::<3>(i, &format!("NORMAL of {plabel}"))?;
+            same_count(i, "NORMAL", v.len())?;
+            normals = Some(v.into_iter().map(Vec3::from).collect());
+        }
+        let mut uv: [Option<Vec<Vec2>>; 2] = [None, None];
+        for (set, slot) in uv.iter_mut().enumerate() {
+            if let (true, Some(i)) = (self.needs.uv[set], attr(Semantic::TexCoords(set as u32))) {
+                let name = format!("TEXCOORD_{set}");
+                let v = self.acc.read_vec::<2>(i, &format!("{name} of {plabel}"))?;
+                same_count(i, &name, v.len())?;
+                *slot = Some(v.into_iter().map(Vec2::from).collect());
+            }
+        }
+        let mut tangents = None;
+        if let (true, Some(i)) = (self.needs.tangents, attr(Semantic::Tangents)) {
+            let v = self.acc.read_vec::<4>(i, &format!("TANGENT of {plabel}"))?;
+            same_count(i, "TANGENT", v.len())?;
+            tangents = Some(v.into_iter().map(Vec4::from).collect());
+        }
+        let Ok(n32) = u32::try_from(n) else {
+            return Err(perr(format!("{n} vertices are too many")));
+        };
+        let indices: Vec<u32> = match prim.indices {
+            Some(i) => {
+                let i = i.value();
+                let idx = self.acc.read_indices(i, &format!("indices of {plabel}"))?;
+                if let Some(&bad) = idx.iter().find(|&&v| v >= n32) {
+                    return Err(perr(format!(
+                        "index {bad} out of range (accessor {pos_index} has {n} vertices)"
+                    )));
+                }
+                idx
+            }
+            None => (0..n32).collect(),
+        };
+        let triangles = assemble(&indices, prim.mode, &plabel, warnings);
+        Ok(Primitive {
+            info,
+            triangles,
+            positions,
+            normals,
+            uv,
+            tangents,
+        })
+    }
+
+    fn emit(
+        &mut self,
+        p: &Primitive,
+        world: &DMat4,
+        mat: PrimitiveMaterial,
+        mesh: usize,
+        warnings: &mut Warnings,
+    ) {
+        let m3 = DMat3::from_mat4(*world);
+        let det = m3.determinant();
+        let flip = det < 0.0;
+        let sign = if flip { -1.0 } else { 1.0 };
+        // Cofactor matrix = det · M^{-T}; times sign(det) it is |det| · M^{-T}, defined even if singular.
+        let (c0, c1, c2) = (m3.x_axis, m3.y_axis, m3.z_axis);
+        let normal_matrix = DMat3::from_cols(c1.cross(c2), c2.cross(c0), c0.cross(c1)) * sign;
+        let wp: Vec<Vec3> = p
+            .positions
+            .iter()
+            .map(|v| world.transform_point3(v.as_dvec3()).as_vec3())
+            .collect();
+        let wn: Option<Vec<Vec3>> = p.normals.as_ref().map(|ns| {
+            ns.iter()
+                .map(|n| (normal_matrix * n.as_dvec3()).normalize_or_zero().as_vec3())
+                .collect()
+        });
+        let wt: Option<Vec<Vec4>> = p.tangents.as_ref().map(|ts| {
+            ts.iter()
+                .map(|t| {
+                    let xyz = (m3 * t.truncate().as_dvec3()).normalize_or_zero().as_vec3();
+                    let w = if t.w < 0.0 { -1.0 } else { 1.0 } * sign as f32;
+                    xyz.extend(w)
+                })
+                .collect()
+        });
+        let tangent_uv = mat
+            .normal_map_uv
+            .and_then(|s| p.uv.get(s as usize).and_then(|u| u.as_ref()));
+        if self.needs.tangents
+            && mat.normal_map_uv.is_some()
+            && wt.is_none()
+            && tangent_uv.is_none()
+        {
+            warnings.once(format!(
+                "{}: normal map without TANGENT or texture coordinates; normal map ignored",
+                primitive_label(self.acc.root(), mesh, p.info.primitive)
+            ));
+        }
+        for t in &p.triangles {
+            let [a, b, c] = if flip { [t[0], t[2], t[1]] } else { *t };
+            let [a, b, c] = [a as usize, b as usize, c as usize];
+            let pos = [wp[a], wp[b], wp[c]];
+            self.mesh.positions.push(pos);
+            self.mesh.material.push(mat.index);
+            let flat = (pos[1] - pos[0]).cross(pos[2] - pos[0]).normalize_or_zero();
+            if let Some(normals) = &mut self.mesh.normals {
+                let corner = |i: usize| match &wn {
+                    Some(wn) if wn[i] != Vec3::ZERO => wn[i],
+                    _ => flat,
+                };
+                normals.push([corner(a), corner(b), corner(c)]);
+            }
+            for (set, slot) in [&mut self.mesh.uv0, &mut self.mesh.uv1]
+                .into_iter()
+                .enumerate()
+            {
+                if let Some(out) = slot {
+                    out.push(match &p.uv[set] {
+                        Some(uv) => [uv[a], uv[b], uv[c]],
+                        None => [Vec2::ZERO; 3],
+                    });
+                }
+            }
+            if let Some(out) = &mut self.mesh.tangents {
+                out.push(match (&wt, tangent_uv) {
+                    (Some(wt), _) => [wt[a], wt[b], wt[c]],
+                    (None, Some(uv)) => [generate_tangent(pos, [uv[a], uv[b], uv[c]]); 3],
+                    (None, None) => [Vec4::ZERO; 3],
+                });
+            }
+        }
+    }
+}
+
+/// Index list → triangles for TRIANGLES, TRIANGLE_STRIP and TRIANGLE_FAN (the glTF spec's orders).
+fn assemble(
+    indices: &[u32],
+    mode: Checked<Mode>,
+    plabel: &str,
+    warnings: &mut Warnings,
+) -> Vec<[u32; 3]> {
+    let n = indices.len();
+    match mode {
+        Checked::Valid(Mode::TriangleStrip) => (0..n.saturating_sub(2))
+            .map(|i| {
+                let (x, y) = if i % 2 == 0 {
+                    (i + 1, i + 2)
+                } else {
+                    (i + 2, i + 1)
+                };
+                [indices[i], indices[x], indices[y]]
+            })
+            .collect(),
+        Checked::Valid(Mode::TriangleFan) => (1..n.saturating_sub(1))
+            .map(|i| [indices[i], indices[i + 1], indices[0]])
+            .collect(),
+        _ => {
+            let leftover = n % 3;
+            if leftover > 0 {
+                warnings.once(format!(
+                    "{plabel}: {leftover} trailing indices (not a whole triangle) ignored"
+                ));
+            }
+            indices
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect()
+        }
+    }
+}
+
+/// A per-triangle tangent from positions and UVs: dP/du, with w such that cross(N, T)·w follows
+/// −dP/dv (image "up"), N the geometric (front) normal.
+pub(crate) fn generate_tangent(p: [Vec3; 3], uv: [Vec2; 3]) -> Vec4 {
+    let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
+    let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
+    let n = e1.cross(e2);
+    let fallback = || {
+        let n = n.normalize_or_zero();
+        if n == Vec3::ZERO {
+            Vec4::new(1.0, 0.0, 0.0, 1.0)
+        } else {
+            n.any_orthonormal_vector().extend(1.0)
+        }
+    };
+    let det = d1.x * d2.y - d2.x * d1.y;
+    if det == 0.0 || !det.is_finite() {
+        return fallback();
+    }
+    let r = 1.0 / det;
+    let dpdu = (e1 * d2.y - e2 * d1.y) * r;
+    let dpdv = (e2 * d1.x - e1 * d2.x) * r;
+    let t = dpdu.normalize_or_zero();
+    if t == Vec3::ZERO || !t.is_finite() {
+        return fallback();
+    }
+    let w = if n.cross(t).dot(-dpdv) < 0.0 {
+        -1.0
+    } else {
+        1.0
+    };
+    t.extend(w)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tangent_follows_u_and_image_up() {
+        // Triangle in the XY plane facing +Z; u along +X, v = 1 − y (image top at y = 1).
+        let p = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let uv = [
+            Vec2::new(0.0, 1.0),
+            Vec2::new(1.0, 1.0),
+            Vec2::new(0.0, 0.0),
+        ];
+        let t = generate_tangent(p, uv);
+        assert!(
+            (t.truncate() - Vec3::X).length() < 1e-6 && t.w == 1.0,
+            "{t}"
+        );
+        // Mirrored UVs (v = y) flip the handedness.
+        let uv = [
+            Vec2::new(0.0, 0.0),
+            Vec2::new(1.0, 0.0),
+            Vec2::new(0.0, 1.0),
+        ];
+        assert_eq!(generate_tangent(p, uv).w, -1.0);
+        // Degenerate UVs fall back to some unit tangent.
+        let t = generate_tangent(p, [Vec2::ZERO; 3]);
+        assert!((t.truncate().length() - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn strips_and_fans_keep_winding() {
+        let mut w = Warnings::default();
+        let strip = assemble(
+            &[0, 1, 2, 3],
+            Checked::Valid(Mode::TriangleStrip),
+            "p",
+            &mut w,
+        );
+        assert_eq!(strip, vec![[0, 1, 2], [1, 3, 2]]);
+        let fan = assemble(
+            &[0, 1, 2, 3],
+            Checked::Valid(Mode::TriangleFan),
+            "p",
+            &mut w,
+        );
+        assert_eq!(fan, vec![[1, 2, 0], [2, 3, 0]]);
+        let tris = assemble(&[0, 1, 2, 3], Checked::Valid(Mode::Triangles), "p", &mut w);
+        assert_eq!(tris, vec![[0, 1, 2]]);
+        assert_eq!(w.into_vec().len(), 1);
+    }
+}

@@ -1,0 +1,112 @@
+//! The Cornell box against an independent renderer (Mitsuba 3, 8192 spp, `../shared/refs/`): a
+//! per-pixel z-test (≥ 99% of pixels within 3.3 combined standard errors) and the image mean within
+//! 0.5%, for every direct-lighting strategy.
+//!
+//! Our own per-pixel standard error comes, like the reference's, from the spread of independent
+//! batches (here: different seeds, so each batch is an independent randomization of the Sobol
+//! sequence).
+
+mod common;
+
+use common::shared_dir;
+use pathfarm_tracer::gltf::{load, LoadOptions, NoExternalResources};
+use pathfarm_tracer::output::decode_exr;
+use pathfarm_tracer::{render_image, DirectStrategy, RenderSettings, Scene};
+
+const BATCHES: u32 = 32;
+const SPP_PER_BATCH: u32 = 4;
+
+struct Reference {
+    mean: [Vec<f32>; 3],
+    stderr: [Vec<f32>; 3],
+}
+
+fn load_reference(shared: &std::path::Path) -> Reference {
+    let img = decode_exr(&std::fs::read(shared.join("refs/cornell.exr")).expect("reference")).expect("decodes");
+    let se = decode_exr(&std::fs::read(shared.join("refs/cornell.stderr.exr")).expect("stderr")).expect("decodes");
+    let ch = |i: &pathfarm_tracer::output::FloatImage, c: &str| i.channel(c).expect("channel").to_vec();
+    Reference {
+        mean: [ch(&img, "R"), ch(&img, "G"), ch(&img, "B")],
+        stderr: [ch(&se, "R"), ch(&se, "G"), ch(&se, "B")],
+    }
+}
+
+fn cornell(shared: &std::path::Path) -> Scene {
+    let bytes = std::fs::read(shared.join("scenes/cornell.gltf")).expect("scene");
+    load(&bytes, &NoExternalResources, &LoadOptions::default()).expect("cornell loads")
+}
+
+/// Per-pixel, per-channel batch means → (mean, standard error of the mean).
+fn render_batches(scene: &Scene, direct: DirectStrategy) -> ([Vec<f64>; 3], [Vec<f64>; 3]) {
+    let n = 256 * 256;
+    let mut sum = [vec![0f64; n], vec![0f64; n], vec![0f64; n]];
+    let mut sum_sq = sum.clone();
+    for b in 0..BATCHES {
+        let settings = RenderSettings { direct, seed: 1000 + b as u64, ..RenderSettings::new(256, 256) };
+        let acc = render_image(scene, &settings, 32, 0..SPP_PER_BATCH, &|_| {});
+        assert_eq!(acc.invalid_count, 0, "{direct}: invalid samples {:?}", acc.invalid);
+        for (i, p) in acc.pixels.iter().enumerate() {
+            let m = p.mean();
+            for c in 0..3 {
+                sum[c][i] += m[c];
+                sum_sq[c][i] += m[c] * m[c];
+            }
+        }
+    }
+    let k = BATCHES as f64;
+    let mut mean = sum.clone();
+    let mut se = sum.clone();
+    for c in 0..3 {
+        for i in 0..n {
+            let m = sum[c][i] / k;
+            let var = ((sum_sq[c][i] / k - m * m) * k / (k - 1.0)).max(0.0);
+            mean[c][i] = m;
+            se[c][i] = (var / k).sqrt();
+        }
+    }
+    (mean, se)
+}
+
+#[test]
+fn cornell_box_matches_the_independent_reference_for_every_strategy() {
+    let Some(shared) = shared_dir() else { return };
+    let reference = load_reference(&shared);
+    let scene = cornell(&shared);
+    let n = 256 * 256;
+    let ref_mean: Vec<f64> = (0..3).map(|c| reference.mean[c].iter().map(|&v| v as f64).sum::<f64>() / n as f64).collect();
+    let mut failures = Vec::new();
+    for direct in DirectStrategy::ALL {
+        let (mean, se) = render_batches(&scene, direct);
+        // Per-pixel z-test: a pixel passes when all three channels lie within 3.3 combined errors.
+        let mut passing = 0usize;
+        for i in 0..n {
+            let ok = (0..3).all(|c| {
+                let d = mean[c][i] - reference.mean[c][i] as f64;
+                let s = (se[c][i].powi(2) + (reference.stderr[c][i] as f64).powi(2)).sqrt();
+                if s == 0.0 {
+                    d.abs() < 1e-6
+                } else {
+                    (d / s).abs() <= 3.3
+                }
+            });
+            passing += ok as usize;
+        }
+        let fraction = passing as f64 / n as f64;
+        let our_mean: Vec<f64> = (0..3).map(|c| mean[c].iter().sum::<f64>() / n as f64).collect();
+        let rel: Vec<f64> = (0..3).map(|c| our_mean[c] / ref_mean[c] - 1.0).collect();
+        eprintln!(
+            "{direct:>10}: {:.2}% of pixels pass; image mean rel. diff R {:+.3}% G {:+.3}% B {:+.3}%",
+            fraction * 100.0,
+            rel[0] * 100.0,
+            rel[1] * 100.0,
+            rel[2] * 100.0
+        );
+        if fraction < 0.99 {
+            failures.push(format!("{direct}: only {:.2}% of pixels pass the z-test", fraction * 100.0));
+        }
+        if rel.iter().any(|r| r.abs() > 0.005) {
+            failures.push(format!("{direct}: image mean off by {rel:?}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
