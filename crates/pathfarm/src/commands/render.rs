@@ -5,7 +5,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pathfarm_tracer::gltf::{self, LoadOptions};
-use pathfarm_tracer::output::{encode_exr, encode_png, ExrChannels};
+use pathfarm_tracer::output::{decode_exr, encode_exr, encode_png, ExrChannels};
 use pathfarm_tracer::{render_image, render_sample, Accumulation, DirectStrategy, RenderSettings, RussianRoulette, SamplerKind, Scene};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -79,6 +79,10 @@ pub struct RenderArgs {
     /// Re-render one sample alone and print it: X,Y,INDEX (for debugging a reported invalid sample).
     #[arg(long, value_name = "X,Y,INDEX")]
     pub debug_sample: Option<String>,
+    /// A reference EXR of the same size: after every pass, print the elapsed time and the RMSE
+    /// against it as a fraction of the reference's mean (for speed-against-accuracy measurements).
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
     /// Output file: .exr (float32 linear) or .png (tone-mapped sRGB).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -137,7 +141,19 @@ pub fn run(args: RenderArgs) -> Result<()> {
         bail!("--out must end in .exr or .png, not {}", out.display());
     }
 
-    let (acc, elapsed) = render_progressive(&scene, &settings, settings_spp(&args), args.tile, args.time_limit);
+    let reference = match &args.reference {
+        Some(path) => {
+            let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let img = decode_exr(&bytes).with_context(|| format!("cannot decode {}", path.display()))?;
+            if (img.width, img.height) != (settings.width as usize, settings.height as usize) {
+                bail!("reference is {}x{}, the render {}x{}", img.width, img.height, settings.width, settings.height);
+            }
+            Some([img.channel("R")?.to_vec(), img.channel("G")?.to_vec(), img.channel("B")?.to_vec()])
+        }
+        None => None,
+    };
+    let (acc, elapsed) =
+        render_progressive(&scene, &settings, args.settings.spp, args.tile, args.time_limit, reference.as_ref());
     let samples = acc.total_samples();
     let secs = elapsed.as_secs_f64();
     let bytes = match ext.as_deref() {
@@ -162,8 +178,21 @@ pub fn run(args: RenderArgs) -> Result<()> {
     Ok(())
 }
 
-fn settings_spp(args: &RenderArgs) -> u32 {
-    args.settings.spp
+/// RMSE of the mean image against a reference, over all pixels and channels, divided by the
+/// reference's mean.
+pub fn relative_rmse(acc: &Accumulation, reference: &[Vec<f32>; 3]) -> f64 {
+    let mut se = 0.0;
+    let mut sum = 0.0;
+    for (i, p) in acc.pixels.iter().enumerate() {
+        let m = p.mean();
+        for c in 0..3 {
+            let r = reference[c][i] as f64;
+            se += (m[c] - r) * (m[c] - r);
+            sum += r;
+        }
+    }
+    let n = acc.pixels.len() as f64 * 3.0;
+    (se / n).sqrt() / (sum / n)
 }
 
 /// Renders in passes of growing sample ranges ([0,1), [1,2), [2,4), … up to `spp`), so a time limit
@@ -174,6 +203,7 @@ pub fn render_progressive(
     spp: u32,
     tile: u32,
     time_limit: Option<f64>,
+    reference: Option<&[Vec<f32>; 3]>,
 ) -> (Accumulation, Duration) {
     let pixels = settings.width as u64 * settings.height as u64;
     let bar = ProgressBar::new(pixels * spp as u64);
@@ -195,6 +225,10 @@ pub fn render_progressive(
         let _ = image.merge(&pass);
         begin = end;
         let secs = start.elapsed().as_secs_f64();
+        if let Some(reference) = reference {
+            // The comparison costs about a millisecond; it is included in later passes' times.
+            bar.suspend(|| println!("pass to {begin:>5} spp: {secs:8.3} s, RMSE {:.2}% of the reference mean", relative_rmse(&image, reference) * 100.0));
+        }
         bar.set_message(format!("{begin} spp, {:.2} M samples/s", image.total_samples() as f64 / secs / 1e6));
         if let Some(limit) = time_limit {
             if secs >= limit {
