@@ -8,7 +8,11 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "pathfarm", version, about = "A render farm and Monte Carlo path tracer for glTF 2.0 scenes")]
+#[command(
+    name = "pathfarm",
+    version,
+    about = "A render farm and Monte Carlo path tracer for glTF 2.0 scenes"
+)]
 struct Cli {
     /// Log filter (e.g. `info`, `pathfarm_tracer=debug`); also read from RUST_LOG.
     #[arg(long, global = true, default_value = "info", env = "RUST_LOG")]
@@ -25,8 +29,12 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let filter = tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+    let filter = tracing_subscriber::EnvFilter::try_new(&cli.log)
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
     let result = match cli.command {
         Command::Render(args) => commands::render::run(args),
     };

@@ -59,7 +59,11 @@ impl PixelAccum {
             return [0.0; 3];
         }
         let n = self.count as f64 * FIXED_SCALE;
-        [self.sum[0] as f64 / n, self.sum[1] as f64 / n, self.sum[2] as f64 / n]
+        [
+            self.sum[0] as f64 / n,
+            self.sum[1] as f64 / n,
+            self.sum[2] as f64 / n,
+        ]
     }
 
     /// Unbiased estimate of the variance *of the mean* of this pixel's luminance (sample variance / n);
@@ -123,7 +127,9 @@ pub struct Accumulation {
 
 /// Why two accumulations could not be added.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
-#[error("accumulation of {got_w}x{got_h} at ({got_x},{got_y}) does not fit inside {w}x{h} at ({x},{y})")]
+#[error(
+    "accumulation of {got_w}x{got_h} at ({got_x},{got_y}) does not fit inside {w}x{h} at ({x},{y})"
+)]
 pub struct MergeError {
     pub got_x: u32,
     pub got_y: u32,
@@ -175,9 +181,13 @@ impl Accumulation {
             });
         }
         for row in 0..other.height {
-            let src = &other.pixels[(row * other.width) as usize..((row + 1) * other.width) as usize];
+            let src =
+                &other.pixels[(row * other.width) as usize..((row + 1) * other.width) as usize];
             let start = ((other.y0 - self.y0 + row) * self.width + (other.x0 - self.x0)) as usize;
-            for (d, s) in self.pixels[start..start + other.width as usize].iter_mut().zip(src) {
+            for (d, s) in self.pixels[start..start + other.width as usize]
+                .iter_mut()
+                .zip(src)
+            {
                 d.merge(s);
             }
         }
@@ -198,12 +208,18 @@ impl Accumulation {
 
     /// Mean image, linear RGB, row-major.
     pub fn mean_image(&self) -> Vec<[f32; 3]> {
-        self.pixels.iter().map(|p| p.mean().map(|c| c as f32)).collect()
+        self.pixels
+            .iter()
+            .map(|p| p.mean().map(|c| c as f32))
+            .collect()
     }
 
     /// Per-pixel estimated variance of the mean luminance (0 where fewer than two samples).
     pub fn variance_image(&self) -> Vec<f32> {
-        self.pixels.iter().map(|p| p.variance_of_mean().unwrap_or(0.0) as f32).collect()
+        self.pixels
+            .iter()
+            .map(|p| p.variance_of_mean().unwrap_or(0.0) as f32)
+            .collect()
     }
 
     /// Image-level relative error estimate: the estimated RMS error of the per-pixel means divided by

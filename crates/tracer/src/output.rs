@@ -29,7 +29,10 @@ pub struct ExrChannels {
 }
 
 /// Encodes the mean image of `acc` as an EXR (float32, linear RGB).
-pub fn encode_exr(acc: &Accumulation, channels: ExrChannels) -> std::result::Result<Vec<u8>, ImageError> {
+pub fn encode_exr(
+    acc: &Accumulation,
+    channels: ExrChannels,
+) -> std::result::Result<Vec<u8>, ImageError> {
     let mean = acc.mean_image();
     let size = (acc.width as usize, acc.height as usize);
     let plane = |c: usize| -> Vec<f32> { mean.iter().map(|p| p[c]).collect() };
@@ -38,16 +41,27 @@ pub fn encode_exr(acc: &Accumulation, channels: ExrChannels) -> std::result::Res
     list.push(AnyChannel::new("G", FlatSamples::F32(plane(1))));
     list.push(AnyChannel::new("B", FlatSamples::F32(plane(2))));
     if channels.variance {
-        list.push(AnyChannel::new("variance", FlatSamples::F32(acc.variance_image())));
+        list.push(AnyChannel::new(
+            "variance",
+            FlatSamples::F32(acc.variance_image()),
+        ));
     }
     if channels.samples {
         let counts = acc.pixels.iter().map(|p| p.count as f32).collect();
         list.push(AnyChannel::new("samples", FlatSamples::F32(counts)));
     }
-    let layer = Layer::new(size, LayerAttributes::named("pathfarm"), Encoding::SMALL_LOSSLESS, AnyChannels::sort(list));
+    let layer = Layer::new(
+        size,
+        LayerAttributes::named("pathfarm"),
+        Encoding::SMALL_LOSSLESS,
+        AnyChannels::sort(list),
+    );
     let image = Image::from_layer(layer);
     let mut out = Cursor::new(Vec::new());
-    image.write().to_buffered(&mut out).map_err(|e| ImageError::Exr(e.to_string()))?;
+    image
+        .write()
+        .to_buffered(&mut out)
+        .map_err(|e| ImageError::Exr(e.to_string()))?;
     Ok(out.into_inner())
 }
 
@@ -56,17 +70,37 @@ pub fn encode_exr(acc: &Accumulation, channels: ExrChannels) -> std::result::Res
 pub fn tonemap(c: f32, exposure: f32) -> u8 {
     let v = (c * exposure.exp2()).clamp(0.0, 1.0);
     let v = if v.is_nan() { 0.0 } else { v };
-    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+    let s = if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
     (s * 255.0 + 0.5) as u8
 }
 
 /// Encodes the mean image of `acc` as an 8-bit sRGB PNG with the documented tone map.
 pub fn encode_png(acc: &Accumulation, exposure: f32) -> std::result::Result<Vec<u8>, ImageError> {
-    let rgb: Vec<u8> =
-        acc.mean_image().iter().flat_map(|p| [tonemap(p[0], exposure), tonemap(p[1], exposure), tonemap(p[2], exposure)]).collect();
+    let rgb: Vec<u8> = acc
+        .mean_image()
+        .iter()
+        .flat_map(|p| {
+            [
+                tonemap(p[0], exposure),
+                tonemap(p[1], exposure),
+                tonemap(p[2], exposure),
+            ]
+        })
+        .collect();
     let mut out = Cursor::new(Vec::new());
-    image::write_buffer_with_format(&mut out, &rgb, acc.width, acc.height, image::ExtendedColorType::Rgb8, image::ImageFormat::Png)
-        .map_err(|e| ImageError::Png(e.to_string()))?;
+    image::write_buffer_with_format(
+        &mut out,
+        &rgb,
+        acc.width,
+        acc.height,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| ImageError::Png(e.to_string()))?;
     Ok(out.into_inner())
 }
 
@@ -106,7 +140,11 @@ pub fn decode_exr(bytes: &[u8]) -> std::result::Result<FloatImage, ImageError> {
         .iter()
         .map(|c| (c.name.to_string(), c.sample_data.values_as_f32().collect()))
         .collect();
-    Ok(FloatImage { width, height, channels })
+    Ok(FloatImage {
+        width,
+        height,
+        channels,
+    })
 }
 
 #[cfg(test)]
@@ -121,7 +159,14 @@ mod tests {
             p.add_sample(Vec3::new(i as f32, 0.5, 0.25));
             p.add_sample(Vec3::new(i as f32 + 1.0, 0.5, 0.25));
         }
-        let bytes = encode_exr(&acc, ExrChannels { variance: true, samples: true }).unwrap();
+        let bytes = encode_exr(
+            &acc,
+            ExrChannels {
+                variance: true,
+                samples: true,
+            },
+        )
+        .unwrap();
         let img = decode_exr(&bytes).unwrap();
         assert_eq!((img.width, img.height), (3, 2));
         assert_eq!(img.channel("R").unwrap(), &[0.5, 1.5, 2.5, 3.5, 4.5, 5.5]);

@@ -118,7 +118,9 @@ impl FromStr for SamplerKind {
         match s {
             "sobol" => Ok(SamplerKind::Sobol),
             "independent" => Ok(SamplerKind::Independent),
-            _ => Err(format!("unknown sampler {s:?} (expected sobol or independent)")),
+            _ => Err(format!(
+                "unknown sampler {s:?} (expected sobol or independent)"
+            )),
         }
     }
 }
@@ -156,6 +158,8 @@ impl RenderSettings {
     }
 
     pub(crate) fn depth_limit(&self) -> u32 {
-        self.max_depth.unwrap_or(SAFETY_MAX_DEPTH).min(SAFETY_MAX_DEPTH)
+        self.max_depth
+            .unwrap_or(SAFETY_MAX_DEPTH)
+            .min(SAFETY_MAX_DEPTH)
     }
 }

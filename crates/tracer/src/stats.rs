@@ -33,7 +33,11 @@ pub fn chi_square_test(observed: &[f64], expected: &[f64], min_expected: f64) ->
     for &i in &order {
         if expected[i] <= 0.0 {
             if observed[i] > 0.0 {
-                return ChiSquare { statistic: f64::INFINITY, dof: 0, p_value: 0.0 };
+                return ChiSquare {
+                    statistic: f64::INFINITY,
+                    dof: 0,
+                    p_value: 0.0,
+                };
             }
             continue;
         }
@@ -56,7 +60,11 @@ pub fn chi_square_test(observed: &[f64], expected: &[f64], min_expected: f64) ->
         bins += 1;
     }
     let dof = bins.saturating_sub(1).max(1);
-    ChiSquare { statistic, dof, p_value: chi_square_sf(statistic, dof as f64) }
+    ChiSquare {
+        statistic,
+        dof,
+        p_value: chi_square_sf(statistic, dof as f64),
+    }
 }
 
 /// Survival function of the chi-square distribution with `k` degrees of freedom: Q(k/2, x/2).
@@ -209,7 +217,10 @@ mod tests {
 
     #[test]
     fn sphere_bins_integrate_a_uniform_pdf_to_one() {
-        let bins = SphereBins { n_theta: 10, n_phi: 20 };
+        let bins = SphereBins {
+            n_theta: 10,
+            n_phi: 20,
+        };
         let e = bins.integrate(|_| 1.0 / (4.0 * PI), 2);
         assert!((e.iter().sum::<f64>() - 1.0).abs() < 1e-9);
         assert_eq!(bins.bin(Vec3::Z), 0);

@@ -17,8 +17,14 @@ fn check(scene: &pathfarm_tracer::Scene, exact: f64, settings: &RenderSettings, 
         settings.sampler.to_string(),
         settings.rr.to_string()
     );
-    assert!(z.abs() < 3.0, "{settings:?}: mean {mean} differs from exact {exact} by {z:.2} standard errors");
-    assert!(se < 0.02 * exact, "test too weak: standard error {se} for value {exact}");
+    assert!(
+        z.abs() < 3.0,
+        "{settings:?}: mean {mean} differs from exact {exact} by {z:.2} standard errors"
+    );
+    assert!(
+        se < 0.02 * exact,
+        "test too weak: standard error {se} for value {exact}"
+    );
 }
 
 #[test]
@@ -28,7 +34,12 @@ fn furnace_box_is_le_over_one_minus_rho_for_every_strategy() {
     let exact = (le / (1.0 - rho)) as f64;
     for sampler in [SamplerKind::Sobol, SamplerKind::Independent] {
         for direct in DirectStrategy::ALL {
-            let settings = RenderSettings { direct, sampler, seed: 7, ..RenderSettings::new(32, 32) };
+            let settings = RenderSettings {
+                direct,
+                sampler,
+                seed: 7,
+                ..RenderSettings::new(32, 32)
+            };
             check(&scene, exact, &settings, 16);
         }
     }
@@ -39,21 +50,37 @@ fn furnace_box_with_high_albedo_and_roulette_settings() {
     let (rho, le) = (0.8f32, 0.25f32);
     let scene = furnace_box(rho, le);
     let exact = (le / (1.0 - rho)) as f64;
-    for rr in [RussianRoulette::Auto, RussianRoulette::Fixed(0.8), RussianRoulette::Fixed(0.95)] {
-        let settings = RenderSettings { rr, sampler: SamplerKind::Independent, seed: 3, ..RenderSettings::new(32, 32) };
+    for rr in [
+        RussianRoulette::Auto,
+        RussianRoulette::Fixed(0.8),
+        RussianRoulette::Fixed(0.95),
+    ] {
+        let settings = RenderSettings {
+            rr,
+            sampler: SamplerKind::Independent,
+            seed: 3,
+            ..RenderSettings::new(32, 32)
+        };
         check(&scene, exact, &settings, 32);
     }
     // Without roulette a path only ends when its throughput underflows (~150 bounces at albedo
     // 0.5): slow, so a small image.
     let scene = furnace_box(0.5, 1.0);
-    let settings = RenderSettings { rr: RussianRoulette::Off, sampler: SamplerKind::Independent, ..RenderSettings::new(16, 16) };
+    let settings = RenderSettings {
+        rr: RussianRoulette::Off,
+        sampler: SamplerKind::Independent,
+        ..RenderSettings::new(16, 16)
+    };
     check(&scene, 2.0, &settings, 4);
 }
 
 #[test]
 fn a_depth_cap_is_biased_low() {
     let scene = furnace_box(0.5, 1.0);
-    let settings = RenderSettings { max_depth: Some(1), ..RenderSettings::new(16, 16) };
+    let settings = RenderSettings {
+        max_depth: Some(1),
+        ..RenderSettings::new(16, 16)
+    };
     let acc = render_image(&scene, &settings, 16, 0..8, &|_| {});
     let (mean, _) = image_mean_and_stderr(&acc);
     // Emission seen directly (1) plus one bounce (0.5): 1.5 instead of 2.
@@ -67,7 +94,12 @@ fn sphere_lit_by_a_point_light_at_its_centre() {
     let exact = (rho * i) as f64 / (std::f64::consts::PI * (r * r) as f64 * (1.0 - rho) as f64);
     for sampler in [SamplerKind::Sobol, SamplerKind::Independent] {
         for direct in DirectStrategy::ALL {
-            let settings = RenderSettings { direct, sampler, seed: 11, ..RenderSettings::new(32, 32) };
+            let settings = RenderSettings {
+                direct,
+                sampler,
+                seed: 11,
+                ..RenderSettings::new(32, 32)
+            };
             check(&scene, exact, &settings, 16);
         }
     }

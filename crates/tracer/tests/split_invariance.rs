@@ -4,7 +4,9 @@
 mod common;
 
 use common::*;
-use pathfarm_tracer::{render_image, render_tile, Accumulation, RenderSettings, SamplerKind, Scene, Tile};
+use pathfarm_tracer::{
+    render_image, render_tile, Accumulation, RenderSettings, SamplerKind, Scene, Tile,
+};
 
 /// A small deterministic generator for the random partitions (the test itself must be reproducible).
 struct SplitMix(u64);
@@ -22,7 +24,10 @@ impl SplitMix {
 }
 
 fn scenes() -> Vec<(&'static str, Scene)> {
-    vec![("furnace box", furnace_box(0.7, 0.5)), ("point-lit sphere", sphere_with_point_light(1.0, 0.6, 5.0))]
+    vec![
+        ("furnace box", furnace_box(0.7, 0.5)),
+        ("point-lit sphere", sphere_with_point_light(1.0, 0.6, 5.0)),
+    ]
 }
 
 fn pixels_equal(a: &Accumulation, b: &Accumulation) -> bool {
@@ -34,13 +39,19 @@ fn random_partitions_of_the_sample_range_and_tiles_give_identical_bits() {
     let mut rng = SplitMix(42);
     for (name, scene) in scenes() {
         for sampler in [SamplerKind::Sobol, SamplerKind::Independent] {
-            let settings = RenderSettings { sampler, seed: 99, ..RenderSettings::new(24, 20) };
+            let settings = RenderSettings {
+                sampler,
+                seed: 99,
+                ..RenderSettings::new(24, 20)
+            };
             let spp = 13;
             let reference = render_image(&scene, &settings, 8, 0..spp, &|_| {});
             assert_eq!(reference.total_samples(), 24 * 20 * spp as u64);
             for trial in 0..4 {
                 // Random cut points of [0, spp) and a random tile size for each piece.
-                let mut cuts: Vec<u32> = (0..rng.below(5) + 1).map(|_| rng.below(spp as u64) as u32).collect();
+                let mut cuts: Vec<u32> = (0..rng.below(5) + 1)
+                    .map(|_| rng.below(spp as u64) as u32)
+                    .collect();
                 cuts.extend([0, spp]);
                 cuts.sort_unstable();
                 cuts.dedup();
@@ -64,7 +75,10 @@ fn random_partitions_of_the_sample_range_and_tiles_give_identical_bits() {
                     pieces.push(b);
                 }
                 let combined = pieces.pop().expect("one left");
-                assert!(pixels_equal(&combined, &reference), "{name}, {sampler}, trial {trial}: cuts {cuts:?} differ");
+                assert!(
+                    pixels_equal(&combined, &reference),
+                    "{name}, {sampler}, trial {trial}: cuts {cuts:?} differ"
+                );
             }
         }
     }
@@ -73,7 +87,10 @@ fn random_partitions_of_the_sample_range_and_tiles_give_identical_bits() {
 #[test]
 fn one_and_two_threads_give_identical_images() {
     for (name, scene) in scenes() {
-        let settings = RenderSettings { seed: 5, ..RenderSettings::new(32, 24) };
+        let settings = RenderSettings {
+            seed: 5,
+            ..RenderSettings::new(32, 24)
+        };
         let run = |threads: usize| {
             rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
@@ -91,11 +108,20 @@ fn one_and_two_threads_give_identical_images() {
 #[test]
 fn the_same_seed_gives_the_same_bits_and_another_seed_does_not() {
     let scene = furnace_box(0.7, 0.5);
-    let a = RenderSettings { seed: 1, ..RenderSettings::new(16, 16) };
-    let b = RenderSettings { seed: 2, ..a.clone() };
+    let a = RenderSettings {
+        seed: 1,
+        ..RenderSettings::new(16, 16)
+    };
+    let b = RenderSettings {
+        seed: 2,
+        ..a.clone()
+    };
     let r1 = render_image(&scene, &a, 16, 0..4, &|_| {});
     let r2 = render_image(&scene, &a, 5, 0..4, &|_| {});
     let r3 = render_image(&scene, &b, 16, 0..4, &|_| {});
     assert!(pixels_equal(&r1, &r2));
-    assert!(!pixels_equal(&r1, &r3), "different seeds must give different samples");
+    assert!(
+        !pixels_equal(&r1, &r3),
+        "different seeds must give different samples"
+    );
 }

@@ -6,7 +6,10 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pathfarm_tracer::gltf::{self, LoadOptions};
 use pathfarm_tracer::output::{decode_exr, encode_exr, encode_png, ExrChannels};
-use pathfarm_tracer::{render_image, render_sample, Accumulation, DirectStrategy, RenderSettings, RussianRoulette, SamplerKind, Scene};
+use pathfarm_tracer::{
+    render_image, render_sample, Accumulation, DirectStrategy, RenderSettings, RussianRoulette,
+    SamplerKind, Scene,
+};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -90,7 +93,8 @@ pub struct RenderArgs {
 
 /// Reads and loads a scene file.
 pub fn load_scene(path: &Path, camera: Option<String>) -> Result<Scene> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read scene {}", path.display()))?;
+    let bytes =
+        std::fs::read(path).with_context(|| format!("cannot read scene {}", path.display()))?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let resolver = DirectoryResolver { base };
     let scene = gltf::load(&bytes, &resolver, &LoadOptions { camera })
@@ -107,7 +111,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         bail!("--spp must be positive");
     }
     if let Some(threads) = args.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(threads.max(1)).build_global().context("cannot start threads")?;
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads.max(1))
+            .build_global()
+            .context("cannot start threads")?;
     }
     let t_load = Instant::now();
     let scene = load_scene(&args.scene, args.camera.clone())?;
@@ -123,10 +130,20 @@ pub fn run(args: RenderArgs) -> Result<()> {
     );
 
     if let Some(spec) = &args.debug_sample {
-        let parts: Vec<u32> = spec.split(',').map(|s| s.trim().parse()).collect::<Result<_, _>>().context("--debug-sample expects X,Y,INDEX")?;
-        let [x, y, index] = parts[..] else { bail!("--debug-sample expects X,Y,INDEX") };
+        let parts: Vec<u32> = spec
+            .split(',')
+            .map(|s| s.trim().parse())
+            .collect::<Result<_, _>>()
+            .context("--debug-sample expects X,Y,INDEX")?;
+        let [x, y, index] = parts[..] else {
+            bail!("--debug-sample expects X,Y,INDEX")
+        };
         if x >= settings.width || y >= settings.height {
-            bail!("pixel ({x}, {y}) is outside the {}x{} image", settings.width, settings.height);
+            bail!(
+                "pixel ({x}, {y}) is outside the {}x{} image",
+                settings.width,
+                settings.height
+            );
         }
         let r = render_sample(&scene, &settings, x, y, index);
         println!(
@@ -135,36 +152,67 @@ pub fn run(args: RenderArgs) -> Result<()> {
         );
         return Ok(());
     }
-    let Some(out) = args.out.clone() else { bail!("--out FILE.exr|FILE.png is required") };
-    let ext = out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let Some(out) = args.out.clone() else {
+        bail!("--out FILE.exr|FILE.png is required")
+    };
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
     if !matches!(ext.as_deref(), Some("exr") | Some("png")) {
         bail!("--out must end in .exr or .png, not {}", out.display());
     }
 
     let reference = match &args.reference {
         Some(path) => {
-            let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-            let img = decode_exr(&bytes).with_context(|| format!("cannot decode {}", path.display()))?;
+            let bytes =
+                std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let img =
+                decode_exr(&bytes).with_context(|| format!("cannot decode {}", path.display()))?;
             if (img.width, img.height) != (settings.width as usize, settings.height as usize) {
-                bail!("reference is {}x{}, the render {}x{}", img.width, img.height, settings.width, settings.height);
+                bail!(
+                    "reference is {}x{}, the render {}x{}",
+                    img.width,
+                    img.height,
+                    settings.width,
+                    settings.height
+                );
             }
-            Some([img.channel("R")?.to_vec(), img.channel("G")?.to_vec(), img.channel("B")?.to_vec()])
+            Some([
+                img.channel("R")?.to_vec(),
+                img.channel("G")?.to_vec(),
+                img.channel("B")?.to_vec(),
+            ])
         }
         None => None,
     };
-    let (acc, elapsed) =
-        render_progressive(&scene, &settings, args.settings.spp, args.tile, args.time_limit, reference.as_ref());
+    let (acc, elapsed) = render_progressive(
+        &scene,
+        &settings,
+        args.settings.spp,
+        args.tile,
+        args.time_limit,
+        reference.as_ref(),
+    );
     let samples = acc.total_samples();
     let secs = elapsed.as_secs_f64();
     let bytes = match ext.as_deref() {
         Some("png") => encode_png(&acc, args.exposure)?,
-        _ => encode_exr(&acc, ExrChannels { variance: args.extra_channels, samples: args.extra_channels })?,
+        _ => encode_exr(
+            &acc,
+            ExrChannels {
+                variance: args.extra_channels,
+                samples: args.extra_channels,
+            },
+        )?,
     };
     std::fs::write(&out, bytes).with_context(|| format!("cannot write {}", out.display()))?;
     if acc.invalid_count > 0 {
         tracing::warn!(count = acc.invalid_count, first = ?acc.invalid.first(), "invalid samples were dropped; re-render one with --debug-sample X,Y,INDEX");
     }
-    let rel = acc.relative_error().map_or("n/a".to_string(), |e| format!("{:.2}%", e * 100.0));
+    let rel = acc
+        .relative_error()
+        .map_or("n/a".to_string(), |e| format!("{:.2}%", e * 100.0));
     println!(
         "rendered {} in {:.3} s: {} spp, {:.2} M samples/s, {:.2} M rays/s, estimated relative error {}, {} invalid samples",
         out.display(),
@@ -208,8 +256,10 @@ pub fn render_progressive(
     let pixels = settings.width as u64 * settings.height as u64;
     let bar = ProgressBar::new(pixels * spp as u64);
     bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent}% {msg} ETA {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {wide_bar} {percent}% {msg} ETA {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let done = AtomicU64::new(0);
     let start = Instant::now();
@@ -227,9 +277,17 @@ pub fn render_progressive(
         let secs = start.elapsed().as_secs_f64();
         if let Some(reference) = reference {
             // The comparison costs about a millisecond; it is included in later passes' times.
-            bar.suspend(|| println!("pass to {begin:>5} spp: {secs:8.3} s, RMSE {:.2}% of the reference mean", relative_rmse(&image, reference) * 100.0));
+            bar.suspend(|| {
+                println!(
+                    "pass to {begin:>5} spp: {secs:8.3} s, RMSE {:.2}% of the reference mean",
+                    relative_rmse(&image, reference) * 100.0
+                )
+            });
         }
-        bar.set_message(format!("{begin} spp, {:.2} M samples/s", image.total_samples() as f64 / secs / 1e6));
+        bar.set_message(format!(
+            "{begin} spp, {:.2} M samples/s",
+            image.total_samples() as f64 / secs / 1e6
+        ));
         if let Some(limit) = time_limit {
             if secs >= limit {
                 tracing::info!(spp = begin, seconds = secs, "time limit reached");

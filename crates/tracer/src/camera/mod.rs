@@ -28,7 +28,10 @@ pub struct Camera {
 
 impl Camera {
     pub fn new(projection: Projection, to_world: Affine3A) -> Self {
-        Camera { projection, to_world }
+        Camera {
+            projection,
+            to_world,
+        }
     }
 
     /// The primary ray through `film` (pixel coordinates, (0,0) the top-left corner of the image,
@@ -36,7 +39,10 @@ impl Camera {
     #[inline]
     pub fn generate_ray(&self, film: Vec2, width: u32, height: u32) -> Ray {
         // Normalized device coordinates in [-1, 1], y up.
-        let ndc = Vec2::new(2.0 * film.x / width as f32 - 1.0, 1.0 - 2.0 * film.y / height as f32);
+        let ndc = Vec2::new(
+            2.0 * film.x / width as f32 - 1.0,
+            1.0 - 2.0 * film.y / height as f32,
+        );
         let aspect = width as f32 / height as f32;
         let (o, d) = match &self.projection {
             Projection::Perspective(p) => p.local_ray(ndc, aspect),

@@ -10,6 +10,9 @@ pub struct Orthographic {
 impl Orthographic {
     #[inline]
     pub fn local_ray(&self, ndc: Vec2, aspect: f32) -> (Vec3, Vec3) {
-        (Vec3::new(ndc.x * self.ymag * aspect, ndc.y * self.ymag, 0.0), -Vec3::Z)
+        (
+            Vec3::new(ndc.x * self.ymag * aspect, ndc.y * self.ymag, 0.0),
+            -Vec3::Z,
+        )
     }
 }

@@ -9,7 +9,10 @@ pub struct Perspective {
 
 impl Perspective {
     pub fn new(yfov: f32) -> Self {
-        Perspective { yfov, tan_half: (0.5 * yfov).tan() }
+        Perspective {
+            yfov,
+            tan_half: (0.5 * yfov).tan(),
+        }
     }
 
     /// Camera-space ray through normalized device coordinates `ndc` ∈ [-1, 1]².

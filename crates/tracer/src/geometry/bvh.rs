@@ -25,7 +25,11 @@ impl Bvh {
         let tris: Vec<Triangle> = mesh
             .positions
             .iter()
-            .map(|[a, b, c]| Triangle { v0: Vec3A::from(*a), v1: Vec3A::from(*b), v2: Vec3A::from(*c) })
+            .map(|[a, b, c]| Triangle {
+                v0: Vec3A::from(*a),
+                v1: Vec3A::from(*b),
+                v2: Vec3A::from(*c),
+            })
             .collect();
         // No spatial pre-splits: every primitive appears exactly once, so the mesh can be reordered.
         let mut params = BvhBuildParams::medium_build();
@@ -48,13 +52,21 @@ impl Bvh {
 
     /// Approximate memory in bytes.
     pub fn bytes(&self) -> usize {
-        self.inner.as_ref().map_or(0, |b| b.nodes.len() * 80 + b.primitive_indices.len() * 4)
+        self.inner
+            .as_ref()
+            .map_or(0, |b| b.nodes.len() * 80 + b.primitive_indices.len() * 4)
     }
 
     /// Finds the closest primitive along the ray in (0, t_max). `intersect(id, t_max)` tests primitive
     /// `id` and returns its distance if it is hit closer than `t_max` (or +∞).
     #[inline]
-    pub fn closest(&self, o: Vec3, d: Vec3, t_max: f32, mut intersect: impl FnMut(usize, f32) -> f32) -> bool {
+    pub fn closest(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_max: f32,
+        mut intersect: impl FnMut(usize, f32) -> f32,
+    ) -> bool {
         let Some(bvh) = &self.inner else { return false };
         let ray = ObRay::new(o.into(), d.into(), 0.0, t_max);
         let mut hit = obvhs::ray::RayHit::none();
@@ -64,7 +76,13 @@ impl Bvh {
     /// True if any primitive blocks the ray in (0, t_max). `intersect(id, t_max)` as for
     /// [`Bvh::closest`].
     #[inline]
-    pub fn any(&self, o: Vec3, d: Vec3, t_max: f32, mut intersect: impl FnMut(usize, f32) -> f32) -> bool {
+    pub fn any(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_max: f32,
+        mut intersect: impl FnMut(usize, f32) -> f32,
+    ) -> bool {
         let Some(bvh) = &self.inner else { return false };
         let ray = ObRay::new(o.into(), d.into(), 0.0, t_max);
         !bvh.ray_traverse_miss(ray, |r, id| intersect(id, r.tmax))

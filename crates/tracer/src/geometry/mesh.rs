@@ -41,7 +41,11 @@ impl Mesh {
     pub fn validate(&self) -> Result<(), MeshError> {
         let n = self.positions.len();
         let check = |attribute: &'static str, got: Option<usize>| match got {
-            Some(got) if got != n => Err(MeshError { attribute, got, triangles: n }),
+            Some(got) if got != n => Err(MeshError {
+                attribute,
+                got,
+                triangles: n,
+            }),
             _ => Ok(()),
         };
         check("material", Some(self.material.len()))?;

@@ -3,19 +3,17 @@
 //! never by neither, so light cannot leak through the seams of a closed mesh.
 
 use super::Ray;
-use glam::Vec3;
+use glam::{Mat3A, Vec3, Vec3A};
 
 /// Per-ray constants of the watertight test: the axis permutation that makes `d.z` the largest
-/// component, and the shear that maps the ray onto +z.
+/// component and the shear that maps the ray onto +z, folded into one matrix `m` so that
+/// `m · (v − o)` gives a vertex's sheared coordinates (x', y', z'·S_z) with SIMD products. The zero
+/// entries of `m` contribute exact zeros, so the values are bit-identical to the scalar formulas of
+/// the paper, and so is the watertightness.
 #[derive(Clone, Copy, Debug)]
 pub struct RayPrecomp {
-    pub o: Vec3,
-    kx: usize,
-    ky: usize,
-    kz: usize,
-    sx: f32,
-    sy: f32,
-    sz: f32,
+    pub o: Vec3A,
+    m: Mat3A,
 }
 
 impl RayPrecomp {
@@ -23,13 +21,35 @@ impl RayPrecomp {
     pub fn new(ray: &Ray) -> Self {
         let d = ray.d;
         let a = d.abs();
-        let kz = if a.x > a.y { if a.x > a.z { 0 } else { 2 } } else if a.y > a.z { 1 } else { 2 };
+        let kz = if a.x > a.y {
+            if a.x > a.z {
+                0
+            } else {
+                2
+            }
+        } else if a.y > a.z {
+            1
+        } else {
+            2
+        };
         let mut kx = (kz + 1) % 3;
         let mut ky = (kx + 1) % 3;
         if d[kz] < 0.0 {
             std::mem::swap(&mut kx, &mut ky);
         }
-        RayPrecomp { o: ray.o, kx, ky, kz, sx: d[kx] / d[kz], sy: d[ky] / d[kz], sz: 1.0 / d[kz] }
+        let (sx, sy, sz) = (d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]);
+        // Rows of the matrix: x' = v[kx] − sx·v[kz], y' = v[ky] − sy·v[kz], z' = sz·v[kz].
+        let mut rows = [[0.0f32; 3]; 3];
+        rows[0][kx] = 1.0;
+        rows[0][kz] = -sx;
+        rows[1][ky] = 1.0;
+        rows[1][kz] = -sy;
+        rows[2][kz] = sz;
+        let m = Mat3A::from_cols_array_2d(&rows).transpose();
+        RayPrecomp {
+            o: Vec3A::from(ray.o),
+            m,
+        }
     }
 }
 
@@ -44,16 +64,10 @@ pub struct TriangleHit {
 /// Intersects the ray with triangle `v` for t in (0, t_max). Both faces are hit.
 #[inline(always)]
 pub fn intersect_watertight(r: &RayPrecomp, v: &[Vec3; 3], t_max: f32) -> Option<TriangleHit> {
-    let a = v[0] - r.o;
-    let b = v[1] - r.o;
-    let c = v[2] - r.o;
-    let (kx, ky, kz) = (r.kx, r.ky, r.kz);
-    let ax = a[kx] - r.sx * a[kz];
-    let ay = a[ky] - r.sy * a[kz];
-    let bx = b[kx] - r.sx * b[kz];
-    let by = b[ky] - r.sy * b[kz];
-    let cx = c[kx] - r.sx * c[kz];
-    let cy = c[ky] - r.sy * c[kz];
+    let a = r.m * (Vec3A::from(v[0]) - r.o);
+    let b = r.m * (Vec3A::from(v[1]) - r.o);
+    let c = r.m * (Vec3A::from(v[2]) - r.o);
+    let (ax, ay, bx, by, cx, cy) = (a.x, a.y, b.x, b.y, c.x, c.y);
     let mut u = cx * by - cy * bx;
     let mut vv = ax * cy - ay * cx;
     let mut w = bx * ay - by * ax;
@@ -71,10 +85,7 @@ pub fn intersect_watertight(r: &RayPrecomp, v: &[Vec3; 3], t_max: f32) -> Option
     if det == 0.0 {
         return None;
     }
-    let az = r.sz * a[kz];
-    let bz = r.sz * b[kz];
-    let cz = r.sz * c[kz];
-    let t_scaled = u * az + vv * bz + w * cz;
+    let t_scaled = u * a.z + vv * b.z + w * c.z;
     // t = t_scaled / det must lie in (0, t_max); compare without dividing, minding det's sign.
     if det > 0.0 {
         if t_scaled <= 0.0 || t_scaled >= t_max * det {
@@ -84,7 +95,11 @@ pub fn intersect_watertight(r: &RayPrecomp, v: &[Vec3; 3], t_max: f32) -> Option
         return None;
     }
     let inv = 1.0 / det;
-    Some(TriangleHit { t: t_scaled * inv, b1: vv * inv, b2: w * inv })
+    Some(TriangleHit {
+        t: t_scaled * inv,
+        b1: vv * inv,
+        b2: w * inv,
+    })
 }
 
 #[cfg(test)]
@@ -104,20 +119,35 @@ mod tests {
         // Back face too.
         assert!(hit(Vec3::new(0.25, 0.25, -1.0), Vec3::Z, &v).is_some());
         assert!(hit(Vec3::new(0.75, 0.75, 1.0), -Vec3::Z, &v).is_none());
-        assert!(hit(Vec3::new(0.25, 0.25, 1.0), Vec3::Z, &v).is_none(), "behind the origin");
+        assert!(
+            hit(Vec3::new(0.25, 0.25, 1.0), Vec3::Z, &v).is_none(),
+            "behind the origin"
+        );
     }
 
     #[test]
     fn shared_edges_are_watertight() {
         // Two triangles sharing the diagonal of the unit square; rays aimed exactly at the diagonal
         // from many directions must hit at least one of them.
-        let t0 = [Vec3::ZERO, Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 0.0)];
-        let t1 = [Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
+        let t0 = [
+            Vec3::ZERO,
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+        ];
+        let t1 = [
+            Vec3::ZERO,
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ];
         let mut misses = 0;
         for i in 0..2000 {
             let s = (i as f32 + 0.5) / 2000.0;
             let target = Vec3::new(s, s, 0.0);
-            let o = Vec3::new(0.3 + 0.1 * (i as f32).sin(), 0.7, 1.3 + 0.2 * (i as f32).cos());
+            let o = Vec3::new(
+                0.3 + 0.1 * (i as f32).sin(),
+                0.7,
+                1.3 + 0.2 * (i as f32).cos(),
+            );
             let d = (target - o).normalize();
             if hit(o, d, &t0).is_none() && hit(o, d, &t1).is_none() {
                 misses += 1;

@@ -28,7 +28,11 @@ impl Vertex<'_> {
     /// A ray leaving the vertex towards `wi`, its origin offset to the side `wi` goes to.
     #[inline]
     fn spawn(&self, wi: Vec3) -> Ray {
-        let side = if wi.dot(self.ng) > 0.0 { self.ng } else { -self.ng };
+        let side = if wi.dot(self.ng) > 0.0 {
+            self.ng
+        } else {
+            -self.ng
+        };
         Ray::new(offset_ray_origin(self.p, side), wi)
     }
 
@@ -46,18 +50,33 @@ const SHADOW_EPSILON: f32 = 1e-4;
 
 /// One punctual light chosen in proportion to power. Delta lights can only be reached this way, so
 /// every strategy calls it.
-pub(crate) fn direct_punctual(scene: &Scene, v: &Vertex, s: &PixelSampler, depth: u32, rays: &mut u32) -> Vec3 {
-    let Some((light, pmf)) = scene.lights.choose_punctual(s.bounce1(depth, dims::PUNCTUAL_SELECT)) else {
+pub(crate) fn direct_punctual(
+    scene: &Scene,
+    v: &Vertex,
+    s: &PixelSampler,
+    depth: u32,
+    rays: &mut u32,
+) -> Vec3 {
+    let Some((light, pmf)) = scene
+        .lights
+        .choose_punctual(s.bounce1(depth, dims::PUNCTUAL_SELECT))
+    else {
         return Vec3::ZERO;
     };
-    let Some(ls) = light.sample_li(v.p) else { return Vec3::ZERO };
+    let Some(ls) = light.sample_li(v.p) else {
+        return Vec3::ZERO;
+    };
     let f = v.bsdf.eval(v.wo, ls.wi);
     if f == Vec3::ZERO {
         return Vec3::ZERO;
     }
     let ray = v.spawn(ls.wi);
     *rays += 1;
-    let t_max = if ls.dist.is_finite() { ls.dist * (1.0 - SHADOW_EPSILON) } else { f32::INFINITY };
+    let t_max = if ls.dist.is_finite() {
+        ls.dist * (1.0 - SHADOW_EPSILON)
+    } else {
+        f32::INFINITY
+    };
     if !scene.visible(&ray, t_max, s.bounce1(depth, dims::ALPHA)) {
         return Vec3::ZERO;
     }
@@ -75,7 +94,12 @@ pub(crate) fn direct_area_light(
     rays: &mut u32,
 ) -> Vec3 {
     let u_sel = s.bounce1(depth, dims::LIGHT_SELECT);
-    let Some(ls) = scene.lights.area.sample(&scene.mesh, u_sel, s.bounce2(depth, dims::LIGHT_POINT)) else {
+    let Some(ls) =
+        scene
+            .lights
+            .area
+            .sample(&scene.mesh, u_sel, s.bounce2(depth, dims::LIGHT_POINT))
+    else {
         return Vec3::ZERO;
     };
     let d = ls.point - v.p;
@@ -105,18 +129,34 @@ pub(crate) fn direct_area_light(
         return Vec3::ZERO;
     }
     *rays += 1;
-    if !scene.visible(&v.spawn(wi), dist * (1.0 - SHADOW_EPSILON), s.bounce1(depth, dims::ALPHA)) {
+    if !scene.visible(
+        &v.spawn(wi),
+        dist * (1.0 - SHADOW_EPSILON),
+        s.bounce1(depth, dims::ALPHA),
+    ) {
         return Vec3::ZERO;
     }
-    let w = if mis { power_heuristic(pdf, v.bsdf.pdf(v.wo, wi)) } else { 1.0 };
+    let w = if mis {
+        power_heuristic(pdf, v.bsdf.pdf(v.wo, wi))
+    } else {
+        1.0
+    };
     f * le * v.transmittance(dist) * (w / pdf)
 }
 
 fn light_uv(scene: &Scene, tri: usize, b: Vec3) -> [Vec2; 2] {
     let interp = |t: &[Vec2; 3]| t[0] * b.x + t[1] * b.y + t[2] * b.z;
     [
-        scene.mesh.uv0.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
-        scene.mesh.uv1.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
+        scene
+            .mesh
+            .uv0
+            .as_ref()
+            .map_or(Vec2::ZERO, |u| interp(&u[tri])),
+        scene
+            .mesh
+            .uv1
+            .as_ref()
+            .map_or(Vec2::ZERO, |u| interp(&u[tri])),
     ]
 }
 

@@ -22,7 +22,12 @@ pub struct PathResult {
 }
 
 /// Traces one camera path starting with `ray`, drawing every random decision from `sampler`.
-pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampler, camera_ray: Ray) -> PathResult {
+pub fn trace_path(
+    scene: &Scene,
+    settings: &RenderSettings,
+    sampler: &PixelSampler,
+    camera_ray: Ray,
+) -> PathResult {
     let mut out = PathResult::default();
     let mut l = Vec3::ZERO;
     let mut beta = Vec3::ONE;
@@ -37,9 +42,15 @@ pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampl
 
     let mut depth = 0u32;
     loop {
-        let alpha_u = if scene.any_alpha() { sampler.bounce1(depth, dims::ALPHA) } else { 0.0 };
+        let alpha_u = if scene.any_alpha() {
+            sampler.bounce1(depth, dims::ALPHA)
+        } else {
+            0.0
+        };
         out.rays += 1;
-        let Some(hit) = scene.intersect(&ray, f32::INFINITY, alpha_u) else { break };
+        let Some(hit) = scene.intersect(&ray, f32::INFINITY, alpha_u) else {
+            break;
+        };
         out.vertices += 1;
         let si = scene.surface(&ray, &hit);
         if let Some(sigma) = medium {
@@ -56,7 +67,8 @@ pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampl
                     EmissionWeight::Skip => 0.0,
                     EmissionWeight::Mis { bsdf_pdf } => {
                         let cos_l = ray.d.dot(si.ng).abs();
-                        let light_pdf = scene.lights.area.pdf_area(si.material) * hit.t * hit.t / cos_l;
+                        let light_pdf =
+                            scene.lights.area.pdf_area(si.material) * hit.t * hit.t / cos_l;
                         power_heuristic(bsdf_pdf, light_pdf)
                     }
                 };
@@ -68,9 +80,20 @@ pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampl
         }
 
         let shading = material.shade(&scene.textures, &si.uv, si.ns, si.tangent);
-        let bsdf = Bsdf::new(shading.params, shading.normal, si.ng, si.tangent.map(|t| t.truncate()));
+        let bsdf = Bsdf::new(
+            shading.params,
+            shading.normal,
+            si.ng,
+            si.tangent.map(|t| t.truncate()),
+        );
         let wo = -ray.d;
-        let vertex = Vertex { p: si.p, ng: si.ng, wo, bsdf: &bsdf, medium };
+        let vertex = Vertex {
+            p: si.p,
+            ng: si.ng,
+            wo,
+            bsdf: &bsdf,
+            medium,
+        };
 
         // 2. Direct lighting for the non-delta lobes.
         if bsdf.has_non_delta() {
@@ -80,10 +103,19 @@ pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampl
             match strategy {
                 DirectStrategy::Light | DirectStrategy::Mis if has_area => {
                     let mis = strategy == DirectStrategy::Mis;
-                    l += beta * direct_area_light(scene, &vertex, sampler, depth, mis, &mut out.rays);
+                    l += beta
+                        * direct_area_light(scene, &vertex, sampler, depth, mis, &mut out.rays);
                 }
                 DirectStrategy::Hemisphere | DirectStrategy::Cosine if has_area => {
-                    l += beta * direct_by_direction(scene, &vertex, sampler, depth, strategy, &mut out.rays);
+                    l += beta
+                        * direct_by_direction(
+                            scene,
+                            &vertex,
+                            sampler,
+                            depth,
+                            strategy,
+                            &mut out.rays,
+                        );
                 }
                 _ => {}
             }
@@ -91,7 +123,9 @@ pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampl
 
         // 3. Continue the path.
         let u_lobe = sampler.bounce1(depth, dims::BSDF_LOBE);
-        let Some(bs) = bsdf.sample(wo, u_lobe, sampler.bounce2(depth, dims::BSDF_DIR)) else { break };
+        let Some(bs) = bsdf.sample(wo, u_lobe, sampler.bounce2(depth, dims::BSDF_DIR)) else {
+            break;
+        };
         if bs.weight == Vec3::ZERO {
             break;
         }
@@ -114,7 +148,11 @@ pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampl
         if bs.transmitted && scene.any_volume {
             // Crossing the boundary of a volume: entering from the front side, leaving from the back.
             if let Some(v) = material.volume.filter(|_| !bsdf.params().thin_walled) {
-                medium = if wo.dot(si.ng) > 0.0 { Some(v.sigma_a) } else { None };
+                medium = if wo.dot(si.ng) > 0.0 {
+                    Some(v.sigma_a)
+                } else {
+                    None
+                };
             }
         }
 
@@ -133,7 +171,11 @@ pub fn trace_path(scene: &Scene, settings: &RenderSettings, sampler: &PixelSampl
             beta /= survive;
         }
 
-        let side = if bs.wi.dot(si.ng) > 0.0 { si.ng } else { -si.ng };
+        let side = if bs.wi.dot(si.ng) > 0.0 {
+            si.ng
+        } else {
+            -si.ng
+        };
         ray = Ray::new(offset_ray_origin(si.p, side), bs.wi);
         depth += 1;
     }

@@ -38,7 +38,9 @@ impl AreaLights {
     pub fn new(mesh: &Mesh, materials: &[Material], textures: &[Texture]) -> Self {
         let radiance: Vec<f32> = materials
             .iter()
-            .map(|m| luminance(m.average_emission(textures)) * if m.double_sided { 2.0 } else { 1.0 })
+            .map(|m| {
+                luminance(m.average_emission(textures)) * if m.double_sided { 2.0 } else { 1.0 }
+            })
             .collect();
         let mut triangles = Vec::new();
         let mut powers = Vec::new();
@@ -56,9 +58,19 @@ impl AreaLights {
         let total = distribution.total();
         let material_area_density = radiance
             .iter()
-            .map(|&le| if total > 0.0 { (le as f64 * PI as f64 / total) as f32 } else { 0.0 })
+            .map(|&le| {
+                if total > 0.0 {
+                    (le as f64 * PI as f64 / total) as f32
+                } else {
+                    0.0
+                }
+            })
             .collect();
-        AreaLights { triangles, distribution, material_area_density }
+        AreaLights {
+            triangles,
+            distribution,
+            material_area_density,
+        }
     }
 
     pub fn is_empty(&self) -> bool {
@@ -99,6 +111,9 @@ impl AreaLights {
     /// material `material`.
     #[inline]
     pub fn pdf_area(&self, material: u32) -> f32 {
-        self.material_area_density.get(material as usize).copied().unwrap_or(0.0)
+        self.material_area_density
+            .get(material as usize)
+            .copied()
+            .unwrap_or(0.0)
     }
 }

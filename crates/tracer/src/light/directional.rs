@@ -14,7 +14,11 @@ pub struct DirectionalLight {
 impl DirectionalLight {
     #[inline]
     pub fn sample_li(&self, _p: Vec3) -> Option<PunctualSample> {
-        Some(PunctualSample { wi: -self.direction, dist: f32::INFINITY, li: self.illuminance })
+        Some(PunctualSample {
+            wi: -self.direction,
+            dist: f32::INFINITY,
+            li: self.illuminance,
+        })
     }
 
     pub fn power(&self, scene_radius: f32) -> f32 {

@@ -71,7 +71,11 @@ pub struct Lights {
 impl Lights {
     pub fn new(area: AreaLights, punctual: Vec<PunctualLight>, scene_radius: f32) -> Self {
         let powers: Vec<f32> = punctual.iter().map(|l| l.power(scene_radius)).collect();
-        Lights { area, punctual_distribution: Distribution1D::new(&powers), punctual }
+        Lights {
+            area,
+            punctual_distribution: Distribution1D::new(&powers),
+            punctual,
+        }
     }
 
     /// Chooses a punctual light in proportion to power. Returns the light and its probability.

@@ -18,7 +18,11 @@ impl PointLight {
             return None;
         }
         let dist = r2.sqrt();
-        Some(PunctualSample { wi: d / dist, dist, li: self.intensity / r2 })
+        Some(PunctualSample {
+            wi: d / dist,
+            dist,
+            li: self.intensity / r2,
+        })
     }
 
     pub fn power(&self) -> f32 {

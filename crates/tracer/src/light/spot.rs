@@ -36,7 +36,11 @@ impl SpotLight {
         if f <= 0.0 {
             return None;
         }
-        Some(PunctualSample { wi, dist, li: self.intensity * (f / r2) })
+        Some(PunctualSample {
+            wi,
+            dist,
+            li: self.intensity * (f / r2),
+        })
     }
 
     /// Power of the cone up to the middle of the falloff band (an estimate; only its proportion to

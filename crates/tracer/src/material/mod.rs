@@ -3,7 +3,7 @@
 
 mod texture;
 
-pub use texture::{ColorSpace, Texture, TextureError, WrapMode, TextureSampler};
+pub use texture::{ColorSpace, Texture, TextureError, TextureSampler, WrapMode};
 
 use crate::bsdf::PbrParams;
 use glam::{Affine2, Vec2, Vec3, Vec4};
@@ -182,7 +182,13 @@ impl Material {
     /// Evaluates textures into BSDF parameters and the shading normal. `normal` is the interpolated
     /// unit shading normal facing the same side as the geometric normal's front; `tangent` the
     /// interpolated tangent with its bitangent sign (needed only with a normal map).
-    pub fn shade(&self, textures: &[Texture], uv: &[Vec2; 2], normal: Vec3, tangent: Option<Vec4>) -> ShadingInputs {
+    pub fn shade(
+        &self,
+        textures: &[Texture],
+        uv: &[Vec2; 2],
+        normal: Vec3,
+        tangent: Option<Vec4>,
+    ) -> ShadingInputs {
         let mut base = self.base_color.truncate();
         if let Some(t) = &self.base_color_texture {
             base *= sample(textures, t, uv, ColorSpace::Srgb).truncate();
@@ -208,7 +214,11 @@ impl Material {
         let mut n = normal;
         if let (Some((t, scale)), Some(tan)) = (&self.normal_texture, tangent) {
             let m = sample(textures, t, uv, ColorSpace::Linear);
-            let tn = Vec3::new((2.0 * m.x - 1.0) * scale, (2.0 * m.y - 1.0) * scale, 2.0 * m.z - 1.0);
+            let tn = Vec3::new(
+                (2.0 * m.x - 1.0) * scale,
+                (2.0 * m.y - 1.0) * scale,
+                2.0 * m.z - 1.0,
+            );
             let t3 = tan.truncate();
             let t3 = (t3 - normal * normal.dot(t3)).normalize_or_zero();
             if t3 != Vec3::ZERO {

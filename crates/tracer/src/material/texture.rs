@@ -57,7 +57,11 @@ fn srgb_lut() -> &'static [f32; 256] {
         let mut t = [0.0f32; 256];
         for (i, v) in t.iter_mut().enumerate() {
             let c = i as f32 / 255.0;
-            *v = if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) };
+            *v = if c <= 0.04045 {
+                c / 12.92
+            } else {
+                ((c + 0.055) / 1.055).powf(2.4)
+            };
         }
         t
     })
@@ -72,9 +76,19 @@ impl Texture {
         sampler: TextureSampler,
     ) -> Result<Self, TextureError> {
         if width == 0 || height == 0 || texels.len() != width as usize * height as usize {
-            return Err(TextureError { width, height, texels: texels.len() });
+            return Err(TextureError {
+                width,
+                height,
+                texels: texels.len(),
+            });
         }
-        Ok(Texture { name, width, height, texels, sampler })
+        Ok(Texture {
+            name,
+            width,
+            height,
+            texels,
+            sampler,
+        })
     }
 
     #[inline]
@@ -84,9 +98,19 @@ impl Texture {
         match cs {
             ColorSpace::Srgb => {
                 let lut = srgb_lut();
-                Vec4::new(lut[t[0] as usize], lut[t[1] as usize], lut[t[2] as usize], a)
+                Vec4::new(
+                    lut[t[0] as usize],
+                    lut[t[1] as usize],
+                    lut[t[2] as usize],
+                    a,
+                )
             }
-            ColorSpace::Linear => Vec4::new(t[0] as f32 / 255.0, t[1] as f32 / 255.0, t[2] as f32 / 255.0, a),
+            ColorSpace::Linear => Vec4::new(
+                t[0] as f32 / 255.0,
+                t[1] as f32 / 255.0,
+                t[2] as f32 / 255.0,
+                a,
+            ),
         }
     }
 
@@ -162,7 +186,10 @@ mod tests {
             2,
             1,
             vec![[255, 0, 188, 255], [0, 255, 0, 128]],
-            TextureSampler { nearest: true, ..Default::default() },
+            TextureSampler {
+                nearest: true,
+                ..Default::default()
+            },
         )
         .unwrap();
         let a = tex.sample(Vec2::new(0.25, 0.5), ColorSpace::Srgb);

@@ -32,7 +32,11 @@ impl Frame {
             return Self::from_z(n);
         }
         let x = x / len2.sqrt();
-        Frame { x, y: n.cross(x), z: n }
+        Frame {
+            x,
+            y: n.cross(x),
+            z: n,
+        }
     }
 
     #[inline]
@@ -62,7 +66,9 @@ mod tests {
             let f = Frame::from_z(n);
             assert!((f.x.length() - 1.0).abs() < 1e-5);
             assert!((f.y.length() - 1.0).abs() < 1e-5);
-            assert!(f.x.dot(f.y).abs() < 1e-5 && f.x.dot(f.z).abs() < 1e-5 && f.y.dot(f.z).abs() < 1e-5);
+            assert!(
+                f.x.dot(f.y).abs() < 1e-5 && f.x.dot(f.z).abs() < 1e-5 && f.y.dot(f.z).abs() < 1e-5
+            );
             let v = Vec3::new(0.2, 0.7, -0.1);
             assert!((f.to_world(f.to_local(v)) - v).length() < 1e-5);
             assert!((f.x.cross(f.y) - f.z).length() < 1e-5, "right-handed");

@@ -21,9 +21,21 @@ pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
     };
     let p_i = Vec3::new(step(p.x, of_i[0]), step(p.y, of_i[1]), step(p.z, of_i[2]));
     Vec3::new(
-        if p.x.abs() < ORIGIN { p.x + FLOAT_SCALE * n.x } else { p_i.x },
-        if p.y.abs() < ORIGIN { p.y + FLOAT_SCALE * n.y } else { p_i.y },
-        if p.z.abs() < ORIGIN { p.z + FLOAT_SCALE * n.z } else { p_i.z },
+        if p.x.abs() < ORIGIN {
+            p.x + FLOAT_SCALE * n.x
+        } else {
+            p_i.x
+        },
+        if p.y.abs() < ORIGIN {
+            p.y + FLOAT_SCALE * n.y
+        } else {
+            p_i.y
+        },
+        if p.z.abs() < ORIGIN {
+            p.z + FLOAT_SCALE * n.z
+        } else {
+            p_i.z
+        },
     )
 }
 
@@ -38,7 +50,10 @@ mod tests {
             let n = Vec3::new(0.2, 0.9, -0.3).normalize();
             let q = offset_ray_origin(p, n);
             assert!((q - p).dot(n) > 0.0, "scale {scale}");
-            assert!((q - p).length() < scale.max(1.0) * 1e-3, "offset too large at {scale}");
+            assert!(
+                (q - p).length() < scale.max(1.0) * 1e-3,
+                "offset too large at {scale}"
+            );
         }
     }
 }

@@ -19,10 +19,24 @@ use std::ops::Range;
 
 /// Renders samples `samples` of every pixel of `tile`. Rows are rendered in parallel on the current
 /// rayon thread pool (install a pool to choose the thread count); the result does not depend on it.
-pub fn render_tile(scene: &Scene, settings: &RenderSettings, tile: Tile, samples: Range<u32>) -> Accumulation {
-    let rows: Vec<(Vec<PixelAccum>, u64, u64, Vec<InvalidSample>)> = (tile.y0..tile.y0 + tile.height)
+pub fn render_tile(
+    scene: &Scene,
+    settings: &RenderSettings,
+    tile: Tile,
+    samples: Range<u32>,
+) -> Accumulation {
+    let rows: Vec<(Vec<PixelAccum>, u64, u64, Vec<InvalidSample>)> = (tile.y0
+        ..tile.y0 + tile.height)
         .into_par_iter()
-        .map(|y| render_row(scene, settings, y, tile.x0..tile.x0 + tile.width, samples.clone()))
+        .map(|y| {
+            render_row(
+                scene,
+                settings,
+                y,
+                tile.x0..tile.x0 + tile.width,
+                samples.clone(),
+            )
+        })
         .collect();
     let mut acc = Accumulation::new(tile.x0, tile.y0, tile.width, tile.height);
     acc.pixels.clear();
@@ -70,13 +84,25 @@ fn render_row(
 /// Renders one sample of one pixel, alone: the same value it has inside any tile or range. Use it to
 /// re-render a sample reported as invalid.
 #[inline]
-pub fn render_sample(scene: &Scene, settings: &RenderSettings, x: u32, y: u32, index: u32) -> PathResult {
+pub fn render_sample(
+    scene: &Scene,
+    settings: &RenderSettings,
+    x: u32,
+    y: u32,
+    index: u32,
+) -> PathResult {
     let sampler = PixelSampler::new(settings.sampler, settings.seed, x, y, index);
     let jitter = sampler.get2(dims::PIXEL);
     let film = Vec2::new(x as f32, y as f32) + jitter;
-    let ray = scene.camera.generate_ray(film, settings.width, settings.height);
+    let ray = scene
+        .camera
+        .generate_ray(film, settings.width, settings.height);
     if !ray.d.is_finite() {
-        return PathResult { radiance: Vec3::splat(f32::NAN), rays: 0, vertices: 0 };
+        return PathResult {
+            radiance: Vec3::splat(f32::NAN),
+            rays: 0,
+            vertices: 0,
+        };
     }
     trace_path(scene, settings, &sampler, ray)
 }

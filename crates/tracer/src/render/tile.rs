@@ -22,7 +22,12 @@ pub struct TileError {
 impl Tile {
     /// The whole image.
     pub fn full(width: u32, height: u32) -> Self {
-        Tile { x0: 0, y0: 0, width, height }
+        Tile {
+            x0: 0,
+            y0: 0,
+            width,
+            height,
+        }
     }
 
     pub fn pixel_count(&self) -> u64 {
@@ -57,7 +62,12 @@ impl Tile {
         while y < h {
             let mut x = 0;
             while x < w {
-                tiles.push(Tile { x0: x, y0: y, width: size.min(w - x), height: size.min(h - y) });
+                tiles.push(Tile {
+                    x0: x,
+                    y0: y,
+                    width: size.min(w - x),
+                    height: size.min(h - y),
+                });
                 x += size;
             }
             y += size;

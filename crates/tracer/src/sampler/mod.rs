@@ -50,7 +50,11 @@ impl PixelSampler {
     #[inline]
     pub fn new(kind: SamplerKind, seed: u64, px: u32, py: u32, index: u32) -> Self {
         let pixel_key = hash_words(&[seed as u32, (seed >> 32) as u32, px, py]);
-        PixelSampler { kind, pixel_key, index }
+        PixelSampler {
+            kind,
+            pixel_key,
+            index,
+        }
     }
 
     /// The value of dimension `dim`, in [0, 1).
@@ -87,7 +91,9 @@ impl PixelSampler {
 
 #[inline]
 fn bounce_dim(bounce: u32, offset: u32) -> u32 {
-    dims::BOUNCE_BASE.wrapping_add(bounce.wrapping_mul(dims::PER_BOUNCE)).wrapping_add(offset)
+    dims::BOUNCE_BASE
+        .wrapping_add(bounce.wrapping_mul(dims::PER_BOUNCE))
+        .wrapping_add(offset)
 }
 
 /// Converts 32 random bits to a float in [0, 1) (the top 24 bits, so every value is exact).

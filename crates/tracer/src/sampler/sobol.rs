@@ -24,7 +24,8 @@ const fn build_directions() -> [[u32; 32]; 4] {
     // Dimensions 1..3 from primitive polynomials (degree s, coefficients a) and initial m values.
     // (s, a, m): dim 1: x + 1 -> (1, 0, [1]); dim 2: x^2 + x + 1 -> (2, 1, [1, 3]);
     // dim 3: x^3 + x + 1 -> (3, 1, [1, 3, 1]).
-    let params: [(usize, u32, [u32; 3]); 3] = [(1, 0, [1, 0, 0]), (2, 1, [1, 3, 0]), (3, 1, [1, 3, 1])];
+    let params: [(usize, u32, [u32; 3]); 3] =
+        [(1, 0, [1, 0, 0]), (2, 1, [1, 3, 0]), (3, 1, [1, 3, 1])];
     let mut d = 0;
     while d < 3 {
         let (s, a, m) = params[d];
@@ -130,12 +131,18 @@ pub fn owen_sobol_sample(pixel_key: u32, index: u32, dim: u32) -> f32 {
 #[inline]
 pub fn owen_sobol_pair(pixel_key: u32, index: u32, dim: u32) -> (f32, f32) {
     if dim & 3 == 3 {
-        return (owen_sobol_sample(pixel_key, index, dim), owen_sobol_sample(pixel_key, index, dim + 1));
+        return (
+            owen_sobol_sample(pixel_key, index, dim),
+            owen_sobol_sample(pixel_key, index, dim + 1),
+        );
     }
     let seed = group_seed(pixel_key, dim);
     let shuffled = nested_uniform_scramble(index, seed);
     let c = (dim & 3) as usize;
-    (scrambled_component(shuffled, seed, c), scrambled_component(shuffled, seed, c + 1))
+    (
+        scrambled_component(shuffled, seed, c),
+        scrambled_component(shuffled, seed, c + 1),
+    )
 }
 
 #[cfg(test)]
@@ -153,12 +160,12 @@ mod tests {
 
     #[test]
     fn byte_tables_match_the_bit_loop_and_pairs_match_singles() {
-        for d in 0..4 {
+        for (d, directions) in DIRECTIONS.iter().enumerate() {
             for i in [0u32, 1, 2, 3, 255, 256, 0xdead_beef, u32::MAX] {
                 let mut x = 0;
-                for b in 0..32 {
+                for (b, v) in directions.iter().enumerate() {
                     if (i >> b) & 1 != 0 {
-                        x ^= DIRECTIONS[d][b];
+                        x ^= v;
                     }
                 }
                 assert_eq!(sobol(i, d), x);
@@ -182,7 +189,10 @@ mod tests {
                 for i in 0..n {
                     let u = owen_sobol_sample(0xdead_beef, i, dim);
                     let cell = (u * n as f32) as usize;
-                    assert!(!seen[cell], "dim {dim}, n {n}: two points in stratum {cell}");
+                    assert!(
+                        !seen[cell],
+                        "dim {dim}, n {n}: two points in stratum {cell}"
+                    );
                     seen[cell] = true;
                 }
             }

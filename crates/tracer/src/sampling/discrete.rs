@@ -12,22 +12,32 @@ impl Distribution1D {
     /// Builds the distribution. Negative or non-finite weights count as zero. If every weight is
     /// zero the distribution is empty ([`Distribution1D::is_empty`]) and must not be sampled.
     pub fn new(weights: &[f32]) -> Self {
-        let weights: Vec<f32> =
-            weights.iter().map(|&w| if w.is_finite() && w > 0.0 { w } else { 0.0 }).collect();
+        let weights: Vec<f32> = weights
+            .iter()
+            .map(|&w| if w.is_finite() && w > 0.0 { w } else { 0.0 })
+            .collect();
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
         let mut cdf = Vec::with_capacity(weights.len() + 1);
         let mut acc = 0.0f64;
         cdf.push(0.0);
         for &w in &weights {
             acc += w as f64;
-            cdf.push(if total > 0.0 { (acc / total) as f32 } else { 0.0 });
+            cdf.push(if total > 0.0 {
+                (acc / total) as f32
+            } else {
+                0.0
+            });
         }
         if total > 0.0 {
             if let Some(last) = cdf.last_mut() {
                 *last = 1.0;
             }
         }
-        Distribution1D { cdf, weights, total }
+        Distribution1D {
+            cdf,
+            weights,
+            total,
+        }
     }
 
     /// Number of outcomes (including zero-weight ones).
@@ -65,11 +75,18 @@ impl Distribution1D {
         let i = if self.weights[i] > 0.0 {
             i
         } else {
-            (0..n).rev().find(|&j| self.weights[j] > 0.0 && self.cdf[j] <= u).unwrap_or(i)
+            (0..n)
+                .rev()
+                .find(|&j| self.weights[j] > 0.0 && self.cdf[j] <= u)
+                .unwrap_or(i)
         };
         let lo = self.cdf[i];
         let width = self.cdf[i + 1] - lo;
-        let remapped = if width > 0.0 { ((u - lo) / width).clamp(0.0, 1.0 - f32::EPSILON / 2.0) } else { 0.0 };
+        let remapped = if width > 0.0 {
+            ((u - lo) / width).clamp(0.0, 1.0 - f32::EPSILON / 2.0)
+        } else {
+            0.0
+        };
         (i, self.pmf(i), remapped)
     }
 }

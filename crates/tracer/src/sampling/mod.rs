@@ -10,10 +10,10 @@ mod triangle;
 
 pub use discrete::Distribution1D;
 pub use disk::{sample_concentric_disk, sample_uniform_disk};
-pub use inverse_cdf::{sample_cubic_falloff, cubic_falloff_pdf};
+pub use inverse_cdf::{cubic_falloff_pdf, sample_cubic_falloff};
 pub use sphere::{
-    cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_hemisphere, sample_uniform_sphere,
-    uniform_hemisphere_pdf, uniform_sphere_pdf,
+    cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_hemisphere,
+    sample_uniform_sphere, uniform_hemisphere_pdf, uniform_sphere_pdf,
 };
 pub use triangle::sample_uniform_triangle;
 

@@ -56,18 +56,32 @@ impl Scene {
     pub fn intersect(&self, ray: &Ray, t_max: f32, alpha_u: f32) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
         let positions = &self.mesh.positions;
-        let mut best = Hit { t: t_max, triangle: u32::MAX, b1: 0.0, b2: 0.0 };
+        let mut best = Hit {
+            t: t_max,
+            triangle: u32::MAX,
+            b1: 0.0,
+            b2: 0.0,
+        };
         let any_alpha = self.any_alpha;
         self.bvh.closest(ray.o, ray.d, t_max, |id, _| {
             // Accept ties (t equal to the best so far) and break them by triangle index, so the
             // result never depends on traversal order.
-            let limit = if best.triangle == u32::MAX { best.t } else { next_up(best.t) };
+            let limit = if best.triangle == u32::MAX {
+                best.t
+            } else {
+                next_up(best.t)
+            };
             match intersect_watertight(&pre, &positions[id], limit) {
                 Some(h) if h.t < best.t || (h.t == best.t && (id as u32) < best.triangle) => {
                     if any_alpha && self.passes_through(id, h.b1, h.b2, alpha_u) {
                         return f32::INFINITY;
                     }
-                    best = Hit { t: h.t, triangle: id as u32, b1: h.b1, b2: h.b2 };
+                    best = Hit {
+                        t: h.t,
+                        triangle: id as u32,
+                        b1: h.b1,
+                        b2: h.b2,
+                    };
                     h.t
                 }
                 _ => f32::INFINITY,
@@ -82,9 +96,11 @@ impl Scene {
         let pre = RayPrecomp::new(ray);
         let positions = &self.mesh.positions;
         let any_alpha = self.any_alpha;
-        !self.bvh.any(ray.o, ray.d, t_max, |id, tm| match intersect_watertight(&pre, &positions[id], tm) {
-            Some(h) if !(any_alpha && self.passes_through(id, h.b1, h.b2, alpha_u)) => h.t,
-            _ => f32::INFINITY,
+        !self.bvh.any(ray.o, ray.d, t_max, |id, tm| {
+            match intersect_watertight(&pre, &positions[id], tm) {
+                Some(h) if !(any_alpha && self.passes_through(id, h.b1, h.b2, alpha_u)) => h.t,
+                _ => f32::INFINITY,
+            }
         })
     }
 
@@ -93,8 +109,14 @@ impl Scene {
         let b0 = 1.0 - b1 - b2;
         let interp = |t: &[Vec2; 3]| t[0] * b0 + t[1] * b1 + t[2] * b2;
         [
-            self.mesh.uv0.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
-            self.mesh.uv1.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
+            self.mesh
+                .uv0
+                .as_ref()
+                .map_or(Vec2::ZERO, |u| interp(&u[tri])),
+            self.mesh
+                .uv1
+                .as_ref()
+                .map_or(Vec2::ZERO, |u| interp(&u[tri])),
         ]
     }
 

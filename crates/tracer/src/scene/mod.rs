@@ -46,8 +46,14 @@ pub struct SceneInfo {
 pub enum SceneError {
     #[error(transparent)]
     Mesh(#[from] MeshError),
-    #[error("triangle {triangle} refers to material {material}, but the scene has {count} materials")]
-    MaterialIndex { triangle: usize, material: u32, count: usize },
+    #[error(
+        "triangle {triangle} refers to material {material}, but the scene has {count} materials"
+    )]
+    MaterialIndex {
+        triangle: usize,
+        material: u32,
+        count: usize,
+    },
 }
 
 /// A scene ready to render.
@@ -69,12 +75,26 @@ pub struct Scene {
 impl Scene {
     /// Drops degenerate triangles, builds the BVH and the light distributions.
     pub fn build(parts: SceneParts) -> Result<Scene, SceneError> {
-        let SceneParts { mut mesh, materials, textures, punctual_lights, camera, warnings } = parts;
+        let SceneParts {
+            mut mesh,
+            materials,
+            textures,
+            punctual_lights,
+            camera,
+            warnings,
+        } = parts;
         mesh.validate()?;
-        if let Some((triangle, &material)) =
-            mesh.material.iter().enumerate().find(|(_, &m)| m as usize >= materials.len())
+        if let Some((triangle, &material)) = mesh
+            .material
+            .iter()
+            .enumerate()
+            .find(|(_, &m)| m as usize >= materials.len())
         {
-            return Err(SceneError::MaterialIndex { triangle, material, count: materials.len() });
+            return Err(SceneError::MaterialIndex {
+                triangle,
+                material,
+                count: materials.len(),
+            });
         }
         // Drop zero-area and non-finite triangles: they cannot be hit, sampled or shaded.
         let keep: Vec<u32> = (0..mesh.len())
@@ -119,8 +139,20 @@ impl Scene {
             bounds_max: hi,
         };
         let any_alpha = materials.iter().any(Material::has_alpha);
-        let any_volume = materials.iter().any(|m| m.volume.is_some() && m.transmission > 0.0);
-        Ok(Scene { mesh, bvh, materials, textures, lights, camera, info, any_alpha, any_volume })
+        let any_volume = materials
+            .iter()
+            .any(|m| m.volume.is_some() && m.transmission > 0.0);
+        Ok(Scene {
+            mesh,
+            bvh,
+            materials,
+            textures,
+            lights,
+            camera,
+            info,
+            any_alpha,
+            any_volume,
+        })
     }
 
     /// True if some material has alpha (MASK or BLEND).

@@ -24,7 +24,10 @@ pub fn lambert(rho: f32, le: f32) -> Material {
 
 /// A camera at `eye` looking down −Z with a 90° vertical field of view.
 pub fn camera_at(eye: Vec3) -> Camera {
-    Camera::new(Projection::Perspective(Perspective::new(90f32.to_radians())), Affine3A::from_translation(eye))
+    Camera::new(
+        Projection::Perspective(Perspective::new(90f32.to_radians())),
+        Affine3A::from_translation(eye),
+    )
 }
 
 /// The closed box [-1,1]³ with its 12 triangles facing inwards (front = counter-clockwise seen from
@@ -34,19 +37,53 @@ pub fn inward_box() -> Mesh {
     let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
     // Each face as a quad (a, b, c, d); triangles (a, b, c) and (a, c, d).
     let faces = [
-        [c(-1., -1., -1.), c(-1., 1., -1.), c(1., 1., -1.), c(1., -1., -1.)], // z = -1, seen from +z
-        [c(-1., -1., 1.), c(1., -1., 1.), c(1., 1., 1.), c(-1., 1., 1.)],     // z = +1
-        [c(-1., -1., -1.), c(1., -1., -1.), c(1., -1., 1.), c(-1., -1., 1.)], // y = -1
-        [c(-1., 1., -1.), c(-1., 1., 1.), c(1., 1., 1.), c(1., 1., -1.)],     // y = +1
-        [c(-1., -1., -1.), c(-1., -1., 1.), c(-1., 1., 1.), c(-1., 1., -1.)], // x = -1
-        [c(1., -1., -1.), c(1., 1., -1.), c(1., 1., 1.), c(1., -1., 1.)],     // x = +1
+        [
+            c(-1., -1., -1.),
+            c(-1., 1., -1.),
+            c(1., 1., -1.),
+            c(1., -1., -1.),
+        ], // z = -1, seen from +z
+        [
+            c(-1., -1., 1.),
+            c(1., -1., 1.),
+            c(1., 1., 1.),
+            c(-1., 1., 1.),
+        ], // z = +1
+        [
+            c(-1., -1., -1.),
+            c(1., -1., -1.),
+            c(1., -1., 1.),
+            c(-1., -1., 1.),
+        ], // y = -1
+        [
+            c(-1., 1., -1.),
+            c(-1., 1., 1.),
+            c(1., 1., 1.),
+            c(1., 1., -1.),
+        ], // y = +1
+        [
+            c(-1., -1., -1.),
+            c(-1., -1., 1.),
+            c(-1., 1., 1.),
+            c(-1., 1., -1.),
+        ], // x = -1
+        [
+            c(1., -1., -1.),
+            c(1., 1., -1.),
+            c(1., 1., 1.),
+            c(1., -1., 1.),
+        ], // x = +1
     ];
     for [a, b, cc, d] in faces {
         for tri in [[a, b, cc], [a, cc, d]] {
             // Orient every triangle so its counter-clockwise front faces the inside.
             let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
             let centroid = (tri[0] + tri[1] + tri[2]) / 3.0;
-            mesh.positions.push(if n.dot(-centroid) > 0.0 { tri } else { [tri[0], tri[2], tri[1]] });
+            mesh.positions.push(if n.dot(-centroid) > 0.0 {
+                tri
+            } else {
+                [tri[0], tri[2], tri[1]]
+            });
         }
     }
     mesh.material = vec![0; mesh.positions.len()];
@@ -58,18 +95,43 @@ pub fn inward_box() -> Mesh {
 pub fn inward_sphere(r: f32, subdivisions: u32) -> Mesh {
     let t = (1.0 + 5f32.sqrt()) / 2.0;
     let mut verts: Vec<Vec3> = [
-        (-1., t, 0.), (1., t, 0.), (-1., -t, 0.), (1., -t, 0.),
-        (0., -1., t), (0., 1., t), (0., -1., -t), (0., 1., -t),
-        (t, 0., -1.), (t, 0., 1.), (-t, 0., -1.), (-t, 0., 1.),
+        (-1., t, 0.),
+        (1., t, 0.),
+        (-1., -t, 0.),
+        (1., -t, 0.),
+        (0., -1., t),
+        (0., 1., t),
+        (0., -1., -t),
+        (0., 1., -t),
+        (t, 0., -1.),
+        (t, 0., 1.),
+        (-t, 0., -1.),
+        (-t, 0., 1.),
     ]
     .iter()
     .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
     .collect();
     let mut faces: Vec<[usize; 3]> = vec![
-        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11],
-        [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
-        [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9],
-        [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
     ];
     for _ in 0..subdivisions {
         let mut cache = std::collections::HashMap::new();
@@ -91,7 +153,8 @@ pub fn inward_sphere(r: f32, subdivisions: u32) -> Mesh {
     let mut mesh = Mesh::default();
     for [a, b, c] in faces {
         // Icosahedron faces are counter-clockwise from outside; swap to face inwards.
-        mesh.positions.push([verts[a] * r, verts[c] * r, verts[b] * r]);
+        mesh.positions
+            .push([verts[a] * r, verts[c] * r, verts[b] * r]);
     }
     mesh.material = vec![0; mesh.positions.len()];
     mesh
@@ -115,7 +178,10 @@ pub fn sphere_with_point_light(r: f32, rho: f32, i: f32) -> Scene {
     Scene::build(SceneParts {
         mesh: inward_sphere(r, 5),
         materials: vec![lambert(rho, 0.0)],
-        punctual_lights: vec![PunctualLight::Point(PointLight { position: Vec3::ZERO, intensity: Vec3::splat(i) })],
+        punctual_lights: vec![PunctualLight::Point(PointLight {
+            position: Vec3::ZERO,
+            intensity: Vec3::splat(i),
+        })],
         camera: Some(camera_at(Vec3::new(0.05, 0.02, 0.1))),
         ..SceneParts::default()
     })
