@@ -1,0 +1,77 @@
+//! Where estimators and inputs fail: invalid samples, degenerate geometry, and the shared furnace
+//! scenes through the glTF loader.
+
+mod common;
+
+use common::*;
+use glam::Vec3;
+use pathfarm_tracer::gltf::{load, LoadOptions, NoExternalResources};
+use pathfarm_tracer::scene::SceneParts;
+use pathfarm_tracer::{render_image, render_sample, DirectStrategy, RenderSettings, Scene};
+
+#[test]
+fn invalid_samples_never_reach_the_image_and_can_be_re_rendered_alone() {
+    // Walls so bright that every sample exceeds the accumulation's range: all are rejected.
+    let scene = furnace_box(0.5, 1e10);
+    let settings = RenderSettings::new(8, 8);
+    let acc = render_image(&scene, &settings, 4, 0..3, &|_| {});
+    assert_eq!(acc.invalid_count, 8 * 8 * 3);
+    assert_eq!(acc.total_samples(), 0);
+    assert!(acc.pixels.iter().all(|p| p.sum == [0; 3]));
+    let first = acc.invalid[0];
+    assert_eq!(
+        (first.x, first.y, first.index),
+        (0, 0, 0),
+        "recorded in pixel order"
+    );
+    let again = render_sample(&scene, &settings, first.x, first.y, first.index);
+    assert!(
+        again.radiance.max_element() >= 1e10,
+        "the re-rendered sample is the rejected one"
+    );
+}
+
+#[test]
+fn degenerate_triangles_are_dropped_and_counted() {
+    let mut mesh = inward_box();
+    let p = Vec3::new(0.2, 0.3, 0.4);
+    mesh.positions.push([p, p, p]);
+    mesh.positions.push([Vec3::ZERO, Vec3::X, Vec3::X * 2.0]); // collinear
+    mesh.material.extend([0, 0]);
+    let scene = Scene::build(SceneParts {
+        mesh,
+        materials: vec![lambert(0.5, 1.0)],
+        camera: Some(camera_at(Vec3::ZERO)),
+        ..SceneParts::default()
+    })
+    .expect("builds");
+    assert_eq!(scene.info.degenerate_dropped, 2);
+    assert_eq!(scene.info.triangles, 12);
+    // And the scene still renders its exact answer.
+    let acc = render_image(&scene, &RenderSettings::new(16, 16), 16, 0..8, &|_| {});
+    let (mean, se) = image_mean_and_stderr(&acc);
+    assert!((mean - 2.0).abs() < 3.0 * se, "{mean} ± {se}");
+}
+
+#[test]
+fn shared_furnace_scenes_are_two_everywhere_for_every_strategy() {
+    let Some(shared) = shared_dir() else { return };
+    for file in ["furnacebox.gltf", "furnace.gltf"] {
+        let bytes = std::fs::read(shared.join("scenes").join(file)).expect("scene file");
+        let scene = load(&bytes, &NoExternalResources, &LoadOptions::default()).expect("loads");
+        for direct in DirectStrategy::ALL {
+            let settings = RenderSettings {
+                direct,
+                seed: 21,
+                ..RenderSettings::new(32, 32)
+            };
+            let acc = render_image(&scene, &settings, 16, 0..16, &|_| {});
+            assert_eq!(acc.invalid_count, 0);
+            let (mean, se) = image_mean_and_stderr(&acc);
+            let z = (mean - 2.0) / se;
+            eprintln!("{file} {direct:>10}: {mean:.5} ± {se:.5} (z = {z:+.2})");
+            assert!(z.abs() < 3.0, "{file}, {direct}: {mean} ± {se}");
+            assert!(se < 0.02, "{file}, {direct}: test too weak ({se})");
+        }
+    }
+}
