@@ -44,6 +44,8 @@ pub struct PixelSampler {
     /// Hash of (seed, pixel): every dimension group derives its scramble from it.
     pixel_key: u32,
     index: u32,
+    /// `index` bit-reversed, computed once (the Sobol generator works on reversed indices).
+    index_rev: u32,
 }
 
 impl PixelSampler {
@@ -54,6 +56,7 @@ impl PixelSampler {
             kind,
             pixel_key,
             index,
+            index_rev: index.reverse_bits(),
         }
     }
 
@@ -61,7 +64,7 @@ impl PixelSampler {
     #[inline]
     pub fn get1(&self, dim: u32) -> f32 {
         match self.kind {
-            SamplerKind::Sobol => owen_sobol_sample(self.pixel_key, self.index, dim),
+            SamplerKind::Sobol => owen_sobol_sample(self.pixel_key, self.index_rev, dim),
             SamplerKind::Independent => independent_sample(self.pixel_key, self.index, dim),
         }
     }
@@ -70,7 +73,7 @@ impl PixelSampler {
     pub fn get2(&self, dim: u32) -> Vec2 {
         match self.kind {
             SamplerKind::Sobol => {
-                let (a, b) = owen_sobol_pair(self.pixel_key, self.index, dim);
+                let (a, b) = owen_sobol_pair(self.pixel_key, self.index_rev, dim);
                 Vec2::new(a, b)
             }
             SamplerKind::Independent => Vec2::new(self.get1(dim), self.get1(dim + 1)),

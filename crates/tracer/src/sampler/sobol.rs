@@ -49,12 +49,13 @@ const fn build_directions() -> [[u32; 32]; 4] {
     v
 }
 
-/// `BYTE_TABLES[d][k][b]`: the XOR of the direction numbers of dimension d selected by byte value b
-/// in byte position k of the index. Turns the 32-step generator matrix product into four lookups
-/// (the shuffled indices are full 32-bit numbers, so the bit loop would always run 32 times).
-static BYTE_TABLES: [[[u32; 256]; 4]; 4] = build_byte_tables();
+/// The generator matrix product as four byte-table lookups (the shuffled indices are full 32-bit
+/// numbers, so a bit loop would always run 32 times), in bit-reversed form: `REVERSED_TABLES` maps reverse(index) to
+/// reverse(sobol(index)). The nested uniform scramble works on bit-reversed values, so staying in
+/// reversed form saves two of the three bit reversals per value (x86 has no bit-reverse instruction).
+static REVERSED_TABLES: [[[u32; 256]; 4]; 4] = build_reversed_tables();
 
-const fn build_byte_tables() -> [[[u32; 256]; 4]; 4] {
+const fn build_reversed_tables() -> [[[u32; 256]; 4]; 4] {
     let mut t = [[[0u32; 256]; 4]; 4];
     let mut d = 0;
     while d < 4 {
@@ -65,8 +66,9 @@ const fn build_byte_tables() -> [[[u32; 256]; 4]; 4] {
                 let mut x = 0u32;
                 let mut bit = 0;
                 while bit < 8 {
+                    // Bit j of reverse(index) is bit 31 − j of the index.
                     if (b >> bit) & 1 != 0 {
-                        x ^= DIRECTIONS[d][k * 8 + bit];
+                        x ^= DIRECTIONS[d][31 - (k * 8 + bit)].reverse_bits();
                     }
                     bit += 1;
                 }
@@ -81,12 +83,24 @@ const fn build_byte_tables() -> [[[u32; 256]; 4]; 4] {
 }
 
 #[inline]
+fn sobol_reversed(index_rev: u32, dim: usize) -> u32 {
+    let t = &REVERSED_TABLES[dim];
+    t[0][(index_rev & 0xff) as usize]
+        ^ t[1][((index_rev >> 8) & 0xff) as usize]
+        ^ t[2][((index_rev >> 16) & 0xff) as usize]
+        ^ t[3][(index_rev >> 24) as usize]
+}
+
+/// Plain Sobol by the bit loop: the reference the tables are tested against.
+#[cfg(test)]
 fn sobol(index: u32, dim: usize) -> u32 {
-    let t = &BYTE_TABLES[dim];
-    t[0][(index & 0xff) as usize]
-        ^ t[1][((index >> 8) & 0xff) as usize]
-        ^ t[2][((index >> 16) & 0xff) as usize]
-        ^ t[3][(index >> 24) as usize]
+    let mut x = 0;
+    for (b, v) in DIRECTIONS[dim].iter().enumerate() {
+        if (index >> b) & 1 != 0 {
+            x ^= v;
+        }
+    }
+    x
 }
 
 /// Laine–Karras style hash that only propagates entropy from lower to higher bits: applied to
@@ -101,7 +115,7 @@ fn laine_karras_permutation(mut x: u32, seed: u32) -> u32 {
     x
 }
 
-#[inline]
+#[cfg(test)]
 fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
     laine_karras_permutation(x.reverse_bits(), seed).reverse_bits()
 }
@@ -112,37 +126,52 @@ fn group_seed(pixel_key: u32, dim: u32) -> u32 {
 }
 
 #[inline]
-fn scrambled_component(shuffled: u32, group_seed: u32, component: usize) -> f32 {
-    let x = sobol(shuffled, component);
+/// Component `component` of the group whose shuffled index, bit-reversed, is `shuffled_rev`:
+/// reverse(LK(reverse(sobol(shuffled)))) computed as reverse(LK(sobol_reversed(shuffled_rev))).
+fn scrambled_component(shuffled_rev: u32, group_seed: u32, component: usize) -> f32 {
+    let x_rev = sobol_reversed(shuffled_rev, component);
     let comp_seed = hash_u32(group_seed ^ (component as u32 + 1).wrapping_mul(0x9e37_79b9));
-    bits_to_unit(nested_uniform_scramble(x, comp_seed))
+    bits_to_unit(laine_karras_permutation(x_rev, comp_seed).reverse_bits())
 }
 
-/// Dimension `dim` of sample `index` for the pixel whose key is `pixel_key`, in [0, 1).
+/// Dimension `dim` of sample `index` for the pixel whose key is `pixel_key`, in [0, 1). Takes the
+/// sample index bit-reversed (`index.reverse_bits()`), which callers compute once per sample.
 #[inline]
-pub fn owen_sobol_sample(pixel_key: u32, index: u32, dim: u32) -> f32 {
+pub fn owen_sobol_sample(pixel_key: u32, index_rev: u32, dim: u32) -> f32 {
     let seed = group_seed(pixel_key, dim);
-    let shuffled = nested_uniform_scramble(index, seed);
-    scrambled_component(shuffled, seed, (dim & 3) as usize)
+    // The shuffled index is reverse(LK(reverse(index))); keep it reversed.
+    let shuffled_rev = laine_karras_permutation(index_rev, seed);
+    scrambled_component(shuffled_rev, seed, (dim & 3) as usize)
 }
 
 /// Dimensions `dim` and `dim + 1` at once (same values as two [`owen_sobol_sample`] calls, sharing
 /// the index shuffle when both lie in one group of four).
 #[inline]
-pub fn owen_sobol_pair(pixel_key: u32, index: u32, dim: u32) -> (f32, f32) {
+pub fn owen_sobol_pair(pixel_key: u32, index_rev: u32, dim: u32) -> (f32, f32) {
     if dim & 3 == 3 {
         return (
-            owen_sobol_sample(pixel_key, index, dim),
-            owen_sobol_sample(pixel_key, index, dim + 1),
+            owen_sobol_sample(pixel_key, index_rev, dim),
+            owen_sobol_sample(pixel_key, index_rev, dim + 1),
         );
     }
     let seed = group_seed(pixel_key, dim);
-    let shuffled = nested_uniform_scramble(index, seed);
+    let shuffled_rev = laine_karras_permutation(index_rev, seed);
     let c = (dim & 3) as usize;
     (
-        scrambled_component(shuffled, seed, c),
-        scrambled_component(shuffled, seed, c + 1),
+        scrambled_component(shuffled_rev, seed, c),
+        scrambled_component(shuffled_rev, seed, c + 1),
     )
+}
+
+/// The reference formulation (Burley 2020, listing 3), kept to test the fast path against.
+#[cfg(test)]
+fn owen_sobol_reference(pixel_key: u32, index: u32, dim: u32) -> f32 {
+    let seed = group_seed(pixel_key, dim);
+    let shuffled = nested_uniform_scramble(index, seed);
+    let component = (dim & 3) as usize;
+    let x = sobol(shuffled, component);
+    let comp_seed = hash_u32(seed ^ (component as u32 + 1).wrapping_mul(0x9e37_79b9));
+    bits_to_unit(nested_uniform_scramble(x, comp_seed))
 }
 
 #[cfg(test)]
@@ -160,22 +189,24 @@ mod tests {
 
     #[test]
     fn byte_tables_match_the_bit_loop_and_pairs_match_singles() {
-        for (d, directions) in DIRECTIONS.iter().enumerate() {
+        for d in 0..4 {
             for i in [0u32, 1, 2, 3, 255, 256, 0xdead_beef, u32::MAX] {
-                let mut x = 0;
-                for (b, v) in directions.iter().enumerate() {
-                    if (i >> b) & 1 != 0 {
-                        x ^= v;
-                    }
-                }
-                assert_eq!(sobol(i, d), x);
+                assert_eq!(
+                    sobol_reversed(i.reverse_bits(), d),
+                    sobol(i, d).reverse_bits()
+                );
             }
         }
         for dim in 0..9 {
-            for i in 0..50 {
-                let (a, b) = owen_sobol_pair(77, i, dim);
-                assert_eq!(a, owen_sobol_sample(77, i, dim));
-                assert_eq!(b, owen_sobol_sample(77, i, dim + 1));
+            for i in (0..50u32).chain([1 << 20, 0xdead_beef]) {
+                let (a, b) = owen_sobol_pair(77, i.reverse_bits(), dim);
+                assert_eq!(a, owen_sobol_sample(77, i.reverse_bits(), dim));
+                assert_eq!(b, owen_sobol_sample(77, i.reverse_bits(), dim + 1));
+                assert_eq!(
+                    a,
+                    owen_sobol_reference(77, i, dim),
+                    "fast path differs from Burley's form"
+                );
             }
         }
     }
@@ -187,7 +218,7 @@ mod tests {
                 let n = 1u32 << m;
                 let mut seen = vec![false; n as usize];
                 for i in 0..n {
-                    let u = owen_sobol_sample(0xdead_beef, i, dim);
+                    let u = owen_sobol_sample(0xdead_beef, i.reverse_bits(), dim);
                     let cell = (u * n as f32) as usize;
                     assert!(
                         !seen[cell],
@@ -205,8 +236,8 @@ mod tests {
         let n = 256u32;
         let mut grid = vec![0u32; 256];
         for i in 0..n {
-            let u = owen_sobol_sample(12345, i, 4);
-            let v = owen_sobol_sample(12345, i, 5);
+            let u = owen_sobol_sample(12345, i.reverse_bits(), 4);
+            let v = owen_sobol_sample(12345, i.reverse_bits(), 5);
             grid[(u * 16.0) as usize * 16 + (v * 16.0) as usize] += 1;
         }
         assert!(grid.iter().all(|&c| c == 1));
