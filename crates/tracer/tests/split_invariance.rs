@@ -125,3 +125,25 @@ fn the_same_seed_gives_the_same_bits_and_another_seed_does_not() {
         "different seeds must give different samples"
     );
 }
+
+#[test]
+fn the_scene_build_is_the_same_on_any_thread_count() {
+    // Workers build their own BVH from the scene bytes; ties between equally distant triangles are
+    // broken by triangle index, which the BVH order defines, so the build must be deterministic.
+    let build = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool")
+            .install(|| sphere_with_point_light(1.0, 0.5, 1.0))
+    };
+    let a = build(1);
+    for threads in [2, 3] {
+        let b = build(threads);
+        assert_eq!(
+            a.mesh.positions, b.mesh.positions,
+            "{threads} threads reorder the mesh differently"
+        );
+        assert_eq!(a.info.bvh_nodes, b.info.bvh_nodes);
+    }
+}

@@ -14,7 +14,7 @@
 //!   spherical caps (2023), an equivalent and shorter form of Heitz's 2018 method.
 
 use glam::{Vec2, Vec3};
-use std::f32::consts::{FRAC_1_PI, PI};
+use std::f32::consts::FRAC_1_PI;
 
 /// The GGX distribution of roughness α (α = perceptual roughness²).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -98,10 +98,9 @@ impl Ggx {
         // Stretch the view direction to the configuration where the distribution is a hemisphere.
         let s = Vec3::new(o.x * a, o.y * a, o.z).normalize();
         // Uniform point on the spherical cap z ∈ (−s.z, 1].
-        let phi = 2.0 * PI * u.x;
         let z = (1.0 - u.y) * (1.0 + s.z) - s.z;
         let sin_theta = (1.0 - z * z).max(0.0).sqrt();
-        let (sp, cp) = phi.sin_cos();
+        let (sp, cp) = crate::math::det::sin_cos_turns(u.x);
         let h = Vec3::new(sin_theta * cp + s.x, sin_theta * sp + s.y, z + s.z);
         // Unstretch.
         let m = Vec3::new(h.x * a, h.y * a, h.z.max(0.0));

@@ -57,7 +57,7 @@ impl Camera {
     /// `center` from +Z at a distance that frames a sphere of `radius`.
     pub fn framing(center: Vec3, radius: f32) -> Self {
         let yfov = 45f32.to_radians();
-        let dist = radius / (0.5 * yfov).sin() * 1.1;
+        let dist = radius / crate::math::det::sin_cos(0.5 * yfov).0 * 1.1;
         Camera::new(
             Projection::Perspective(Perspective::new(yfov)),
             Affine3A::from_translation(center + Vec3::Z * dist),

@@ -11,7 +11,7 @@ impl Perspective {
     pub fn new(yfov: f32) -> Self {
         Perspective {
             yfov,
-            tan_half: (0.5 * yfov).tan(),
+            tan_half: crate::math::det::tan(0.5 * yfov),
         }
     }
 

@@ -103,8 +103,8 @@ pub(crate) fn node_light(
                 position,
                 direction,
                 intensity,
-                cos_inner: inner.cos(),
-                cos_outer: outer.cos(),
+                cos_inner: crate::math::det::cos(inner),
+                cos_outer: crate::math::det::cos(outer),
             })
         }
     }))

@@ -23,7 +23,7 @@ pub(crate) fn material_label(root: &json::Root, index: usize) -> String {
 /// KHR_texture_transform as an affine map: translation · rotation · scale, with the extension's
 /// rotation matrix [[cos, sin], [−sin, cos]] (rows).
 pub fn texture_transform_matrix(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> Affine2 {
-    let (s, c) = rotation.sin_cos();
+    let (s, c) = crate::math::det::sin_cos(rotation);
     let rot = Mat2::from_cols(Vec2::new(c, -s), Vec2::new(s, c));
     let scl = Mat2::from_diagonal(Vec2::from(scale));
     Affine2::from_mat2_translation(rot * scl, Vec2::from(offset))
@@ -217,7 +217,7 @@ pub(crate) fn convert(
         cv.finite("KHR_materials_volume attenuationColor", &color)?;
         if thickness > 0.0 {
             let sigma_a = if distance.is_finite() && distance > 0.0 {
-                Vec3::from(color).map(|c| -(c.clamp(1e-8, 1.0)).ln() / distance)
+                Vec3::from(color).map(|c| -crate::math::det::ln(c.clamp(1e-8, 1.0)) / distance)
             } else {
                 Vec3::ZERO
             };

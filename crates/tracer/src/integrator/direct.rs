@@ -39,7 +39,7 @@ impl Vertex<'_> {
     #[inline]
     fn transmittance(&self, dist: f32) -> Vec3 {
         match self.medium {
-            Some(sigma) if dist.is_finite() => (-sigma * dist).exp(),
+            Some(sigma) if dist.is_finite() => (-sigma * dist).map(crate::math::det::exp),
             _ => Vec3::ONE,
         }
     }

@@ -54,7 +54,7 @@ pub fn trace_path(
         out.vertices += 1;
         let si = scene.surface(&ray, &hit);
         if let Some(sigma) = medium {
-            beta *= (-sigma * hit.t).exp();
+            beta *= (-sigma * hit.t).map(crate::math::det::exp);
         }
         let material = &scene.materials[si.material as usize];
 

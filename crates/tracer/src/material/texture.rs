@@ -60,7 +60,7 @@ fn srgb_lut() -> &'static [f32; 256] {
             *v = if c <= 0.04045 {
                 c / 12.92
             } else {
-                ((c + 0.055) / 1.055).powf(2.4)
+                crate::math::det::exp(2.4 * crate::math::det::ln((c + 0.055) / 1.055))
             };
         }
         t

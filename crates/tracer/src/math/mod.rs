@@ -1,5 +1,6 @@
 //! Small math helpers on top of `glam`: orthonormal frames, luminance, and ray-origin offsetting.
 
+pub mod det;
 mod frame;
 mod offset;
 

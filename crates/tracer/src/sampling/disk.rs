@@ -1,5 +1,5 @@
 use glam::Vec2;
-use std::f32::consts::{FRAC_PI_4, PI};
+use std::f32::consts::FRAC_PI_4;
 
 /// Uniform point on the unit disk by the polar map r = √ξ₁, φ = 2πξ₂ (density 1/π).
 ///
@@ -8,7 +8,7 @@ use std::f32::consts::{FRAC_PI_4, PI};
 #[inline]
 pub fn sample_uniform_disk(u: Vec2) -> Vec2 {
     let r = u.x.sqrt();
-    let (s, c) = (2.0 * PI * u.y).sin_cos();
+    let (s, c) = crate::math::det::sin_cos_turns(u.y);
     Vec2::new(r * c, r * s)
 }
 
@@ -25,6 +25,6 @@ pub fn sample_concentric_disk(u: Vec2) -> Vec2 {
     } else {
         (o.y, 2.0 * FRAC_PI_4 - FRAC_PI_4 * (o.x / o.y))
     };
-    let (s, c) = theta.sin_cos();
+    let (s, c) = crate::math::det::sin_cos(theta);
     Vec2::new(r * c, r * s)
 }

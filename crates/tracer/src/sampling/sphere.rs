@@ -1,6 +1,6 @@
 use super::disk::sample_concentric_disk;
 use glam::{Vec2, Vec3};
-use std::f32::consts::{FRAC_1_PI, PI};
+use std::f32::consts::FRAC_1_PI;
 
 /// Uniform direction on the hemisphere z ≥ 0 (density 1/2π): z = ξ₁ is uniform because the solid
 /// angle above height z is linear in z (Archimedes).
@@ -8,7 +8,7 @@ use std::f32::consts::{FRAC_1_PI, PI};
 pub fn sample_uniform_hemisphere(u: Vec2) -> Vec3 {
     let z = u.x;
     let r = (1.0 - z * z).max(0.0).sqrt();
-    let (s, c) = (2.0 * PI * u.y).sin_cos();
+    let (s, c) = crate::math::det::sin_cos_turns(u.y);
     Vec3::new(r * c, r * s, z)
 }
 
@@ -22,7 +22,7 @@ pub fn uniform_hemisphere_pdf() -> f32 {
 pub fn sample_uniform_sphere(u: Vec2) -> Vec3 {
     let z = 1.0 - 2.0 * u.x;
     let r = (1.0 - z * z).max(0.0).sqrt();
-    let (s, c) = (2.0 * PI * u.y).sin_cos();
+    let (s, c) = crate::math::det::sin_cos_turns(u.y);
     Vec3::new(r * c, r * s, z)
 }
 

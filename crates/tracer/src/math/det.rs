@@ -1,0 +1,176 @@
+//! Deterministic elementary functions: plain f32 multiply-adds (Rust never fuses them into FMA), so
+//! they return the same bits on every CPU and every C library.
+//!
+//! Why: `f32::sin`, `exp`, … call the platform's libm, which on x86-64 glibc picks FMA or non-FMA
+//! code at run time and on other platforms is a different implementation altogether. Workers on
+//! different machines must render the same bits, so everything on the sample path (and everything
+//! the scene loader derives that samples depend on) uses these instead. Accuracy is a few ULP, far
+//! below Monte Carlo noise.
+
+use std::f32::consts::{LN_2, LOG2_E, PI};
+
+/// (sin x, cos x) for |x| up to a few thousand radians.
+#[inline]
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    if !x.is_finite() {
+        return (f32::NAN, f32::NAN);
+    }
+    // Reduce to r ∈ [−π/4, π/4] around the nearest multiple of π/2, in double precision (still plain
+    // IEEE operations, so still deterministic).
+    let k = (x * (2.0 / PI)).round();
+    let r = (x as f64 - k as f64 * std::f64::consts::FRAC_PI_2) as f32;
+    let r2 = r * r;
+    // Taylor polynomials, truncation error < 1e-9 on [−π/4, π/4].
+    let s = r
+        * (1.0
+            + r2 * (-1.0 / 6.0
+                + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))));
+    let c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0))));
+    match (k as i64).rem_euclid(4) {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
+    }
+}
+
+/// (sin 2πt, cos 2πt) for t ∈ [0, 1): the angle of a uniform random number, reduced exactly in
+/// turns before converting to radians.
+#[inline]
+pub fn sin_cos_turns(t: f32) -> (f32, f32) {
+    // Quarter turns: q = nearest quarter, f ∈ [−1/8, 1/8] of a turn, both exact in f32.
+    let q = (t * 4.0).round();
+    let f = t - q * 0.25;
+    let (s, c) = sin_cos(f * (2.0 * PI));
+    match (q as i64).rem_euclid(4) {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
+    }
+}
+
+/// tan x (via [`sin_cos`]).
+#[inline]
+pub fn tan(x: f32) -> f32 {
+    let (s, c) = sin_cos(x);
+    s / c
+}
+
+/// cos x (via [`sin_cos`]).
+#[inline]
+pub fn cos(x: f32) -> f32 {
+    sin_cos(x).1
+}
+
+/// eˣ. Underflows to 0 below −87.3, overflows to +∞ above 88.7.
+#[inline]
+pub fn exp(x: f32) -> f32 {
+    if x.is_nan() {
+        return x;
+    }
+    if x < -87.3 {
+        return 0.0;
+    }
+    if x > 88.7 {
+        return f32::INFINITY;
+    }
+    // eˣ = 2ⁿ · eʳ with n = round(x / ln 2) and r ∈ [−ln2/2, ln2/2].
+    let n = (x * LOG2_E).round();
+    const LN2_HI: f32 = 0.693_145_75; // exact product with small n
+    const LN2_LO: f32 = LN_2 - LN2_HI;
+    let r = (x - n * LN2_HI) - n * LN2_LO;
+    // Taylor to degree 7: error < 2e-9 relative on the interval.
+    let p = 1.0
+        + r * (1.0
+            + r * (0.5
+                + r * (1.0 / 6.0
+                    + r * (1.0 / 24.0
+                        + r * (1.0 / 120.0 + r * (1.0 / 720.0 + r * (1.0 / 5040.0)))))));
+    let n = n as i32;
+    // Scale by 2ⁿ in two steps so that n down to −126 − 24 stays representable.
+    let half = n / 2;
+    p * f32::from_bits(((half + 127) as u32) << 23)
+        * f32::from_bits(((n - half + 127) as u32) << 23)
+}
+
+/// Natural logarithm of x > 0 (NaN for x < 0, −∞ at 0).
+#[inline]
+pub fn ln(x: f32) -> f32 {
+    if x.is_nan() || x < 0.0 {
+        return f32::NAN;
+    }
+    if x == 0.0 {
+        return f32::NEG_INFINITY;
+    }
+    if x.is_infinite() {
+        return x;
+    }
+    // Normalise subnormals, then x = m · 2ᵉ with m ∈ [√½, √2).
+    let (x, bias) = if x < f32::MIN_POSITIVE {
+        (x * 16_777_216.0, -24)
+    } else {
+        (x, 0)
+    };
+    let bits = x.to_bits();
+    let mut e = ((bits >> 23) & 0xff) as i32 - 127 + bias;
+    let mut m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
+    if m > std::f32::consts::SQRT_2 {
+        m *= 0.5;
+        e += 1;
+    }
+    // ln m = 2 atanh(s), s = (m − 1)/(m + 1) ∈ (−0.172, 0.172): odd series to s¹¹.
+    let s = (m - 1.0) / (m + 1.0);
+    let s2 = s * s;
+    let atanh = s
+        * (1.0
+            + s2 * (1.0 / 3.0
+                + s2 * (1.0 / 5.0 + s2 * (1.0 / 7.0 + s2 * (1.0 / 9.0 + s2 * (1.0 / 11.0))))));
+    2.0 * atanh + e as f32 * LN_2
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sin_cos_matches_libm() {
+        let mut worst: f32 = 0.0;
+        for i in -20_000..=20_000 {
+            let x = i as f32 * 0.001_3;
+            let (s, c) = sin_cos(x);
+            worst = worst.max((s - x.sin()).abs()).max((c - x.cos()).abs());
+        }
+        assert!(worst < 5e-7, "worst error {worst}");
+        for i in 0..10_000 {
+            let t = i as f32 / 10_000.0;
+            let (s, c) = sin_cos_turns(t);
+            let a = (t as f64) * std::f64::consts::TAU;
+            assert!(
+                (s as f64 - a.sin()).abs() < 4e-7 && (c as f64 - a.cos()).abs() < 4e-7,
+                "t = {t}"
+            );
+        }
+        assert!((tan(0.3) - 0.3f32.tan()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn exp_and_ln_match_libm() {
+        for i in -8700..=8800 {
+            let x = i as f32 * 0.01;
+            let rel = (exp(x) as f64 / (x as f64).exp() - 1.0).abs();
+            assert!(rel < 1e-6, "exp({x}): rel {rel}");
+        }
+        assert_eq!(exp(-100.0), 0.0);
+        assert_eq!(exp(0.0), 1.0);
+        for i in 1..10_000 {
+            let x = i as f32 * 0.37e-3 * (i as f32);
+            assert!(
+                (ln(x) as f64 - (x as f64).ln()).abs() < 1e-6 * (1.0 + (x as f64).ln().abs()),
+                "ln({x})"
+            );
+        }
+        assert!((ln(1e-40) as f64 - (1e-40f64).ln()).abs() < 1e-4);
+        assert!(ln(-1.0).is_nan());
+    }
+}
