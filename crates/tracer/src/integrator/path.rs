@@ -159,7 +159,7 @@ pub fn trace_path(
         // 4. Russian roulette.
         let survive = match settings.rr {
             RussianRoulette::Off => 1.0,
-            RussianRoulette::Auto if depth >= 2 => beta.max_element().min(1.0),
+            RussianRoulette::Auto if depth >= 3 => beta.max_element().min(1.0),
             RussianRoulette::Auto => 1.0,
             RussianRoulette::Fixed(p) if depth >= 1 => p,
             RussianRoulette::Fixed(_) => 1.0,
