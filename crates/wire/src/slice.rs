@@ -1,0 +1,269 @@
+//! The slice body: an [`Accumulation`] of one tile over one sample range, as a worker uploads it.
+//!
+//! Layout, version 1 (all fixed-width integers little-endian; `v` = unsigned LEB128 varint, canonical):
+//!
+//! ```text
+//! magic        4 bytes  "PFSL"
+//! version      u16      1
+//! flags        u16      0 (reserved)
+//! x0 y0 w h    4 × u32  the tile
+//! begin end    2 × u32  the sample range [begin, end)
+//! rays         v (u64)
+//! invalid      v (u64)  samples rejected as NaN/∞/negative/huge
+//! recorded     v        number of recorded invalid samples (≤ 64), then for each: x, y, index (v each)
+//! pixels       w × h ×  count v(u64), sum R v(u128), sum G v(u128), sum B v(u128), Σ luminance² v(u128)
+//! checksum     u64      FNV-1a 64 of every byte before it
+//! ```
+//!
+//! Varints make a slice about a third of the 72 bytes per pixel the accumulation holds in memory,
+//! because the sums of a slice are far below the `u128` range. Decoding checks every length, range
+//! and the checksum, and never panics: the server feeds it untrusted bytes.
+
+use crate::varint::{self, VarintError};
+use pathfarm_tracer::accumulation::{InvalidSample, MAX_RECORDED_INVALID};
+use pathfarm_tracer::{Accumulation, PixelAccum};
+
+pub const SLICE_MAGIC: [u8; 4] = *b"PFSL";
+pub const SLICE_VERSION: u16 = 1;
+
+/// An accumulation together with the sample range it covers.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Slice {
+    pub sample_begin: u32,
+    pub sample_end: u32,
+    pub acc: Accumulation,
+}
+
+/// Bounds a decoder enforces before allocating anything.
+#[derive(Clone, Copy, Debug)]
+pub struct SliceLimits {
+    /// Largest tile (width × height) accepted.
+    pub max_pixels: u64,
+}
+
+impl Default for SliceLimits {
+    fn default() -> Self {
+        SliceLimits {
+            max_pixels: 4096 * 4096,
+        }
+    }
+}
+
+/// Why a slice body was rejected.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum SliceError {
+    #[error("not a pathfarm slice (bad magic)")]
+    Magic,
+    #[error("unsupported slice version {0} (this build reads version {SLICE_VERSION})")]
+    Version(u16),
+    #[error("reserved flags {0:#x} are set")]
+    Flags(u16),
+    #[error("slice body truncated in {0}")]
+    Truncated(&'static str),
+    #[error("invalid number in {0}")]
+    Number(&'static str),
+    #[error("tile {width}x{height} is empty or larger than the limit of {limit} pixels")]
+    TileSize { width: u32, height: u32, limit: u64 },
+    #[error("empty or reversed sample range [{begin}, {end})")]
+    SampleRange { begin: u32, end: u32 },
+    #[error("pixel {index} has {count} samples, more than the {range} in the sample range")]
+    PixelCount { index: u64, count: u64, range: u32 },
+    #[error("{0} recorded invalid samples (at most {MAX_RECORDED_INVALID})")]
+    Recorded(u64),
+    #[error("recorded invalid sample ({x}, {y}) #{index} lies outside the slice")]
+    RecordedOutside { x: u32, y: u32, index: u32 },
+    #[error("checksum mismatch: the body was corrupted")]
+    Checksum,
+    #[error("{0} unexpected bytes after the checksum")]
+    Trailing(usize),
+}
+
+fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// Encodes a slice.
+pub fn encode_slice(slice: &Slice) -> Vec<u8> {
+    let acc = &slice.acc;
+    let mut out = Vec::with_capacity(64 + acc.pixels.len() * 28);
+    out.extend_from_slice(&SLICE_MAGIC);
+    out.extend_from_slice(&SLICE_VERSION.to_le_bytes());
+    out.extend_from_slice(&0u16.to_le_bytes());
+    for v in [
+        acc.x0,
+        acc.y0,
+        acc.width,
+        acc.height,
+        slice.sample_begin,
+        slice.sample_end,
+    ] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    varint::put(&mut out, acc.rays as u128);
+    varint::put(&mut out, acc.invalid_count as u128);
+    varint::put(&mut out, acc.invalid.len() as u128);
+    for s in &acc.invalid {
+        for v in [s.x, s.y, s.index] {
+            varint::put(&mut out, v as u128);
+        }
+    }
+    for p in &acc.pixels {
+        varint::put(&mut out, p.count as u128);
+        for v in [p.sum[0], p.sum[1], p.sum[2], p.sum_sq_lum] {
+            varint::put(&mut out, v);
+        }
+    }
+    let sum = fnv1a64(&out);
+    out.extend_from_slice(&sum.to_le_bytes());
+    out
+}
+
+struct Reader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl Reader<'_> {
+    fn fixed<const N: usize>(&mut self, what: &'static str) -> Result<[u8; N], SliceError> {
+        let end = self.pos.checked_add(N).ok_or(SliceError::Truncated(what))?;
+        let chunk = self
+            .bytes
+            .get(self.pos..end)
+            .ok_or(SliceError::Truncated(what))?;
+        self.pos = end;
+        let mut out = [0u8; N];
+        out.copy_from_slice(chunk);
+        Ok(out)
+    }
+
+    fn u32(&mut self, what: &'static str) -> Result<u32, SliceError> {
+        Ok(u32::from_le_bytes(self.fixed::<4>(what)?))
+    }
+
+    fn var(&mut self, bits: u32, what: &'static str) -> Result<u128, SliceError> {
+        varint::get(self.bytes, &mut self.pos, bits).map_err(|e| match e {
+            VarintError::Truncated => SliceError::Truncated(what),
+            VarintError::Invalid => SliceError::Number(what),
+        })
+    }
+}
+
+/// Decodes and validates a slice body.
+pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceError> {
+    // The checksum covers everything before the last 8 bytes; check it first so corrupted bodies
+    // fail with the right reason.
+    if bytes.len() < 4 || bytes[..4] != SLICE_MAGIC {
+        return Err(SliceError::Magic);
+    }
+    let mut r = Reader { bytes, pos: 4 };
+    let version = u16::from_le_bytes(r.fixed::<2>("header")?);
+    if version != SLICE_VERSION {
+        return Err(SliceError::Version(version));
+    }
+    let flags = u16::from_le_bytes(r.fixed::<2>("header")?);
+    if flags != 0 {
+        return Err(SliceError::Flags(flags));
+    }
+    if bytes.len() < 8 + 32 {
+        return Err(SliceError::Truncated("header"));
+    }
+    let body = &bytes[..bytes.len() - 8];
+    let mut sum = [0u8; 8];
+    sum.copy_from_slice(&bytes[bytes.len() - 8..]);
+    if fnv1a64(body) != u64::from_le_bytes(sum) {
+        return Err(SliceError::Checksum);
+    }
+    let mut r = Reader {
+        bytes: body,
+        pos: 8,
+    };
+    let (x0, y0, width, height) = (
+        r.u32("tile")?,
+        r.u32("tile")?,
+        r.u32("tile")?,
+        r.u32("tile")?,
+    );
+    let pixels = width as u64 * height as u64;
+    if pixels == 0 || pixels > limits.max_pixels {
+        return Err(SliceError::TileSize {
+            width,
+            height,
+            limit: limits.max_pixels,
+        });
+    }
+    let (begin, end) = (r.u32("sample range")?, r.u32("sample range")?);
+    if begin >= end {
+        return Err(SliceError::SampleRange { begin, end });
+    }
+    let rays = r.var(64, "rays")? as u64;
+    let invalid_count = r.var(64, "invalid count")? as u64;
+    let recorded = r.var(64, "recorded invalid samples")? as u64;
+    if recorded > MAX_RECORDED_INVALID as u64 {
+        return Err(SliceError::Recorded(recorded));
+    }
+    let mut invalid = Vec::with_capacity(recorded as usize);
+    for _ in 0..recorded {
+        let x = r.var(32, "recorded invalid samples")? as u32;
+        let y = r.var(32, "recorded invalid samples")? as u32;
+        let index = r.var(32, "recorded invalid samples")? as u32;
+        let inside = x >= x0
+            && y >= y0
+            && (x - x0) < width
+            && (y - y0) < height
+            && index >= begin
+            && index < end;
+        if !inside {
+            return Err(SliceError::RecordedOutside { x, y, index });
+        }
+        invalid.push(InvalidSample { x, y, index });
+    }
+    // Each pixel takes at least 5 bytes: refuse bodies too short for their tile before allocating.
+    if (body.len() - r.pos) as u64 / 5 < pixels {
+        return Err(SliceError::Truncated("pixels"));
+    }
+    let range = end - begin;
+    let mut px = Vec::with_capacity(pixels as usize);
+    for index in 0..pixels {
+        let count = r.var(64, "pixel count")? as u64;
+        if count > range as u64 {
+            return Err(SliceError::PixelCount {
+                index,
+                count,
+                range,
+            });
+        }
+        let sum = [
+            r.var(128, "pixel sum")?,
+            r.var(128, "pixel sum")?,
+            r.var(128, "pixel sum")?,
+        ];
+        let sum_sq_lum = r.var(128, "pixel sum")?;
+        px.push(PixelAccum {
+            sum,
+            sum_sq_lum,
+            count,
+        });
+    }
+    if r.pos != body.len() {
+        return Err(SliceError::Trailing(body.len() - r.pos));
+    }
+    Ok(Slice {
+        sample_begin: begin,
+        sample_end: end,
+        acc: Accumulation {
+            x0,
+            y0,
+            width,
+            height,
+            pixels: px,
+            rays,
+            invalid_count,
+            invalid,
+        },
+    })
+}
