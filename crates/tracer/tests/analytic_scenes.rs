@@ -27,11 +27,16 @@ fn check(scene: &pathfarm_tracer::Scene, exact: f64, settings: &RenderSettings, 
     );
 }
 
+/// Light-area sampling alone has *infinite* variance in the box: near its corners and edges a wall
+/// sees another wall's points at r → 0 while cos θ cos θ' stays finite, so its mean converges too
+/// slowly for a z-test (the failure `pathfarm bench` is meant to show). It is tested in the sphere
+/// furnace, where cos θ cos θ' / r² is constant; MIS is robust in both.
 #[test]
 fn furnace_box_is_le_over_one_minus_rho_for_every_strategy() {
     let (rho, le) = (0.5f32, 1.0f32);
-    let scene = furnace_box(rho, le);
     let exact = (le / (1.0 - rho)) as f64;
+    let boxed = furnace_box(rho, le);
+    let sphere = furnace_sphere(rho, le);
     for sampler in [SamplerKind::Sobol, SamplerKind::Independent] {
         for direct in DirectStrategy::ALL {
             let settings = RenderSettings {
@@ -40,7 +45,10 @@ fn furnace_box_is_le_over_one_minus_rho_for_every_strategy() {
                 seed: 7,
                 ..RenderSettings::new(32, 32)
             };
-            check(&scene, exact, &settings, 16);
+            if direct != DirectStrategy::Light {
+                check(&boxed, exact, &settings, 16);
+            }
+            check(&sphere, exact, &settings, 16);
         }
     }
 }

@@ -59,7 +59,12 @@ fn shared_furnace_scenes_are_two_everywhere_for_every_strategy() {
     for file in ["furnacebox.gltf", "furnace.gltf"] {
         let bytes = std::fs::read(shared.join("scenes").join(file)).expect("scene file");
         let scene = load(&bytes, &NoExternalResources, &LoadOptions::default()).expect("loads");
-        for direct in DirectStrategy::ALL {
+        // Light-area sampling alone has infinite variance at the box's corners (see
+        // analytic_scenes.rs); the faceted sphere has none.
+        let strategies = DirectStrategy::ALL.into_iter();
+        for direct in
+            strategies.filter(|&d| file != "furnacebox.gltf" || d != DirectStrategy::Light)
+        {
             let settings = RenderSettings {
                 direct,
                 seed: 21,

@@ -172,6 +172,19 @@ pub fn furnace_box(rho: f32, le: f32) -> Scene {
     .expect("scene builds")
 }
 
+/// The furnace inside a sphere: walls of a geodesic sphere of radius 1 emit `le` and reflect with
+/// albedo `rho`. Unlike the box it has no corners, so light-area sampling has bounded variance
+/// (inside a sphere cos θ cos θ' / r² is constant).
+pub fn furnace_sphere(rho: f32, le: f32) -> Scene {
+    Scene::build(SceneParts {
+        mesh: inward_sphere(1.0, 4),
+        materials: vec![lambert(rho, le)],
+        camera: Some(camera_at(Vec3::new(0.1, -0.2, 0.3))),
+        ..SceneParts::default()
+    })
+    .expect("scene builds")
+}
+
 /// A diffuse sphere of radius `r` and albedo `rho` lit by an isotropic point light of intensity `i` at
 /// its centre. Exact radiance everywhere inside: ρ I / (π r² (1 − ρ)) (up to the tessellation).
 pub fn sphere_with_point_light(r: f32, rho: f32, i: f32) -> Scene {
