@@ -5,45 +5,14 @@
 //!
 //! Run with `--nocapture` to see the p-values and furnace values.
 
+mod common;
+
+use common::Pcg32;
 use glam::{DVec3, Vec2, Vec3};
 use pathfarm_tracer::bsdf::microfacet::Ggx;
 use pathfarm_tracer::bsdf::{Bsdf, PbrParams};
 use pathfarm_tracer::stats::{chi_square_test, SphereBins};
 use std::f64::consts::PI;
-
-/// PCG32 (O'Neill): a small, fast, deterministic generator for the uniform inputs.
-struct Pcg32 {
-    state: u64,
-    inc: u64,
-}
-
-impl Pcg32 {
-    fn new(seed: u64, seq: u64) -> Self {
-        let mut r = Pcg32 {
-            state: 0,
-            inc: (seq << 1) | 1,
-        };
-        r.next_u32();
-        r.state = r.state.wrapping_add(seed);
-        r.next_u32();
-        r
-    }
-
-    fn next_u32(&mut self) -> u32 {
-        let old = self.state;
-        self.state = old
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(self.inc);
-        let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
-        let rot = (old >> 59) as u32;
-        xorshifted.rotate_right(rot)
-    }
-
-    /// Uniform in [0, 1) with 24 bits.
-    fn f32(&mut self) -> f32 {
-        (self.next_u32() >> 8) as f32 * (1.0 / 16_777_216.0)
-    }
-}
 
 const MIN_P: f64 = 1e-4;
 

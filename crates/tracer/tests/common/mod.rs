@@ -10,6 +10,54 @@ use pathfarm_tracer::scene::SceneParts;
 use pathfarm_tracer::{Accumulation, Scene};
 use std::path::PathBuf;
 
+/// PCG32 (O'Neill): a small, fast, deterministic generator for the tests' uniform inputs.
+pub struct Pcg32 {
+    state: u64,
+    inc: u64,
+}
+
+impl Pcg32 {
+    /// The generator with initial state `seed` on stream `seq`.
+    pub fn new(seed: u64, seq: u64) -> Self {
+        let mut r = Pcg32 {
+            state: 0,
+            inc: (seq << 1) | 1,
+        };
+        r.next_u32();
+        r.state = r.state.wrapping_add(seed);
+        r.next_u32();
+        r
+    }
+
+    /// One generator per seed, each on its own stream.
+    pub fn seeded(seed: u64) -> Self {
+        Pcg32::new(0x853c_49e6_748f_ea9b ^ seed, seed)
+    }
+
+    pub fn next_u32(&mut self) -> u32 {
+        let old = self.state;
+        self.state = old
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(self.inc);
+        let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
+        xorshifted.rotate_right((old >> 59) as u32)
+    }
+
+    /// Uniform in [0, 1) with 24 bits.
+    pub fn f32(&mut self) -> f32 {
+        (self.next_u32() >> 8) as f32 * (1.0 / 16_777_216.0)
+    }
+
+    pub fn vec2(&mut self) -> glam::Vec2 {
+        glam::Vec2::new(self.f32(), self.f32())
+    }
+
+    /// Uniform integer in [0, n) (n ≤ 2³²; the tiny modulo bias does not matter for the tests).
+    pub fn below(&mut self, n: u64) -> u64 {
+        ((self.next_u32() as u64) << 32 | self.next_u32() as u64) % n
+    }
+}
+
 /// A Lambertian material of albedo `rho` emitting `le` from its front face.
 pub fn lambert(rho: f32, le: f32) -> Material {
     Material {
