@@ -120,7 +120,12 @@ pub(crate) fn direct_area_light(
     if le == Vec3::ZERO {
         return Vec3::ZERO;
     }
-    let f = v.bsdf.eval(v.wo, wi);
+    // With MIS the BSDF's pdf is needed too: evaluate both in one pass over the lobes.
+    let (f, bsdf_pdf) = if mis {
+        v.bsdf.eval_pdf(v.wo, wi)
+    } else {
+        (v.bsdf.eval(v.wo, wi), 0.0)
+    };
     if f == Vec3::ZERO {
         return Vec3::ZERO;
     }
@@ -137,7 +142,7 @@ pub(crate) fn direct_area_light(
         return Vec3::ZERO;
     }
     let w = if mis {
-        power_heuristic(pdf, v.bsdf.pdf(v.wo, wi))
+        power_heuristic(pdf, bsdf_pdf)
     } else {
         1.0
     };
