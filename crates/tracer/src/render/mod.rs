@@ -38,8 +38,10 @@ pub fn render_tile(
             )
         })
         .collect();
-    let mut acc = Accumulation::new(tile.x0, tile.y0, tile.width, tile.height);
-    acc.pixels.clear();
+    // Rows arrive in order; their pixels are appended rather than written into a zeroed image.
+    let mut acc = Accumulation::new(tile.x0, tile.y0, tile.width, 0);
+    acc.height = tile.height;
+    acc.pixels.reserve(tile.pixel_count() as usize);
     for (pixels, rays, invalid_count, invalid) in rows {
         acc.pixels.extend_from_slice(&pixels);
         acc.rays += rays;
