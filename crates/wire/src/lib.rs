@@ -1,9 +1,11 @@
 //! # pathfarm-wire
 //!
-//! Formats that cross the network between pathfarm's server and its workers. This first part holds
-//! the binary body that carries an [`Accumulation`] (a *slice*: one tile × one sample range), see
-//! [`slice`]. JSON control messages will join it here, so that server and worker share one contract.
+//! The contract between pathfarm's server, its workers and its command-line client (`openapi.yaml`
+//! describes it for everyone else): the JSON control messages in [`api`], and the binary body that
+//! carries an [`Accumulation`](pathfarm_tracer::Accumulation) (a *slice*: one tile × one sample
+//! range) in [`slice`].
 
+pub mod api;
 pub mod slice;
 mod varint;
 

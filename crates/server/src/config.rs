@@ -1,0 +1,68 @@
+//! Server configuration: the store, tokens, lease timing and the limits on what clients may ask for.
+
+use std::time::Duration;
+
+/// Limits on requests, each enforced with a clear 4xx.
+#[derive(Clone, Debug)]
+pub struct Limits {
+    /// Largest scene upload (bytes).
+    pub max_scene_bytes: usize,
+    /// Largest image, width × height.
+    pub max_pixels: u64,
+    /// Largest width or height.
+    pub max_dimension: u32,
+    pub max_spp: u32,
+    /// Most tiles per job.
+    pub max_tiles: u64,
+    /// Largest slice body (bytes).
+    pub max_slice_bytes: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_scene_bytes: 256 << 20,
+            max_pixels: 8192 * 8192,
+            max_dimension: 16384,
+            max_spp: 1 << 20,
+            max_tiles: 65536,
+            max_slice_bytes: 64 << 20,
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct ServerConfig {
+    /// `sqlite://FILE` or `postgres://…`.
+    pub db_url: String,
+    /// Tokens for API clients (submit, manage, read). Empty with `worker_tokens` empty: no auth.
+    pub client_tokens: Vec<String>,
+    /// Tokens for workers (register, lease, upload).
+    pub worker_tokens: Vec<String>,
+    /// A lease lasts this long without a heartbeat.
+    pub lease_duration: Duration,
+    /// How often each server expires leases, marks lost workers and updates error estimates.
+    pub monitor_interval: Duration,
+    /// Most samples per pixel in one task of the last passes, capped further so that a task stays
+    /// a few seconds of work.
+    pub max_task_samples: u64,
+    pub limits: Limits,
+}
+
+impl ServerConfig {
+    pub fn new(db_url: impl Into<String>) -> Self {
+        ServerConfig {
+            db_url: db_url.into(),
+            client_tokens: Vec::new(),
+            worker_tokens: Vec::new(),
+            lease_duration: Duration::from_secs(30),
+            monitor_interval: Duration::from_millis(500),
+            max_task_samples: 4 << 20,
+            limits: Limits::default(),
+        }
+    }
+
+    pub fn auth_required(&self) -> bool {
+        !self.client_tokens.is_empty() || !self.worker_tokens.is_empty()
+    }
+}

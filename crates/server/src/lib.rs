@@ -1,0 +1,102 @@
+//! # pathfarm-server
+//!
+//! The render farm server: the REST API of `openapi.yaml` ([`app`]), the job queue and scheduler,
+//! task leases with fencing tokens, and the exact progressive merge of the slices workers upload.
+//! State lives in the store (SQLite or PostgreSQL, see [`store`]); the process keeps only caches, so
+//! several servers can share one PostgreSQL database and serve one farm.
+
+pub mod auth;
+pub mod config;
+pub mod error;
+pub mod image_cache;
+pub mod metrics;
+pub mod monitor;
+pub mod routes;
+pub mod scheduler;
+pub mod states;
+pub mod store;
+
+pub use config::{Limits, ServerConfig};
+pub use store::Store;
+
+use axum::extract::DefaultBodyLimit;
+use axum::http::StatusCode;
+use axum::Router;
+use error::ApiError;
+use std::future::Future;
+use std::sync::Arc;
+
+/// Shared by every request handler.
+#[derive(Clone)]
+pub struct AppState(Arc<Inner>);
+
+pub struct Inner {
+    pub store: Store,
+    pub config: ServerConfig,
+    pub images: image_cache::ImageCache,
+    pub metrics: metrics::Metrics,
+}
+
+impl std::ops::Deref for AppState {
+    type Target = Inner;
+    fn deref(&self) -> &Inner {
+        &self.0
+    }
+}
+
+impl AppState {
+    /// Opens the store (applying migrations) and builds the state.
+    pub async fn open(config: ServerConfig) -> Result<AppState, store::StoreError> {
+        let store = Store::connect(&config.db_url).await?;
+        Ok(AppState(Arc::new(Inner {
+            store,
+            config,
+            images: Default::default(),
+            metrics: Default::default(),
+        })))
+    }
+}
+
+/// The router: every route of [`routes::api_routes`], JSON errors for unknown paths and methods.
+pub fn app(state: AppState) -> Router {
+    let body_limit = state
+        .config
+        .limits
+        .max_scene_bytes
+        .max(state.config.limits.max_slice_bytes)
+        + (1 << 20);
+    let mut router = Router::new();
+    for r in routes::api_routes() {
+        router = router.route(r.path, r.handler);
+    }
+    router
+        .fallback(|| async {
+            ApiError::new(StatusCode::NOT_FOUND, "not_found", "no such endpoint")
+        })
+        .method_not_allowed_fallback(|| async {
+            ApiError::new(
+                StatusCode::METHOD_NOT_ALLOWED,
+                "method_not_allowed",
+                "method not allowed on this endpoint",
+            )
+        })
+        .layer(DefaultBodyLimit::max(body_limit))
+        .layer(tower_http::trace::TraceLayer::new_for_http())
+        .with_state(state)
+}
+
+/// Serves the API on `listener` until `shutdown` resolves, running the monitor loop alongside;
+/// in-flight requests finish before it returns.
+pub async fn serve(
+    state: AppState,
+    listener: tokio::net::TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    let monitor = tokio::spawn(monitor::run(state.clone()));
+    let result = axum::serve(listener, app(state.clone()))
+        .with_graceful_shutdown(shutdown)
+        .await;
+    monitor.abort();
+    state.store.close().await;
+    result
+}

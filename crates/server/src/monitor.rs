@@ -1,0 +1,80 @@
+//! The background loop every server runs: expires leases, marks silent workers lost, keeps each
+//! job's error estimate current, and ends jobs at their noise target or time limit. Every step is
+//! a transaction on the shared store, so any number of servers can run it side by side.
+
+use crate::states::JobEvent;
+use crate::store::now_ms;
+use crate::AppState;
+use pathfarm_wire::api::JobState;
+
+pub async fn run(state: AppState) {
+    let mut tick = tokio::time::interval(state.config.monitor_interval);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tick.tick().await;
+        if let Err(e) = step(&state).await {
+            tracing::warn!(error = %e, "monitor step failed");
+        }
+    }
+}
+
+pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
+    let store = &state.store;
+    let expired = store.expire_leases().await?;
+    if expired > 0 {
+        state
+            .metrics
+            .lease_expiries
+            .fetch_add(expired, std::sync::atomic::Ordering::Relaxed);
+    }
+    let lost = store
+        .mark_lost_workers(state.config.lease_duration.as_millis() as u64)
+        .await?;
+    if lost > 0 {
+        tracing::warn!(workers = lost, "workers lost (no heartbeat)");
+    }
+    for (id, _) in store.jobs_needing_estimate().await? {
+        let job = match store.job(&id).await {
+            Ok(j) => j,
+            Err(_) => continue, // deleted meanwhile
+        };
+        let img = state
+            .images
+            .get(store, &id, job.settings.width, job.settings.height)
+            .await?;
+        let err = if img.min_samples >= 2 {
+            img.acc.relative_error()
+        } else {
+            None
+        };
+        store.set_rel_error(&id, img.version, err).await?;
+        if job.state == JobState::Running {
+            if let (Some(target), Some(err)) = (job.settings.noise_target, err) {
+                if err <= target {
+                    let msg = format!(
+                        "noise target {target} reached (estimated relative error {err:.4})"
+                    );
+                    tracing::info!(job = %id, "{msg}");
+                    store
+                        .job_event(&id, JobEvent::Complete, Some(&msg))
+                        .await
+                        .ok();
+                }
+            }
+        }
+    }
+    let now = now_ms();
+    for job in store.jobs_in_states(&[JobState::Running]).await? {
+        if let (Some(limit), Some(started)) = (job.settings.time_limit_s, job.started_ms) {
+            if now - started >= (limit * 1000.0) as i64 {
+                let msg = format!("time limit of {limit} s reached");
+                tracing::info!(job = %job.id, "{msg}");
+                store
+                    .job_event(&job.id, JobEvent::Complete, Some(&msg))
+                    .await
+                    .ok();
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,349 @@
+//! Submitting and managing jobs.
+
+use super::json_body;
+use crate::auth::{ClientAuth, ReadAuth};
+use crate::error::{ApiError, ApiResult};
+use crate::scheduler;
+use crate::states::JobEvent;
+use crate::store::{now_ms, JobRow, NewJob};
+use crate::AppState;
+use axum::body::Bytes;
+use axum::extract::multipart::{Multipart, MultipartRejection};
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::Json;
+use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
+use pathfarm_wire::api::{
+    JobCreated, JobList, JobPatch, JobSettings, JobState, JobView, TileProgress, TileRect,
+};
+use serde::Deserialize;
+use sha2::{Digest, Sha256};
+
+fn multipart_error(e: impl std::fmt::Display) -> ApiError {
+    let msg = e.to_string();
+    if msg.contains("limit") {
+        ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too_large",
+            format!("request body too large: {msg}"),
+        )
+    } else {
+        ApiError::bad_request("bad_multipart", format!("invalid multipart body: {msg}"))
+    }
+}
+
+/// `POST /api/v1/jobs`: multipart with a `scene` part (.glb or .gltf with embedded data) and a
+/// `settings` part (JSON [`JobSettings`]). The scene is loaded here, so a broken one is refused
+/// with a 422 before any job exists.
+pub async fn submit(
+    _: ClientAuth,
+    State(state): State<AppState>,
+    multipart: Result<Multipart, MultipartRejection>,
+) -> ApiResult<(StatusCode, Json<JobCreated>)> {
+    let mut multipart = multipart.map_err(|e| {
+        ApiError::new(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "unsupported_media_type",
+            format!("expected a multipart/form-data body with `scene` and `settings` parts: {e}"),
+        )
+    })?;
+    let mut scene: Option<Bytes> = None;
+    let mut settings: Option<JobSettings> = None;
+    let mut file_name: Option<String> = None;
+    while let Some(field) = multipart.next_field().await.map_err(multipart_error)? {
+        match field.name() {
+            Some("scene") => {
+                file_name = field.file_name().map(str::to_string);
+                scene = Some(field.bytes().await.map_err(multipart_error)?);
+            }
+            Some("settings") => {
+                let bytes = field.bytes().await.map_err(multipart_error)?;
+                settings = Some(serde_json::from_slice(&bytes).map_err(|e| {
+                    ApiError::unprocessable("invalid_settings", format!("settings: {e}"))
+                })?);
+            }
+            Some(other) => {
+                return Err(ApiError::bad_request(
+                    "bad_multipart",
+                    format!("unexpected part {other:?} (expected `scene` and `settings`)"),
+                ))
+            }
+            None => return Err(ApiError::bad_request("bad_multipart", "a part has no name")),
+        }
+    }
+    let scene =
+        scene.ok_or_else(|| ApiError::bad_request("bad_multipart", "missing the `scene` part"))?;
+    let settings = settings
+        .ok_or_else(|| ApiError::bad_request("bad_multipart", "missing the `settings` part"))?;
+    validate(&state, &settings, scene.len())?;
+
+    // Load the scene exactly as a worker will (no external resources: a URI in a submitted scene
+    // never reads the server's files or the network).
+    let camera = settings.camera.clone();
+    let scene_for_load = scene.clone();
+    let loaded = tokio::task::spawn_blocking(move || {
+        gltf::load(
+            &scene_for_load,
+            &NoExternalResources,
+            &LoadOptions { camera },
+        )
+        .map(|s| s.info.triangles)
+    })
+    .await
+    .map_err(|e| ApiError::internal(format!("scene validation: {e}")))?;
+    if let Err(e) = loaded {
+        return Err(ApiError::unprocessable(
+            "invalid_scene",
+            format!("the scene cannot be loaded: {e}"),
+        ));
+    }
+    let hash = hex::encode(Sha256::digest(&scene));
+    let (tiles, tasks) = scheduler::plan(
+        settings.width,
+        settings.height,
+        settings.tile_size,
+        settings.spp,
+        state.config.max_task_samples,
+    );
+    if tiles.len() as u64 > state.config.limits.max_tiles {
+        return Err(ApiError::unprocessable(
+            "limit",
+            format!(
+                "{} tiles exceed the limit of {}; use a larger tile_size",
+                tiles.len(),
+                state.config.limits.max_tiles
+            ),
+        ));
+    }
+    let id = uuid::Uuid::new_v4().simple().to_string();
+    let name = settings
+        .name
+        .clone()
+        .or(file_name)
+        .unwrap_or_else(|| format!("job {}", &id[..8]));
+    let samples_planned = settings.width as u64 * settings.height as u64 * settings.spp as u64;
+    let task_count = tasks.len() as u64;
+    state
+        .store
+        .create_job(NewJob {
+            id: id.clone(),
+            name,
+            settings,
+            scene_hash: hash.clone(),
+            scene_bytes: scene.to_vec(),
+            tiles,
+            tasks,
+            samples_planned,
+        })
+        .await?;
+    tracing::info!(job = %id, scene = %hash, tasks = task_count, "job submitted");
+    Ok((
+        StatusCode::CREATED,
+        Json(JobCreated {
+            id,
+            scene_hash: hash,
+            tasks: task_count,
+            samples_planned,
+        }),
+    ))
+}
+
+fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<()> {
+    let l = &state.config.limits;
+    let bad = |m: String| Err(ApiError::unprocessable("invalid_settings", m));
+    if scene_bytes == 0 {
+        return bad("the scene part is empty".into());
+    }
+    if scene_bytes > l.max_scene_bytes {
+        return Err(ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too_large",
+            format!(
+                "scene of {scene_bytes} bytes exceeds the limit of {}",
+                l.max_scene_bytes
+            ),
+        ));
+    }
+    if s.width == 0 || s.height == 0 || s.width > l.max_dimension || s.height > l.max_dimension {
+        return bad(format!(
+            "width and height must be in 1..={} (got {}x{})",
+            l.max_dimension, s.width, s.height
+        ));
+    }
+    if s.width as u64 * s.height as u64 > l.max_pixels {
+        return bad(format!(
+            "{}x{} exceeds the limit of {} pixels",
+            s.width, s.height, l.max_pixels
+        ));
+    }
+    if s.spp == 0 || s.spp > l.max_spp {
+        return bad(format!("spp must be in 1..={} (got {})", l.max_spp, s.spp));
+    }
+    if s.tile_size == 0 || s.tile_size > 4096 {
+        return bad(format!(
+            "tile_size must be in 1..=4096 (got {})",
+            s.tile_size
+        ));
+    }
+    if let Some(t) = s.noise_target {
+        if !(t.is_finite() && t > 0.0) {
+            return bad(format!("noise_target must be a positive number (got {t})"));
+        }
+    }
+    if let Some(t) = s.time_limit_s {
+        if !(t.is_finite() && t > 0.0) {
+            return bad(format!("time_limit_s must be a positive number (got {t})"));
+        }
+    }
+    if s.name.as_ref().is_some_and(|n| n.len() > 256) {
+        return bad("name is longer than 256 bytes".into());
+    }
+    Ok(())
+}
+
+/// The API view of a stored job.
+pub(crate) fn view(job: JobRow, tiles: Option<Vec<TileProgress>>) -> JobView {
+    let now = now_ms();
+    let elapsed_s = job
+        .started_ms
+        .map(|s| ((job.finished_ms.unwrap_or(now) - s).max(1)) as f64 / 1000.0);
+    let rate = elapsed_s.map_or(0.0, |t| job.samples_done as f64 / t);
+    let eta = (!job.state.is_final() && rate > 0.0)
+        .then(|| job.samples_planned.saturating_sub(job.samples_done) as f64 / rate);
+    let mut settings = job.settings;
+    settings.priority = job.priority;
+    JobView {
+        id: job.id,
+        name: job.name,
+        state: job.state,
+        priority: job.priority,
+        settings,
+        scene_hash: job.scene_hash,
+        samples_done: job.samples_done,
+        samples_planned: job.samples_planned,
+        relative_error: job.rel_error,
+        samples_per_second: rate,
+        eta_seconds: eta,
+        created_at_ms: job.created_ms,
+        started_at_ms: job.started_ms,
+        finished_at_ms: job.finished_ms,
+        message: job.message,
+        leased_tasks: job.leased_tasks,
+        tiles,
+    }
+}
+
+#[derive(Deserialize)]
+pub struct ListQuery {
+    state: Option<String>,
+    page: Option<u32>,
+    per_page: Option<u32>,
+}
+
+pub async fn list(
+    _: ReadAuth,
+    State(state): State<AppState>,
+    query: Result<Query<ListQuery>, axum::extract::rejection::QueryRejection>,
+) -> ApiResult<Json<JobList>> {
+    let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
+    let filter = match q.state.as_deref() {
+        None | Some("") => None,
+        Some(s) => Some(JobState::parse(s).ok_or_else(|| {
+            ApiError::bad_request(
+                "bad_query",
+                format!(
+                    "unknown state {s:?} (queued, running, paused, completed, cancelled, failed)"
+                ),
+            )
+        })?),
+    };
+    let page = q.page.unwrap_or(1).max(1);
+    let per_page = q.per_page.unwrap_or(50).clamp(1, 500);
+    let (jobs, total) = state
+        .store
+        .jobs(filter, (page as u64 - 1) * per_page as u64, per_page as u64)
+        .await?;
+    Ok(Json(JobList {
+        jobs: jobs.into_iter().map(|j| view(j, None)).collect(),
+        total,
+        page,
+        per_page,
+    }))
+}
+
+pub async fn show(
+    _: ReadAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<JobView>> {
+    let job = state.store.job(&id).await?;
+    let tiles = state
+        .store
+        .tiles(&id)
+        .await?
+        .into_iter()
+        .map(|t| TileProgress {
+            rect: TileRect {
+                x0: t.tile.x0,
+                y0: t.tile.y0,
+                width: t.tile.width,
+                height: t.tile.height,
+            },
+            samples_per_pixel: t.samples,
+        })
+        .collect();
+    Ok(Json(view(job, Some(tiles))))
+}
+
+pub async fn patch_job(
+    _: ClientAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult<Json<JobView>> {
+    let patch: JobPatch = json_body(&headers, &body)?;
+    let job = state.store.set_priority(&id, patch.priority).await?;
+    Ok(Json(view(job, None)))
+}
+
+pub async fn delete_job(
+    _: ClientAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<StatusCode> {
+    state.store.delete_job(&id).await?;
+    state.images.forget(&id);
+    tracing::info!(job = %id, "job deleted");
+    Ok(StatusCode::NO_CONTENT)
+}
+
+async fn event(state: &AppState, id: &str, e: JobEvent) -> ApiResult<Json<JobView>> {
+    let job = state.store.job_event(id, e, None).await?;
+    tracing::info!(job = %id, state = job.state.as_str(), "job state changed");
+    Ok(Json(view(job, None)))
+}
+
+pub async fn cancel(
+    _: ClientAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<JobView>> {
+    event(&state, &id, JobEvent::Cancel).await
+}
+
+pub async fn pause(
+    _: ClientAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<JobView>> {
+    event(&state, &id, JobEvent::Pause).await
+}
+
+pub async fn resume(
+    _: ClientAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<JobView>> {
+    event(&state, &id, JobEvent::Resume { started: false }).await
+}

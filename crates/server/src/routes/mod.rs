@@ -1,0 +1,101 @@
+//! The HTTP routes. [`api_routes`] is the single list the router is built from, so the test that
+//! holds `openapi.yaml` and the router to each other reads the same list the server serves.
+
+mod health;
+mod images;
+mod jobs;
+mod tasks;
+mod workers;
+
+use crate::error::ApiError;
+use crate::AppState;
+use axum::http::{HeaderMap, Method};
+use axum::routing::{delete, get, patch, post, MethodRouter};
+use serde::de::DeserializeOwned;
+
+pub struct Route {
+    pub method: Method,
+    /// In OpenAPI form: `/api/v1/jobs/{id}`.
+    pub path: &'static str,
+    pub handler: MethodRouter<AppState>,
+}
+
+fn route(method: Method, path: &'static str, handler: MethodRouter<AppState>) -> Route {
+    Route {
+        method,
+        path,
+        handler,
+    }
+}
+
+/// Every route of the API.
+pub fn api_routes() -> Vec<Route> {
+    use Method as M;
+    vec![
+        route(M::GET, "/healthz", get(health::healthz)),
+        route(M::GET, "/readyz", get(health::healthz)),
+        route(M::POST, "/api/v1/jobs", post(jobs::submit)),
+        route(M::GET, "/api/v1/jobs", get(jobs::list)),
+        route(M::GET, "/api/v1/jobs/{id}", get(jobs::show)),
+        route(M::PATCH, "/api/v1/jobs/{id}", patch(jobs::patch_job)),
+        route(M::DELETE, "/api/v1/jobs/{id}", delete(jobs::delete_job)),
+        route(M::POST, "/api/v1/jobs/{id}/cancel", post(jobs::cancel)),
+        route(M::POST, "/api/v1/jobs/{id}/pause", post(jobs::pause)),
+        route(M::POST, "/api/v1/jobs/{id}/resume", post(jobs::resume)),
+        route(
+            M::GET,
+            "/api/v1/jobs/{id}/image.exr",
+            get(images::image_exr),
+        ),
+        route(
+            M::GET,
+            "/api/v1/jobs/{id}/preview.png",
+            get(images::preview_png),
+        ),
+        route(M::GET, "/api/v1/scenes/{hash}", get(tasks::scene)),
+        route(M::POST, "/api/v1/workers", post(workers::register)),
+        route(M::GET, "/api/v1/workers", get(workers::list)),
+        route(
+            M::DELETE,
+            "/api/v1/workers/{id}",
+            delete(workers::deregister),
+        ),
+        route(
+            M::POST,
+            "/api/v1/workers/{id}/heartbeat",
+            post(workers::heartbeat),
+        ),
+        route(M::POST, "/api/v1/workers/{id}/lease", post(workers::lease)),
+        route(
+            M::POST,
+            "/api/v1/tasks/{id}/slices",
+            post(tasks::upload_slice),
+        ),
+        route(M::POST, "/api/v1/tasks/{id}/release", post(tasks::release)),
+    ]
+}
+
+/// Parses a JSON body, insisting on the JSON content type, with our error body on failure.
+pub(crate) fn json_body<T: DeserializeOwned>(
+    headers: &HeaderMap,
+    body: &[u8],
+) -> Result<T, ApiError> {
+    let ct = headers
+        .get(axum::http::header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    if !ct.starts_with("application/json") {
+        return Err(ApiError::new(
+            axum::http::StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "unsupported_media_type",
+            format!("expected Content-Type application/json, got {ct:?}"),
+        ));
+    }
+    serde_json::from_slice(body)
+        .map_err(|e| ApiError::bad_request("bad_json", format!("invalid JSON body: {e}")))
+}
+
+/// A task id from the path.
+pub(crate) fn parse_id(s: &str, what: &str) -> Result<i64, ApiError> {
+    s.parse().map_err(|_| ApiError::not_found(what, s))
+}

@@ -1,0 +1,103 @@
+//! Worker registration, heartbeats and leases.
+
+use super::json_body;
+use crate::auth::{ReadAuth, WorkerAuth};
+use crate::error::{ApiError, ApiResult};
+use crate::AppState;
+use axum::body::Bytes;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use pathfarm_wire::api::{
+    Heartbeat, HeartbeatReply, WorkerList, WorkerRegistered, WorkerRegistration,
+};
+
+pub async fn register(
+    _: WorkerAuth,
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult<(StatusCode, Json<WorkerRegistered>)> {
+    let reg: WorkerRegistration = json_body(&headers, &body)?;
+    if reg.name.is_empty() || reg.name.len() > 128 || reg.host.len() > 256 || reg.version.len() > 64
+    {
+        return Err(ApiError::unprocessable(
+            "invalid_worker",
+            "name must be 1..=128 bytes, host at most 256, version at most 64",
+        ));
+    }
+    let id = state.store.register_worker(&reg).await?;
+    tracing::info!(worker = %id, name = %reg.name, host = %reg.host, threads = reg.threads, "worker registered");
+    let lease_ms = state.config.lease_duration.as_millis() as u64;
+    Ok((
+        StatusCode::CREATED,
+        Json(WorkerRegistered {
+            worker_id: id,
+            lease_duration_ms: lease_ms,
+            heartbeat_interval_ms: (lease_ms / 4).max(50),
+        }),
+    ))
+}
+
+pub async fn list(_: ReadAuth, State(state): State<AppState>) -> ApiResult<Json<WorkerList>> {
+    Ok(Json(WorkerList {
+        workers: state.store.workers().await?,
+    }))
+}
+
+pub async fn deregister(
+    _: WorkerAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<StatusCode> {
+    state.store.deregister_worker(&id).await?;
+    tracing::info!(worker = %id, "worker signed off");
+    Ok(StatusCode::NO_CONTENT)
+}
+
+pub async fn heartbeat(
+    _: WorkerAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult<Json<HeartbeatReply>> {
+    let hb: Heartbeat = if body.is_empty() {
+        Heartbeat::default()
+    } else {
+        json_body(&headers, &body)?
+    };
+    let lease_ms = state.config.lease_duration.as_millis() as u64;
+    let lease = match (hb.task_id, hb.lease_token.as_deref()) {
+        (Some(t), Some(tok)) => Some((t, tok)),
+        (None, None) => None,
+        _ => {
+            return Err(ApiError::unprocessable(
+                "invalid_heartbeat",
+                "task_id and lease_token come together",
+            ))
+        }
+    };
+    let valid = state.store.heartbeat(&id, lease, lease_ms).await?;
+    Ok(Json(HeartbeatReply {
+        lease_valid: valid,
+        lease_expires_in_ms: if valid { lease_ms } else { 0 },
+    }))
+}
+
+/// `200` with a lease, or `204` when there is no work.
+pub async fn lease(
+    _: WorkerAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Response> {
+    let lease_ms = state.config.lease_duration.as_millis() as u64;
+    let started = std::time::Instant::now();
+    let lease = state.store.lease(&id, lease_ms).await?;
+    state.metrics.observe_lease(started.elapsed());
+    Ok(match lease {
+        Some(l) => Json(l).into_response(),
+        None => StatusCode::NO_CONTENT.into_response(),
+    })
+}

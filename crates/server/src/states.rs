@@ -1,0 +1,153 @@
+//! The job, task and worker state machines, enforced here and nowhere else: every state change the
+//! store makes asks these functions first. `ARCHITECTURE.md` draws the same machines.
+
+use pathfarm_wire::api::JobState;
+
+/// What can happen to a job.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum JobEvent {
+    /// A worker leased one of its tasks.
+    Leased,
+    Pause,
+    /// Resume a paused job; `started` says whether any task was ever leased.
+    Resume {
+        started: bool,
+    },
+    Cancel,
+    /// Every planned sample merged, or the noise target or time limit reached.
+    Complete,
+    Fail,
+}
+
+/// The state a job moves to, or `Err` with a message when the event is not allowed in `from`.
+pub fn job_transition(from: JobState, event: JobEvent) -> Result<JobState, String> {
+    use JobEvent as E;
+    use JobState as S;
+    let to = match (from, event) {
+        (S::Queued | S::Running, E::Leased) => S::Running,
+        (S::Queued | S::Running, E::Pause) => S::Paused,
+        (S::Paused, E::Resume { started: true }) => S::Running,
+        (S::Paused, E::Resume { started: false }) => S::Queued,
+        (S::Queued | S::Running | S::Paused, E::Cancel) => S::Cancelled,
+        // A paused job can complete: its leased tasks may finish their last slices.
+        (S::Queued | S::Running | S::Paused, E::Complete) => S::Completed,
+        (S::Queued | S::Running | S::Paused, E::Fail) => S::Failed,
+        _ => {
+            return Err(format!(
+                "a {} job cannot {}",
+                from.as_str(),
+                match event {
+                    E::Leased => "be leased",
+                    E::Pause => "be paused",
+                    E::Resume { .. } => "be resumed",
+                    E::Cancel => "be cancelled",
+                    E::Complete => "complete",
+                    E::Fail => "fail",
+                }
+            ))
+        }
+    };
+    Ok(to)
+}
+
+/// Task states. A task is `(job, tile, sample range)`; `done_end` records how far it is merged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TaskState {
+    Queued,
+    Leased,
+    Done,
+    Cancelled,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TaskEvent {
+    Lease,
+    /// A slice was merged; `complete` when it was the last one.
+    Merged {
+        complete: bool,
+    },
+    /// The worker gave the lease back, or the lease expired: the unmerged rest is queued again.
+    Requeue,
+    Cancel,
+}
+
+impl TaskState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            TaskState::Queued => "queued",
+            TaskState::Leased => "leased",
+            TaskState::Done => "done",
+            TaskState::Cancelled => "cancelled",
+        }
+    }
+    pub fn parse(s: &str) -> Option<TaskState> {
+        [
+            TaskState::Queued,
+            TaskState::Leased,
+            TaskState::Done,
+            TaskState::Cancelled,
+        ]
+        .into_iter()
+        .find(|t| t.as_str() == s)
+    }
+}
+
+pub fn task_transition(from: TaskState, event: TaskEvent) -> Result<TaskState, String> {
+    use TaskEvent as E;
+    use TaskState as S;
+    match (from, event) {
+        (S::Queued, E::Lease) => Ok(S::Leased),
+        (S::Leased, E::Merged { complete: false }) => Ok(S::Leased),
+        (S::Leased, E::Merged { complete: true }) => Ok(S::Done),
+        (S::Leased, E::Requeue) => Ok(S::Queued),
+        (S::Queued | S::Leased, E::Cancel) => Ok(S::Cancelled),
+        _ => Err(format!("a {} task cannot take {event:?}", from.as_str())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn final_job_states_never_change() {
+        for s in JobState::ALL.into_iter().filter(|s| s.is_final()) {
+            for e in [
+                JobEvent::Leased,
+                JobEvent::Pause,
+                JobEvent::Resume { started: true },
+                JobEvent::Cancel,
+                JobEvent::Complete,
+                JobEvent::Fail,
+            ] {
+                assert!(job_transition(s, e).is_err(), "{s:?} {e:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn pause_resume_cycle() {
+        let s = job_transition(JobState::Running, JobEvent::Pause).unwrap();
+        assert_eq!(s, JobState::Paused);
+        assert!(job_transition(s, JobEvent::Leased).is_err());
+        assert_eq!(
+            job_transition(s, JobEvent::Resume { started: true }).unwrap(),
+            JobState::Running
+        );
+        assert_eq!(
+            job_transition(s, JobEvent::Resume { started: false }).unwrap(),
+            JobState::Queued
+        );
+        assert!(job_transition(JobState::Running, JobEvent::Resume { started: true }).is_err());
+    }
+
+    #[test]
+    fn tasks_finish_once() {
+        let t = task_transition(TaskState::Queued, TaskEvent::Lease).unwrap();
+        let t = task_transition(t, TaskEvent::Merged { complete: true }).unwrap();
+        assert_eq!(t, TaskState::Done);
+        assert!(task_transition(t, TaskEvent::Requeue).is_err());
+        assert!(task_transition(t, TaskEvent::Cancel).is_err());
+        assert!(task_transition(TaskState::Queued, TaskEvent::Merged { complete: false }).is_err());
+    }
+}

@@ -1,0 +1,455 @@
+//! Jobs, their tiles and scenes.
+
+use super::{now_ms, Store};
+use crate::error::{ApiError, ApiResult};
+use crate::scheduler::PlannedTask;
+use crate::states::{job_transition, JobEvent, TaskState};
+use pathfarm_tracer::Tile;
+use pathfarm_wire::api::{JobSettings, JobState};
+use sqlx::any::AnyRow;
+use sqlx::Row;
+
+const JOB_COLUMNS: &str = "id, name, scene_hash, settings, priority, state, samples_planned, \
+    samples_done, queued_tasks, leased_tasks, version, rel_error, created_ms, started_ms, \
+    finished_ms, message";
+
+/// A job as stored.
+#[derive(Clone, Debug)]
+pub struct JobRow {
+    pub id: String,
+    pub name: String,
+    pub scene_hash: String,
+    pub settings: JobSettings,
+    pub priority: i32,
+    pub state: JobState,
+    pub samples_planned: u64,
+    pub samples_done: u64,
+    pub queued_tasks: u64,
+    pub leased_tasks: u64,
+    /// Incremented by every merged slice: the image changes exactly when this does.
+    pub version: i64,
+    pub rel_error: Option<f64>,
+    pub created_ms: i64,
+    pub started_ms: Option<i64>,
+    pub finished_ms: Option<i64>,
+    pub message: Option<String>,
+}
+
+impl JobRow {
+    pub(crate) fn from_row(row: &AnyRow) -> Result<JobRow, sqlx::Error> {
+        let settings: String = row.try_get("settings")?;
+        let state: String = row.try_get("state")?;
+        Ok(JobRow {
+            id: row.try_get("id")?,
+            name: row.try_get("name")?,
+            scene_hash: row.try_get("scene_hash")?,
+            settings: serde_json::from_str(&settings)
+                .map_err(|e| sqlx::Error::Decode(Box::new(e)))?,
+            priority: row.try_get::<i64, _>("priority")? as i32,
+            state: JobState::parse(&state)
+                .ok_or_else(|| sqlx::Error::Protocol(format!("unknown job state {state:?}")))?,
+            samples_planned: row.try_get::<i64, _>("samples_planned")? as u64,
+            samples_done: row.try_get::<i64, _>("samples_done")? as u64,
+            queued_tasks: row.try_get::<i64, _>("queued_tasks")? as u64,
+            leased_tasks: row.try_get::<i64, _>("leased_tasks")? as u64,
+            version: row.try_get("version")?,
+            rel_error: row.try_get("rel_error")?,
+            created_ms: row.try_get("created_ms")?,
+            started_ms: row.try_get("started_ms")?,
+            finished_ms: row.try_get("finished_ms")?,
+            message: row.try_get("message")?,
+        })
+    }
+}
+
+/// A tile of a job and the samples per pixel merged into it.
+#[derive(Clone, Debug)]
+pub struct TileRow {
+    pub tile_index: u32,
+    pub tile: Tile,
+    pub samples: u64,
+}
+
+impl TileRow {
+    fn from_row(row: &AnyRow) -> Result<TileRow, sqlx::Error> {
+        let g = |c: &str| row.try_get::<i64, _>(c);
+        Ok(TileRow {
+            tile_index: g("tile_index")? as u32,
+            tile: Tile {
+                x0: g("x0")? as u32,
+                y0: g("y0")? as u32,
+                width: g("width")? as u32,
+                height: g("height")? as u32,
+            },
+            samples: g("samples")? as u64,
+        })
+    }
+}
+
+pub struct NewJob {
+    pub id: String,
+    pub name: String,
+    pub settings: JobSettings,
+    pub scene_hash: String,
+    pub scene_bytes: Vec<u8>,
+    pub tiles: Vec<Tile>,
+    pub tasks: Vec<PlannedTask>,
+    pub samples_planned: u64,
+}
+
+/// Rows per multi-row INSERT (7 parameters each stays far below both stores' limits).
+const INSERT_BATCH: usize = 500;
+
+impl Store {
+    /// Stores the scene (once per content hash), the job, its tiles and its tasks, atomically.
+    pub async fn create_job(&self, job: NewJob) -> ApiResult<()> {
+        let settings = serde_json::to_string(&job.settings)
+            .map_err(|e| ApiError::internal(format!("cannot encode settings: {e}")))?;
+        let now = now_ms();
+        let mut w = self.write().await?;
+        sqlx::query(
+            "INSERT INTO scenes (hash, bytes, size, created_ms) VALUES ($1, $2, $3, $4) \
+             ON CONFLICT (hash) DO NOTHING",
+        )
+        .bind(&job.scene_hash)
+        .bind(&job.scene_bytes)
+        .bind(job.scene_bytes.len() as i64)
+        .bind(now)
+        .execute(&mut *w.tx)
+        .await?;
+        sqlx::query(
+            "INSERT INTO jobs (id, name, scene_hash, settings, priority, state, samples_planned, \
+             queued_tasks, created_ms) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9)",
+        )
+        .bind(&job.id)
+        .bind(&job.name)
+        .bind(&job.scene_hash)
+        .bind(&settings)
+        .bind(job.settings.priority as i64)
+        .bind(JobState::Queued.as_str())
+        .bind(job.samples_planned as i64)
+        .bind(job.tasks.len() as i64)
+        .bind(now)
+        .execute(&mut *w.tx)
+        .await?;
+        for (chunk_index, chunk) in job.tiles.chunks(INSERT_BATCH).enumerate() {
+            let mut sql = String::from(
+                "INSERT INTO tiles (job_id, tile_index, x0, y0, width, height) VALUES ",
+            );
+            push_placeholders(&mut sql, chunk.len(), 6);
+            let mut q = sqlx::query(sqlx::AssertSqlSafe(sql));
+            for (i, t) in chunk.iter().enumerate() {
+                q = q
+                    .bind(&job.id)
+                    .bind((chunk_index * INSERT_BATCH + i) as i64)
+                    .bind(t.x0 as i64)
+                    .bind(t.y0 as i64)
+                    .bind(t.width as i64)
+                    .bind(t.height as i64);
+            }
+            q.execute(&mut *w.tx).await?;
+        }
+        for chunk in job.tasks.chunks(INSERT_BATCH) {
+            let mut sql = String::from(
+                "INSERT INTO tasks (job_id, tile_index, pass, sample_begin, sample_end, done_end, \
+                 state) VALUES ",
+            );
+            push_placeholders(&mut sql, chunk.len(), 7);
+            let mut q = sqlx::query(sqlx::AssertSqlSafe(sql));
+            for t in chunk {
+                q = q
+                    .bind(&job.id)
+                    .bind(t.tile_index as i64)
+                    .bind(t.pass as i64)
+                    .bind(t.sample_begin as i64)
+                    .bind(t.sample_end as i64)
+                    .bind(t.sample_begin as i64)
+                    .bind(TaskState::Queued.as_str());
+            }
+            q.execute(&mut *w.tx).await?;
+        }
+        w.commit().await?;
+        Ok(())
+    }
+
+    pub async fn job(&self, id: &str) -> ApiResult<JobRow> {
+        let row = sqlx::query(sql!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1"))
+            .bind(id)
+            .fetch_optional(self.pool())
+            .await?;
+        match row {
+            Some(r) => Ok(JobRow::from_row(&r)?),
+            None => Err(ApiError::not_found("job", id)),
+        }
+    }
+
+    /// A page of jobs, newest first, optionally only those in one state; and the total count.
+    pub async fn jobs(
+        &self,
+        state: Option<JobState>,
+        offset: u64,
+        limit: u64,
+    ) -> ApiResult<(Vec<JobRow>, u64)> {
+        let filter = "WHERE ($1 = '' OR state = $1)";
+        let state_str = state.map_or("", JobState::as_str);
+        let rows = sqlx::query(sql!(
+            "SELECT {JOB_COLUMNS} FROM jobs {filter} ORDER BY created_ms DESC, id DESC \
+             LIMIT $2 OFFSET $3"
+        ))
+        .bind(state_str)
+        .bind(limit as i64)
+        .bind(offset as i64)
+        .fetch_all(self.pool())
+        .await?;
+        let total: i64 = sqlx::query(sql!("SELECT COUNT(*) AS n FROM jobs {filter}"))
+            .bind(state_str)
+            .fetch_one(self.pool())
+            .await?
+            .try_get("n")?;
+        let jobs = rows
+            .iter()
+            .map(JobRow::from_row)
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok((jobs, total as u64))
+    }
+
+    /// Jobs in the given states (for the monitor).
+    pub async fn jobs_in_states(&self, states: &[JobState]) -> ApiResult<Vec<JobRow>> {
+        let list = states
+            .iter()
+            .map(|s| format!("'{}'", s.as_str()))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let rows = sqlx::query(sql!(
+            "SELECT {JOB_COLUMNS} FROM jobs WHERE state IN ({list}) ORDER BY created_ms"
+        ))
+        .fetch_all(self.pool())
+        .await?;
+        Ok(rows
+            .iter()
+            .map(JobRow::from_row)
+            .collect::<Result<Vec<_>, _>>()?)
+    }
+
+    /// Jobs whose error estimate is older than their image.
+    pub async fn jobs_needing_estimate(&self) -> ApiResult<Vec<(String, i64)>> {
+        let rows = sqlx::query(
+            "SELECT id, version FROM jobs WHERE rel_error_version < version ORDER BY created_ms",
+        )
+        .fetch_all(self.pool())
+        .await?;
+        rows.iter()
+            .map(|r| Ok((r.try_get("id")?, r.try_get("version")?)))
+            .collect()
+    }
+
+    pub async fn set_rel_error(&self, id: &str, version: i64, value: Option<f64>) -> ApiResult<()> {
+        let mut w = self.write().await?;
+        sqlx::query(
+            "UPDATE jobs SET rel_error = $1, rel_error_version = $2 \
+             WHERE id = $3 AND rel_error_version < $2",
+        )
+        .bind(value)
+        .bind(version)
+        .bind(id)
+        .execute(&mut *w.tx)
+        .await?;
+        w.commit().await?;
+        Ok(())
+    }
+
+    pub async fn tiles(&self, job_id: &str) -> ApiResult<Vec<TileRow>> {
+        let rows = sqlx::query(
+            "SELECT tile_index, x0, y0, width, height, samples FROM tiles WHERE job_id = $1 \
+             ORDER BY tile_index",
+        )
+        .bind(job_id)
+        .fetch_all(self.pool())
+        .await?;
+        Ok(rows
+            .iter()
+            .map(TileRow::from_row)
+            .collect::<Result<Vec<_>, _>>()?)
+    }
+
+    /// Every tile with its merged accumulation (encoded), and the job version they belong to, read
+    /// in one transaction so that the image is a consistent snapshot.
+    pub async fn tile_accumulations(
+        &self,
+        job_id: &str,
+    ) -> ApiResult<(i64, Vec<(TileRow, Option<Vec<u8>>)>)> {
+        let mut tx = self.pool().begin().await?;
+        let version: i64 = match sqlx::query("SELECT version FROM jobs WHERE id = $1")
+            .bind(job_id)
+            .fetch_optional(&mut *tx)
+            .await?
+        {
+            Some(r) => r.try_get("version")?,
+            None => return Err(ApiError::not_found("job", job_id)),
+        };
+        let rows = sqlx::query(
+            "SELECT tile_index, x0, y0, width, height, samples, accum FROM tiles \
+             WHERE job_id = $1 ORDER BY tile_index",
+        )
+        .bind(job_id)
+        .fetch_all(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        let tiles = rows
+            .iter()
+            .map(|r| Ok((TileRow::from_row(r)?, r.try_get("accum")?)))
+            .collect::<Result<Vec<_>, sqlx::Error>>()?;
+        Ok((version, tiles))
+    }
+
+    /// Applies a state-machine event to a job, with its effect on the job's tasks.
+    pub async fn job_event(
+        &self,
+        id: &str,
+        event: JobEvent,
+        message: Option<&str>,
+    ) -> ApiResult<JobRow> {
+        let mut w = self.write().await?;
+        // Tasks first, then the job: the lock order every transaction follows (task, tile, job).
+        if matches!(
+            event,
+            JobEvent::Cancel | JobEvent::Complete | JobEvent::Fail
+        ) {
+            sqlx::query(sql!(
+                "UPDATE tasks SET state = '{}', lease_token = NULL \
+                 WHERE job_id = $1 AND state IN ('queued', 'leased')",
+                TaskState::Cancelled.as_str()
+            ))
+            .bind(id)
+            .execute(&mut *w.tx)
+            .await?;
+            sqlx::query(
+                "UPDATE workers SET current_task = NULL, current_job = NULL, state = 'idle' \
+                 WHERE current_job = $1 AND state = 'busy'",
+            )
+            .bind(id)
+            .execute(&mut *w.tx)
+            .await?;
+        }
+        let row = sqlx::query(sql!(
+            "SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1{}",
+            self.dialect().for_update()
+        ))
+        .bind(id)
+        .fetch_optional(&mut *w.tx)
+        .await?;
+        let job = match row {
+            Some(r) => JobRow::from_row(&r)?,
+            None => return Err(ApiError::not_found("job", id)),
+        };
+        let event = match event {
+            JobEvent::Resume { .. } => JobEvent::Resume {
+                started: job.started_ms.is_some(),
+            },
+            e => e,
+        };
+        let to =
+            job_transition(job.state, event).map_err(|m| ApiError::conflict("invalid_state", m))?;
+        let now = now_ms();
+        if to.is_final() {
+            sqlx::query(
+                "UPDATE jobs SET state = $1, finished_ms = $2, queued_tasks = 0, leased_tasks = 0, \
+                 message = COALESCE($3, message) WHERE id = $4",
+            )
+            .bind(to.as_str())
+            .bind(now)
+            .bind(message)
+            .bind(id)
+            .execute(&mut *w.tx)
+            .await?;
+        } else {
+            sqlx::query("UPDATE jobs SET state = $1 WHERE id = $2")
+                .bind(to.as_str())
+                .bind(id)
+                .execute(&mut *w.tx)
+                .await?;
+        }
+        w.commit().await?;
+        self.job(id).await
+    }
+
+    pub async fn set_priority(&self, id: &str, priority: i32) -> ApiResult<JobRow> {
+        let mut w = self.write().await?;
+        let n = sqlx::query("UPDATE jobs SET priority = $1 WHERE id = $2")
+            .bind(priority as i64)
+            .bind(id)
+            .execute(&mut *w.tx)
+            .await?
+            .rows_affected();
+        w.commit().await?;
+        if n == 0 {
+            return Err(ApiError::not_found("job", id));
+        }
+        self.job(id).await
+    }
+
+    /// Deletes a job in any state, with its tiles and tasks; its scene too once no job uses it.
+    pub async fn delete_job(&self, id: &str) -> ApiResult<()> {
+        let mut w = self.write().await?;
+        sqlx::query("DELETE FROM tasks WHERE job_id = $1")
+            .bind(id)
+            .execute(&mut *w.tx)
+            .await?;
+        sqlx::query("DELETE FROM tiles WHERE job_id = $1")
+            .bind(id)
+            .execute(&mut *w.tx)
+            .await?;
+        sqlx::query(
+            "UPDATE workers SET current_task = NULL, current_job = NULL, state = 'idle' \
+             WHERE current_job = $1 AND state = 'busy'",
+        )
+        .bind(id)
+        .execute(&mut *w.tx)
+        .await?;
+        let row = sqlx::query("DELETE FROM jobs WHERE id = $1 RETURNING scene_hash")
+            .bind(id)
+            .fetch_optional(&mut *w.tx)
+            .await?;
+        let Some(row) = row else {
+            return Err(ApiError::not_found("job", id));
+        };
+        let hash: String = row.try_get("scene_hash")?;
+        sqlx::query(
+            "DELETE FROM scenes WHERE hash = $1 AND NOT EXISTS \
+             (SELECT 1 FROM jobs WHERE scene_hash = $1)",
+        )
+        .bind(&hash)
+        .execute(&mut *w.tx)
+        .await?;
+        w.commit().await?;
+        Ok(())
+    }
+
+    pub async fn scene(&self, hash: &str) -> ApiResult<Vec<u8>> {
+        let row = sqlx::query("SELECT bytes FROM scenes WHERE hash = $1")
+            .bind(hash)
+            .fetch_optional(self.pool())
+            .await?;
+        match row {
+            Some(r) => Ok(r.try_get("bytes")?),
+            None => Err(ApiError::not_found("scene", hash)),
+        }
+    }
+}
+
+/// Appends `($1, $2, …), (…)` for `rows` rows of `cols` parameters.
+fn push_placeholders(sql: &mut String, rows: usize, cols: usize) {
+    use std::fmt::Write;
+    for r in 0..rows {
+        sql.push_str(if r == 0 { "(" } else { ", (" });
+        for c in 0..cols {
+            let _ = write!(
+                sql,
+                "{}${}",
+                if c == 0 { "" } else { ", " },
+                r * cols + c + 1
+            );
+        }
+        sql.push(')');
+    }
+}

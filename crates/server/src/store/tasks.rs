@@ -1,0 +1,496 @@
+//! Task leases and the exact merge of uploaded slices.
+//!
+//! Lock order, in every transaction: tasks, then tiles, then jobs, then workers. PostgreSQL takes
+//! row locks in that order, so concurrent servers never deadlock; SQLite has one writer anyway.
+
+use super::{now_ms, Store};
+use crate::error::{ApiError, ApiResult};
+use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState};
+use pathfarm_tracer::Accumulation;
+use pathfarm_wire::api::{JobSettings, JobState, Lease, SliceAck, TileRect};
+use pathfarm_wire::{decode_slice, encode_slice, Slice, SliceLimits};
+use sqlx::Row;
+
+/// What a merge did (the ack, plus what the caller may want to log or count).
+#[derive(Clone, Debug)]
+pub struct MergeOutcome {
+    pub ack: SliceAck,
+    pub samples: u64,
+    pub job_completed: bool,
+}
+
+fn task_state(s: &str) -> Result<TaskState, sqlx::Error> {
+    TaskState::parse(s).ok_or_else(|| sqlx::Error::Protocol(format!("unknown task state {s:?}")))
+}
+
+fn new_token() -> String {
+    uuid::Uuid::new_v4().simple().to_string()
+}
+
+impl Store {
+    /// Leases the next task for `worker_id`, or `None` when there is no work. Jobs are taken by
+    /// priority (highest first), then fair share (the job with the fewest leased tasks), then age;
+    /// within a job, by pass, so every tile gets its first samples before any gets more.
+    pub async fn lease(&self, worker_id: &str, lease_ms: u64) -> ApiResult<Option<Lease>> {
+        let mut w = self.write().await?;
+        let worker = sqlx::query("SELECT id FROM workers WHERE id = $1")
+            .bind(worker_id)
+            .fetch_optional(&mut *w.tx)
+            .await?;
+        if worker.is_none() {
+            return Err(ApiError::not_found("worker", worker_id));
+        }
+        let candidates = sqlx::query(
+            "SELECT id FROM jobs WHERE state IN ('queued', 'running') AND queued_tasks > 0 \
+             ORDER BY priority DESC, leased_tasks ASC, created_ms ASC, id ASC LIMIT 8",
+        )
+        .fetch_all(&mut *w.tx)
+        .await?;
+        for cand in candidates {
+            let job_id: String = cand.try_get("id")?;
+            let task = sqlx::query(sql!(
+                "SELECT id, tile_index, done_end, sample_end, state FROM tasks \
+                 WHERE job_id = $1 AND state = 'queued' ORDER BY pass, id LIMIT 1{}",
+                self.dialect().skip_locked()
+            ))
+            .bind(&job_id)
+            .fetch_optional(&mut *w.tx)
+            .await?;
+            let Some(task) = task else { continue };
+            let task_id: i64 = task.try_get("id")?;
+            let tile_index: i64 = task.try_get("tile_index")?;
+            let begin: i64 = task.try_get("done_end")?;
+            let end: i64 = task.try_get("sample_end")?;
+            let to = task_transition(
+                task_state(&task.try_get::<String, _>("state")?)?,
+                TaskEvent::Lease,
+            )
+            .map_err(ApiError::internal)?;
+            let token = new_token();
+            let now = now_ms();
+            let expires = now + lease_ms as i64;
+            sqlx::query(
+                "UPDATE tasks SET state = $1, lease_token = $2, worker_id = $3, \
+                 lease_expires_ms = $4, leases = leases + 1 WHERE id = $5",
+            )
+            .bind(to.as_str())
+            .bind(&token)
+            .bind(worker_id)
+            .bind(expires)
+            .bind(task_id)
+            .execute(&mut *w.tx)
+            .await?;
+            let tile = sqlx::query(
+                "SELECT x0, y0, width, height FROM tiles WHERE job_id = $1 AND tile_index = $2",
+            )
+            .bind(&job_id)
+            .bind(tile_index)
+            .fetch_one(&mut *w.tx)
+            .await?;
+            let job = sqlx::query(sql!(
+                "SELECT state, settings, scene_hash, priority FROM jobs WHERE id = $1{}",
+                self.dialect().for_update()
+            ))
+            .bind(&job_id)
+            .fetch_one(&mut *w.tx)
+            .await?;
+            let state: String = job.try_get("state")?;
+            let state = JobState::parse(&state)
+                .ok_or_else(|| ApiError::internal(format!("unknown job state {state:?}")))?;
+            let job_to = job_transition(state, JobEvent::Leased).map_err(ApiError::internal)?;
+            sqlx::query(
+                "UPDATE jobs SET state = $1, started_ms = COALESCE(started_ms, $2), \
+                 queued_tasks = queued_tasks - 1, leased_tasks = leased_tasks + 1 WHERE id = $3",
+            )
+            .bind(job_to.as_str())
+            .bind(now)
+            .bind(&job_id)
+            .execute(&mut *w.tx)
+            .await?;
+            sqlx::query(
+                "UPDATE workers SET state = 'busy', current_task = $1, current_job = $2, \
+                 last_seen_ms = $3 WHERE id = $4",
+            )
+            .bind(task_id)
+            .bind(&job_id)
+            .bind(now)
+            .bind(worker_id)
+            .execute(&mut *w.tx)
+            .await?;
+            let settings: String = job.try_get("settings")?;
+            let settings: JobSettings = serde_json::from_str(&settings)
+                .map_err(|e| ApiError::internal(format!("stored settings: {e}")))?;
+            let g = |c: &str| tile.try_get::<i64, _>(c).map(|v| v as u32);
+            let lease = Lease {
+                task_id,
+                job_id: job_id.clone(),
+                lease_token: token,
+                lease_expires_in_ms: lease_ms,
+                scene_hash: job.try_get("scene_hash")?,
+                settings,
+                tile: TileRect {
+                    x0: g("x0")?,
+                    y0: g("y0")?,
+                    width: g("width")?,
+                    height: g("height")?,
+                },
+                sample_begin: begin as u32,
+                sample_end: end as u32,
+            };
+            w.commit().await?;
+            return Ok(Some(lease));
+        }
+        sqlx::query("UPDATE workers SET state = 'idle', current_task = NULL, current_job = NULL, last_seen_ms = $1 WHERE id = $2")
+            .bind(now_ms())
+            .bind(worker_id)
+            .execute(&mut *w.tx)
+            .await?;
+        w.commit().await?;
+        Ok(None)
+    }
+
+    /// Merges one uploaded slice of a task, exactly once.
+    ///
+    /// A task's slices are merged in order: an upload must start where the merged part ends
+    /// (`done_end`). One that ends at or before it is a retry or a replay and is acknowledged as a
+    /// duplicate without being counted again; one with a token other than the task's current lease
+    /// is rejected (fencing: a worker presumed dead cannot touch a task leased to another).
+    pub async fn merge_slice(
+        &self,
+        task_id: i64,
+        token: &str,
+        slice: &Slice,
+    ) -> ApiResult<MergeOutcome> {
+        let mut w = self.write().await?;
+        let task = sqlx::query(sql!(
+            "SELECT job_id, tile_index, sample_begin, sample_end, done_end, state, lease_token, \
+             worker_id FROM tasks WHERE id = $1{}",
+            self.dialect().for_update()
+        ))
+        .bind(task_id)
+        .fetch_optional(&mut *w.tx)
+        .await?;
+        let Some(task) = task else {
+            return Err(ApiError::not_found("task", task_id));
+        };
+        let job_id: String = task.try_get("job_id")?;
+        let tile_index: i64 = task.try_get("tile_index")?;
+        let t_begin = task.try_get::<i64, _>("sample_begin")? as u32;
+        let t_end = task.try_get::<i64, _>("sample_end")? as u32;
+        let done_end = task.try_get::<i64, _>("done_end")? as u32;
+        let state = task_state(&task.try_get::<String, _>("state")?)?;
+        let lease_token: Option<String> = task.try_get("lease_token")?;
+        let worker_id: Option<String> = task.try_get("worker_id")?;
+        if lease_token.as_deref() != Some(token) {
+            return Err(ApiError::conflict(
+                "stale_lease",
+                format!("the lease token does not hold task {task_id} (the lease expired or was given back)"),
+            ));
+        }
+        let (s_begin, s_end) = (slice.sample_begin, slice.sample_end);
+        if s_begin < t_begin || s_end > t_end {
+            return Err(ApiError::unprocessable(
+                "slice_shape",
+                format!("slice samples [{s_begin}, {s_end}) lie outside task {task_id}'s [{t_begin}, {t_end})"),
+            ));
+        }
+        if s_end <= done_end {
+            return Ok(MergeOutcome {
+                ack: SliceAck {
+                    duplicate: true,
+                    task_samples_done: done_end,
+                    task_complete: done_end == t_end,
+                    keep_going: state == TaskState::Leased,
+                },
+                samples: 0,
+                job_completed: false,
+            });
+        }
+        if state != TaskState::Leased {
+            return Err(ApiError::conflict(
+                "task_not_leased",
+                format!("task {task_id} is {}", state.as_str()),
+            ));
+        }
+        if s_begin != done_end {
+            return Err(ApiError::conflict(
+                "slice_out_of_order",
+                format!("task {task_id} has samples up to {done_end} merged; a slice starting at {s_begin} does not follow them"),
+            ));
+        }
+        let tile = sqlx::query(sql!(
+            "SELECT x0, y0, width, height, samples, accum FROM tiles \
+             WHERE job_id = $1 AND tile_index = $2{}",
+            self.dialect().for_update()
+        ))
+        .bind(&job_id)
+        .bind(tile_index)
+        .fetch_one(&mut *w.tx)
+        .await?;
+        let g = |c: &str| tile.try_get::<i64, _>(c);
+        let (x0, y0, tw, th) = (
+            g("x0")? as u32,
+            g("y0")? as u32,
+            g("width")? as u32,
+            g("height")? as u32,
+        );
+        let a = &slice.acc;
+        if (a.x0, a.y0, a.width, a.height) != (x0, y0, tw, th) {
+            return Err(ApiError::unprocessable(
+                "slice_shape",
+                format!(
+                    "slice covers {}x{} at ({}, {}), task {task_id}'s tile is {tw}x{th} at ({x0}, {y0})",
+                    a.width, a.height, a.x0, a.y0
+                ),
+            ));
+        }
+        let n = s_end - s_begin;
+        // Every pixel must account for every sample: valid ones are counted, invalid ones counted
+        // apart, so the total matches the range.
+        let counted: u64 = a.pixels.iter().map(|p| p.count).sum::<u64>() + a.invalid_count;
+        let expected = n as u64 * a.pixels.len() as u64;
+        if counted != expected {
+            return Err(ApiError::unprocessable(
+                "slice_values",
+                format!("slice holds {counted} samples, its shape needs {expected}"),
+            ));
+        }
+        let tile_samples = g("samples")? as u64;
+        let accum: Option<Vec<u8>> = tile.try_get("accum")?;
+        let mut merged = match accum {
+            Some(bytes) => {
+                decode_slice(
+                    &bytes,
+                    &SliceLimits {
+                        max_pixels: u64::MAX,
+                    },
+                )
+                .map_err(|e| ApiError::internal(format!("stored tile accumulation: {e}")))?
+                .acc
+            }
+            None => Accumulation::new(x0, y0, tw, th),
+        };
+        merged
+            .merge(a)
+            .map_err(|e| ApiError::internal(format!("merge: {e}")))?;
+        let new_samples = tile_samples + n as u64;
+        let encoded = encode_slice(&Slice {
+            sample_begin: 0,
+            sample_end: new_samples.min(u32::MAX as u64) as u32,
+            acc: merged,
+        });
+        sqlx::query(
+            "UPDATE tiles SET samples = $1, accum = $2 WHERE job_id = $3 AND tile_index = $4",
+        )
+        .bind(new_samples as i64)
+        .bind(&encoded)
+        .bind(&job_id)
+        .bind(tile_index)
+        .execute(&mut *w.tx)
+        .await?;
+        let complete = s_end == t_end;
+        let to =
+            task_transition(state, TaskEvent::Merged { complete }).map_err(ApiError::internal)?;
+        sqlx::query("UPDATE tasks SET done_end = $1, state = $2 WHERE id = $3")
+            .bind(s_end as i64)
+            .bind(to.as_str())
+            .bind(task_id)
+            .execute(&mut *w.tx)
+            .await?;
+        let job = sqlx::query(sql!(
+            "SELECT state, samples_done, samples_planned, started_ms FROM jobs WHERE id = $1{}",
+            self.dialect().for_update()
+        ))
+        .bind(&job_id)
+        .fetch_one(&mut *w.tx)
+        .await?;
+        let job_state_s: String = job.try_get("state")?;
+        let job_state = JobState::parse(&job_state_s)
+            .ok_or_else(|| ApiError::internal(format!("unknown job state {job_state_s:?}")))?;
+        let samples = n as u64 * a.pixels.len() as u64;
+        let done = job.try_get::<i64, _>("samples_done")? as u64 + samples;
+        let planned = job.try_get::<i64, _>("samples_planned")? as u64;
+        let job_completed = done >= planned;
+        let new_state = if job_completed {
+            job_transition(job_state, JobEvent::Complete).map_err(ApiError::internal)?
+        } else {
+            job_state
+        };
+        let now = now_ms();
+        sqlx::query(
+            "UPDATE jobs SET samples_done = $1, version = version + 1, \
+             leased_tasks = leased_tasks - $2, state = $3, \
+             finished_ms = CASE WHEN $4 = 1 THEN $5 ELSE finished_ms END WHERE id = $6",
+        )
+        .bind(done as i64)
+        .bind(complete as i64)
+        .bind(new_state.as_str())
+        .bind(job_completed as i64)
+        .bind(now)
+        .bind(&job_id)
+        .execute(&mut *w.tx)
+        .await?;
+        if let Some(worker) = &worker_id {
+            sqlx::query(
+                "UPDATE workers SET samples_done = samples_done + $1, last_seen_ms = $2, \
+                 state = CASE WHEN $3 = 1 THEN 'idle' ELSE 'busy' END, \
+                 current_task = CASE WHEN $3 = 1 THEN NULL ELSE current_task END, \
+                 current_job = CASE WHEN $3 = 1 THEN NULL ELSE current_job END WHERE id = $4",
+            )
+            .bind(samples as i64)
+            .bind(now)
+            .bind(complete as i64)
+            .bind(worker)
+            .execute(&mut *w.tx)
+            .await?;
+        }
+        w.commit().await?;
+        Ok(MergeOutcome {
+            ack: SliceAck {
+                duplicate: false,
+                task_samples_done: s_end,
+                task_complete: complete,
+                keep_going: !complete && new_state == JobState::Running,
+            },
+            samples,
+            job_completed,
+        })
+    }
+
+    /// Extends the lease of `task_id` when `token` still holds it; records the worker as alive.
+    /// Returns whether the lease is still valid.
+    pub async fn heartbeat(
+        &self,
+        worker_id: &str,
+        lease: Option<(i64, &str)>,
+        lease_ms: u64,
+    ) -> ApiResult<bool> {
+        let now = now_ms();
+        let mut w = self.write().await?;
+        let mut valid = false;
+        if let Some((task_id, token)) = lease {
+            valid = sqlx::query(
+                "UPDATE tasks SET lease_expires_ms = $1 \
+                 WHERE id = $2 AND lease_token = $3 AND state = 'leased' AND worker_id = $4",
+            )
+            .bind(now + lease_ms as i64)
+            .bind(task_id)
+            .bind(token)
+            .bind(worker_id)
+            .execute(&mut *w.tx)
+            .await?
+            .rows_affected()
+                == 1;
+        }
+        let n = sqlx::query(
+            "UPDATE workers SET last_seen_ms = $1, \
+             state = CASE WHEN $2 = 1 THEN 'busy' WHEN state = 'busy' THEN 'busy' ELSE 'idle' END \
+             WHERE id = $3",
+        )
+        .bind(now)
+        .bind(valid as i64)
+        .bind(worker_id)
+        .execute(&mut *w.tx)
+        .await?
+        .rows_affected();
+        w.commit().await?;
+        if n == 0 {
+            return Err(ApiError::not_found("worker", worker_id));
+        }
+        Ok(valid)
+    }
+
+    /// Gives a lease back: the task's unmerged samples are queued again.
+    pub async fn release(&self, task_id: i64, token: &str) -> ApiResult<()> {
+        let mut w = self.write().await?;
+        let task = sqlx::query(sql!(
+            "SELECT state, lease_token, job_id, worker_id FROM tasks WHERE id = $1{}",
+            self.dialect().for_update()
+        ))
+        .bind(task_id)
+        .fetch_optional(&mut *w.tx)
+        .await?;
+        let Some(task) = task else {
+            return Err(ApiError::not_found("task", task_id));
+        };
+        let lease_token: Option<String> = task.try_get("lease_token")?;
+        let state = task_state(&task.try_get::<String, _>("state")?)?;
+        if lease_token.as_deref() != Some(token) {
+            return Err(ApiError::conflict(
+                "stale_lease",
+                format!("the lease token does not hold task {task_id}"),
+            ));
+        }
+        if state == TaskState::Leased {
+            let job_id: String = task.try_get("job_id")?;
+            let worker_id: Option<String> = task.try_get("worker_id")?;
+            self.requeue(&mut w, task_id, &job_id, worker_id.as_deref())
+                .await?;
+        }
+        w.commit().await?;
+        Ok(())
+    }
+
+    async fn requeue(
+        &self,
+        w: &mut super::WriteTx<'_>,
+        task_id: i64,
+        job_id: &str,
+        worker_id: Option<&str>,
+    ) -> ApiResult<()> {
+        let to =
+            task_transition(TaskState::Leased, TaskEvent::Requeue).map_err(ApiError::internal)?;
+        sqlx::query(
+            "UPDATE tasks SET state = $1, lease_token = NULL, worker_id = NULL, \
+             lease_expires_ms = NULL WHERE id = $2",
+        )
+        .bind(to.as_str())
+        .bind(task_id)
+        .execute(&mut *w.tx)
+        .await?;
+        sqlx::query(
+            "UPDATE jobs SET queued_tasks = queued_tasks + 1, leased_tasks = leased_tasks - 1 \
+             WHERE id = $1",
+        )
+        .bind(job_id)
+        .execute(&mut *w.tx)
+        .await?;
+        if let Some(worker) = worker_id {
+            sqlx::query(
+                "UPDATE workers SET current_task = NULL, current_job = NULL, \
+                 state = CASE WHEN state = 'busy' THEN 'idle' ELSE state END \
+                 WHERE id = $1 AND current_task = $2",
+            )
+            .bind(worker)
+            .bind(task_id)
+            .execute(&mut *w.tx)
+            .await?;
+        }
+        Ok(())
+    }
+
+    /// Puts the tasks whose lease expired back in the queue (only their unmerged samples: the
+    /// merged part is kept in `done_end`). Returns how many.
+    pub async fn expire_leases(&self) -> ApiResult<u64> {
+        let mut w = self.write().await?;
+        let rows = sqlx::query(sql!(
+            "SELECT id, job_id, worker_id FROM tasks WHERE state = 'leased' \
+             AND lease_expires_ms < $1 ORDER BY id LIMIT 256{}",
+            self.dialect().skip_locked()
+        ))
+        .bind(now_ms())
+        .fetch_all(&mut *w.tx)
+        .await?;
+        let n = rows.len() as u64;
+        for r in rows {
+            let id: i64 = r.try_get("id")?;
+            let job_id: String = r.try_get("job_id")?;
+            let worker_id: Option<String> = r.try_get("worker_id")?;
+            tracing::info!(task = id, job = %job_id, worker = ?worker_id, "lease expired; unmerged samples queued again");
+            self.requeue(&mut w, id, &job_id, worker_id.as_deref())
+                .await?;
+        }
+        w.commit().await?;
+        Ok(n)
+    }
+}

@@ -1,0 +1,208 @@
+//! A farm in the test process: a real server on a real TCP port, real workers over real HTTP, on
+//! SQLite and (when `PATHFARM_TEST_POSTGRES_URL` is set) PostgreSQL.
+#![allow(dead_code)]
+
+use pathfarm_server::{AppState, ServerConfig};
+use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
+use pathfarm_tracer::output::{encode_exr, ExrChannels};
+use pathfarm_tracer::{render_image, Accumulation};
+use pathfarm_wire::api::{JobSettings, JobState, JobView};
+use pathfarm_worker::client::ApiClient;
+use pathfarm_worker::{WorkerConfig, WorkerReport};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+pub fn cornell() -> Vec<u8> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cornell.gltf");
+    std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+pub fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "pathfarm-test-{tag}-{}",
+        uuid::Uuid::new_v4().simple()
+    ));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// The stores every farm test runs on: a fresh SQLite file, and a fresh PostgreSQL database when
+/// `PATHFARM_TEST_POSTGRES_URL` is set (otherwise the PostgreSQL run is reported as skipped).
+pub async fn stores(test: &str) -> Vec<(&'static str, String)> {
+    let mut out = vec![(
+        "sqlite",
+        format!("sqlite://{}", temp_dir(test).join("farm.db").display()),
+    )];
+    match std::env::var("PATHFARM_TEST_POSTGRES_URL") {
+        Ok(url) if !url.is_empty() => out.push(("postgres", fresh_postgres(&url).await)),
+        _ => eprintln!("SKIPPED: {test} on PostgreSQL (PATHFARM_TEST_POSTGRES_URL is not set)"),
+    }
+    out
+}
+
+/// Creates an empty database beside the one `base` names and returns its URL.
+pub async fn fresh_postgres(base: &str) -> String {
+    use sqlx::Connection;
+    let name = format!("pathfarm_test_{}", uuid::Uuid::new_v4().simple());
+    let mut conn = sqlx::PgConnection::connect(base)
+        .await
+        .unwrap_or_else(|e| panic!("PATHFARM_TEST_POSTGRES_URL={base}: {e}"));
+    sqlx::query(sqlx::AssertSqlSafe(format!("CREATE DATABASE {name}")))
+        .execute(&mut conn)
+        .await
+        .unwrap();
+    let (prefix, _) = base
+        .rsplit_once('/')
+        .expect("a database URL with a database name");
+    let rest = base.rsplit_once('/').unwrap().1;
+    let query = rest
+        .split_once('?')
+        .map(|(_, q)| format!("?{q}"))
+        .unwrap_or_default();
+    format!("{prefix}/{name}{query}")
+}
+
+pub fn config(url: &str) -> ServerConfig {
+    let mut c = ServerConfig::new(url);
+    c.monitor_interval = Duration::from_millis(100);
+    c
+}
+
+pub struct TestServer {
+    pub url: String,
+    pub state: AppState,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    handle: Option<JoinHandle<std::io::Result<()>>>,
+}
+
+impl TestServer {
+    pub async fn start(config: ServerConfig) -> TestServer {
+        Self::start_on("127.0.0.1:0", config).await
+    }
+
+    pub async fn start_on(addr: &str, config: ServerConfig) -> TestServer {
+        let state = AppState::open(config).await.expect("open store");
+        let listener = tokio::net::TcpListener::bind(addr).await.expect("bind");
+        let url = format!("http://{}", listener.local_addr().unwrap());
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let handle = tokio::spawn(pathfarm_server::serve(
+            state.clone(),
+            listener,
+            async move {
+                let _ = rx.await;
+            },
+        ));
+        TestServer {
+            url,
+            state,
+            stop: Some(tx),
+            handle: Some(handle),
+        }
+    }
+
+    pub fn client(&self, token: Option<&str>) -> ApiClient {
+        ApiClient::new(&self.url, token.map(str::to_string)).unwrap()
+    }
+
+    /// Graceful shutdown, as on SIGTERM.
+    pub async fn stop(mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        if let Some(h) = self.handle.take() {
+            h.await.unwrap().unwrap();
+        }
+    }
+}
+
+pub struct TestWorker {
+    stop: watch::Sender<bool>,
+    handle: JoinHandle<Result<WorkerReport, pathfarm_worker::WorkerError>>,
+}
+
+impl TestWorker {
+    pub fn spawn(server: &str, token: Option<&str>, slice_samples: Option<u32>) -> TestWorker {
+        let mut c = WorkerConfig::new(server);
+        c.token = token.map(str::to_string);
+        c.threads = 1;
+        c.slice_samples = slice_samples;
+        c.slice_seconds = 0.2;
+        c.idle_poll = Duration::from_millis(50);
+        c.name = format!("test-{}", uuid::Uuid::new_v4().simple());
+        let (stop, rx) = watch::channel(false);
+        let handle = tokio::spawn(pathfarm_worker::run(c, rx));
+        TestWorker { stop, handle }
+    }
+
+    pub async fn stop(self) -> WorkerReport {
+        let _ = self.stop.send(true);
+        self.handle.await.unwrap().expect("worker ran")
+    }
+}
+
+pub fn settings(width: u32, height: u32, spp: u32, tile: u32) -> JobSettings {
+    let mut s = JobSettings::new(width, height, spp);
+    s.tile_size = tile;
+    s.seed = 7;
+    s
+}
+
+/// What `pathfarm render` computes for the same job: one accumulation of the whole image.
+pub fn local_render(scene: &[u8], s: &JobSettings) -> Accumulation {
+    let scene = gltf::load(
+        scene,
+        &NoExternalResources,
+        &LoadOptions {
+            camera: s.camera.clone(),
+        },
+    )
+    .unwrap();
+    render_image(&scene, &s.render_settings(), 32, 0..s.spp, &|_| {})
+}
+
+pub fn exr(acc: &Accumulation) -> Vec<u8> {
+    encode_exr(acc, ExrChannels::default()).unwrap()
+}
+
+/// Polls until the job reaches a final state.
+pub async fn wait_final(client: &ApiClient, id: &str, timeout: Duration) -> JobView {
+    let t0 = Instant::now();
+    loop {
+        let j = client.job(id).await.unwrap();
+        if j.state.is_final() {
+            return j;
+        }
+        assert!(
+            t0.elapsed() < timeout,
+            "job {id} did not finish in {timeout:?}: {j:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+}
+
+pub async fn wait_until(
+    client: &ApiClient,
+    id: &str,
+    timeout: Duration,
+    f: impl Fn(&JobView) -> bool,
+) -> JobView {
+    let t0 = Instant::now();
+    loop {
+        let j = client.job(id).await.unwrap();
+        if f(&j) {
+            return j;
+        }
+        assert!(
+            t0.elapsed() < timeout,
+            "condition not reached in {timeout:?}: {j:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
+pub fn assert_completed(j: &JobView) {
+    assert_eq!(j.state, JobState::Completed, "{j:?}");
+    assert_eq!(j.samples_done, j.samples_planned, "{j:?}");
+}

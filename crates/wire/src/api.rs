@@ -1,0 +1,412 @@
+//! JSON control messages of the REST API (`openapi.yaml`), shared by the server, the worker and the
+//! command-line client so that all three agree on one contract.
+
+use pathfarm_tracer::{DirectStrategy, RenderSettings, RussianRoulette, SamplerKind};
+use serde::{Deserialize, Serialize};
+
+/// Path prefix of every versioned endpoint.
+pub const API_PREFIX: &str = "/api/v1";
+/// Media type of a binary slice body (see [`crate::slice`]).
+pub const SLICE_CONTENT_TYPE: &str = "application/x-pathfarm-slice";
+/// Header that carries a task's lease token on slice uploads.
+pub const LEASE_TOKEN_HEADER: &str = "pathfarm-lease-token";
+
+/// Serializes a settings enum by its command-line name (`Display` / `FromStr`).
+mod by_name {
+    use serde::{de::Error, Deserialize, Deserializer, Serializer};
+    use std::fmt::Display;
+    use std::str::FromStr;
+
+    pub fn serialize<T: Display, S: Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(v)
+    }
+
+    pub fn deserialize<'de, T, D>(d: D) -> Result<T, D::Error>
+    where
+        T: FromStr<Err = String>,
+        D: Deserializer<'de>,
+    {
+        let s = String::deserialize(d)?;
+        s.parse().map_err(D::Error::custom)
+    }
+}
+
+fn default_tile() -> u32 {
+    64
+}
+
+/// Everything a job is rendered with besides its scene: the JSON `settings` part of a submission.
+/// The render-relevant fields mean exactly what the same `pathfarm render` flags mean, so a farm job
+/// and a local render with equal settings give bit-identical images.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobSettings {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    pub width: u32,
+    pub height: u32,
+    /// Samples (camera paths) per pixel.
+    pub spp: u32,
+    #[serde(default)]
+    pub seed: u64,
+    /// Tile edge in pixels (does not change the image).
+    #[serde(default = "default_tile")]
+    pub tile_size: u32,
+    #[serde(default, with = "by_name")]
+    pub direct: DirectStrategy,
+    #[serde(default, with = "by_name")]
+    pub rr: RussianRoulette,
+    /// Maximum bounces; absent is unlimited (unbiased).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_depth: Option<u32>,
+    #[serde(default, with = "by_name")]
+    pub sampler: SamplerKind,
+    /// Camera name; absent: the scene's first camera.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<String>,
+    /// Higher runs first.
+    #[serde(default)]
+    pub priority: i32,
+    /// Stop once the estimated relative error of the image falls below this (e.g. 0.02).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise_target: Option<f64>,
+    /// Stop after this many seconds of rendering.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_limit_s: Option<f64>,
+}
+
+impl JobSettings {
+    /// Settings with the defaults of `pathfarm render`.
+    pub fn new(width: u32, height: u32, spp: u32) -> Self {
+        JobSettings {
+            name: None,
+            width,
+            height,
+            spp,
+            seed: 0,
+            tile_size: default_tile(),
+            direct: DirectStrategy::default(),
+            rr: RussianRoulette::default(),
+            max_depth: None,
+            sampler: SamplerKind::default(),
+            camera: None,
+            priority: 0,
+            noise_target: None,
+            time_limit_s: None,
+        }
+    }
+
+    /// The tracer's settings (what determines the bits of the image).
+    pub fn render_settings(&self) -> RenderSettings {
+        RenderSettings {
+            width: self.width,
+            height: self.height,
+            seed: self.seed,
+            direct: self.direct,
+            rr: self.rr,
+            max_depth: self.max_depth,
+            sampler: self.sampler,
+        }
+    }
+}
+
+/// A job's life: see the state machine in `ARCHITECTURE.md`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JobState {
+    /// Waiting for its first task to be leased.
+    Queued,
+    Running,
+    /// No new tasks are leased; leased ones may finish their current slice.
+    Paused,
+    /// Every planned sample merged, or stopped early by its noise target or time limit.
+    Completed,
+    Cancelled,
+    Failed,
+}
+
+impl JobState {
+    pub const ALL: [JobState; 6] = [
+        JobState::Queued,
+        JobState::Running,
+        JobState::Paused,
+        JobState::Completed,
+        JobState::Cancelled,
+        JobState::Failed,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Paused => "paused",
+            JobState::Completed => "completed",
+            JobState::Cancelled => "cancelled",
+            JobState::Failed => "failed",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<JobState> {
+        JobState::ALL.into_iter().find(|j| j.as_str() == s)
+    }
+
+    /// Completed, cancelled and failed jobs never change again.
+    pub fn is_final(self) -> bool {
+        matches!(
+            self,
+            JobState::Completed | JobState::Cancelled | JobState::Failed
+        )
+    }
+}
+
+/// A worker's life: see the state machine in `ARCHITECTURE.md`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WorkerState {
+    Idle,
+    Busy,
+    /// No heartbeat for longer than a lease; its leases have expired or will.
+    Lost,
+    /// Signed off cleanly.
+    Offline,
+}
+
+impl WorkerState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            WorkerState::Idle => "idle",
+            WorkerState::Busy => "busy",
+            WorkerState::Lost => "lost",
+            WorkerState::Offline => "offline",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<WorkerState> {
+        [
+            WorkerState::Idle,
+            WorkerState::Busy,
+            WorkerState::Lost,
+            WorkerState::Offline,
+        ]
+        .into_iter()
+        .find(|w| w.as_str() == s)
+    }
+}
+
+/// A pixel rectangle of the image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TileRect {
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Samples merged so far in one tile (every pixel of a tile has the same count).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TileProgress {
+    #[serde(flatten)]
+    pub rect: TileRect,
+    pub samples_per_pixel: u64,
+}
+
+/// `201` answer to a submission.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobCreated {
+    pub id: String,
+    pub scene_hash: String,
+    pub tasks: u64,
+    pub samples_planned: u64,
+}
+
+/// One job as `GET /api/v1/jobs/{id}` shows it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobView {
+    pub id: String,
+    pub name: String,
+    pub state: JobState,
+    pub priority: i32,
+    pub settings: JobSettings,
+    pub scene_hash: String,
+    /// Samples (camera paths, over all pixels) merged.
+    pub samples_done: u64,
+    pub samples_planned: u64,
+    /// Estimated relative standard error of the image mean; absent until every pixel has samples.
+    pub relative_error: Option<f64>,
+    pub samples_per_second: f64,
+    pub eta_seconds: Option<f64>,
+    /// Unix milliseconds.
+    pub created_at_ms: i64,
+    pub started_at_ms: Option<i64>,
+    pub finished_at_ms: Option<i64>,
+    /// Why a job ended early (noise target, time limit) or failed.
+    pub message: Option<String>,
+    pub leased_tasks: u64,
+    /// Per-tile progress (only in the single-job view).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tiles: Option<Vec<TileProgress>>,
+}
+
+/// A page of jobs, newest first.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobList {
+    pub jobs: Vec<JobView>,
+    pub total: u64,
+    pub page: u32,
+    pub per_page: u32,
+}
+
+/// `PATCH /api/v1/jobs/{id}`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobPatch {
+    pub priority: i32,
+}
+
+/// `POST /api/v1/workers`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorkerRegistration {
+    pub name: String,
+    pub threads: u32,
+    pub version: String,
+    pub host: String,
+}
+
+/// Answer to a registration: the worker's id and the timing it must keep.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorkerRegistered {
+    pub worker_id: String,
+    pub lease_duration_ms: u64,
+    pub heartbeat_interval_ms: u64,
+}
+
+/// One worker as `GET /api/v1/workers` shows it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorkerView {
+    pub id: String,
+    pub name: String,
+    pub host: String,
+    pub threads: u32,
+    pub version: String,
+    pub state: WorkerState,
+    pub current_task: Option<i64>,
+    pub current_job: Option<String>,
+    pub samples_done: u64,
+    pub samples_per_second: f64,
+    pub registered_at_ms: i64,
+    pub last_heartbeat_ms: i64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorkerList {
+    pub workers: Vec<WorkerView>,
+}
+
+/// A leased task: render samples `[sample_begin, sample_end)` of every pixel of `tile`.
+/// `sample_begin` is where uploads must resume: after a lease expired, the samples already merged
+/// are not rendered again.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Lease {
+    pub task_id: i64,
+    pub job_id: String,
+    pub lease_token: String,
+    pub lease_expires_in_ms: u64,
+    pub scene_hash: String,
+    pub settings: JobSettings,
+    pub tile: TileRect,
+    pub sample_begin: u32,
+    pub sample_end: u32,
+}
+
+/// `POST /api/v1/workers/{id}/heartbeat`: the worker is alive, and extends its current lease.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Heartbeat {
+    #[serde(default)]
+    pub task_id: Option<i64>,
+    #[serde(default)]
+    pub lease_token: Option<String>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HeartbeatReply {
+    /// False when the lease named in the heartbeat is gone (expired and re-leased, job cancelled):
+    /// stop working on it.
+    pub lease_valid: bool,
+    pub lease_expires_in_ms: u64,
+}
+
+/// Answer to a slice upload.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SliceAck {
+    /// The slice had already been merged (a retry or replay); it was not counted again.
+    pub duplicate: bool,
+    /// Samples of the task merged so far: the next slice starts here.
+    pub task_samples_done: u32,
+    pub task_complete: bool,
+    /// False when the job was paused: release the lease instead of rendering more.
+    pub keep_going: bool,
+}
+
+/// `POST /api/v1/tasks/{id}/release`: give a lease back before its end.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Release {
+    pub lease_token: String,
+}
+
+/// `GET /healthz`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Health {
+    pub status: String,
+    pub version: String,
+    pub store: String,
+}
+
+/// Every error body: `{ "error": { "code": "...", "message": "..." } }`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ErrorDetail {
+    pub code: String,
+    pub message: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_round_trip_by_name() {
+        let mut s = JobSettings::new(64, 32, 16);
+        s.rr = RussianRoulette::Fixed(0.5);
+        s.direct = DirectStrategy::Light;
+        s.sampler = SamplerKind::Independent;
+        let json = serde_json::to_string(&s).unwrap();
+        assert!(json.contains("\"direct\":\"light\""), "{json}");
+        assert!(json.contains("\"rr\":\"0.5\""), "{json}");
+        let back: JobSettings = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, s);
+    }
+
+    #[test]
+    fn settings_defaults_and_errors() {
+        let s: JobSettings = serde_json::from_str(r#"{"width":8,"height":4,"spp":2}"#).unwrap();
+        assert_eq!(s, JobSettings::new(8, 4, 2));
+        let e = serde_json::from_str::<JobSettings>(
+            r#"{"width":8,"height":4,"spp":2,"direct":"magic"}"#,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("unknown direct-lighting strategy"),
+            "{e}"
+        );
+        let e = serde_json::from_str::<JobSettings>(r#"{"width":8,"height":4,"spp":2,"sppp":3}"#)
+            .unwrap_err();
+        assert!(e.to_string().contains("unknown field"), "{e}");
+    }
+}
