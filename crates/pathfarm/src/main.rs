@@ -17,6 +17,9 @@ struct Cli {
     /// Log filter (e.g. `info`, `pathfarm_tracer=debug`); also read from RUST_LOG.
     #[arg(long, global = true, default_value = "info", env = "RUST_LOG")]
     log: String,
+    /// Log format: text, or json (one object per line, for log collectors).
+    #[arg(long, global = true, default_value = "text", value_parser = ["text", "json"])]
+    log_format: String,
     #[command(subcommand)]
     command: Command,
 }
@@ -25,19 +28,53 @@ struct Cli {
 enum Command {
     /// Render a glTF scene to an EXR or PNG file on this machine.
     Render(commands::render::RenderArgs),
+    /// Run the server (REST API, queue, scheduler) until SIGINT or SIGTERM.
+    Serve(commands::serve::ServeArgs),
+    /// Run a worker daemon that renders tasks for a server.
+    Worker(commands::worker::WorkerArgs),
+    /// The embedded farm in one command: a server on SQLite and local workers.
+    Up(commands::up::UpArgs),
+    /// Submit a scene as a job.
+    Submit(commands::client::SubmitArgs),
+    /// List jobs.
+    Jobs(commands::client::JobsArgs),
+    /// Show one job.
+    Job(commands::client::JobArgs),
+    /// Cancel a job.
+    Cancel(commands::client::JobArgs),
+}
+
+fn block_on<F: std::future::Future<Output = anyhow::Result<()>>>(f: F) -> anyhow::Result<()> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| anyhow::anyhow!("cannot start the async runtime: {e}"))?
+        .block_on(f)
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let filter = tracing_subscriber::EnvFilter::try_new(&cli.log)
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt()
+    let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
+        .with_writer(std::io::stderr);
+    if cli.log_format == "json" {
+        builder.json().init();
+    } else {
+        builder
+            .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            .init();
+    }
     let result = match cli.command {
         Command::Render(args) => commands::render::run(args),
+        Command::Serve(args) => block_on(commands::serve::run(args)),
+        Command::Worker(args) => block_on(commands::worker::run(args)),
+        Command::Up(args) => block_on(commands::up::run(args)),
+        Command::Submit(args) => block_on(commands::client::submit(args)),
+        Command::Jobs(args) => block_on(commands::client::jobs(args)),
+        Command::Job(args) => block_on(commands::client::job(args)),
+        Command::Cancel(args) => block_on(commands::client::cancel(args)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

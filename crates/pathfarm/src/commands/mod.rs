@@ -1,1 +1,5 @@
+pub mod client;
 pub mod render;
+pub mod serve;
+pub mod up;
+pub mod worker;

@@ -1,0 +1,221 @@
+//! The command-line client: `submit`, `jobs`, `job`, `cancel`.
+
+use super::render::SettingsArgs;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use pathfarm_wire::api::{JobSettings, JobView};
+use pathfarm_worker::client::ApiClient;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Where the server is and how to authenticate.
+#[derive(Args, Clone, Debug)]
+pub struct ClientArgs {
+    #[arg(long, env = "PATHFARM_SERVER", default_value = "http://127.0.0.1:8080")]
+    pub server: String,
+    /// Client token (when the server requires one).
+    #[arg(long, env = "PATHFARM_TOKEN")]
+    pub token: Option<String>,
+}
+
+impl ClientArgs {
+    fn client(&self) -> Result<ApiClient> {
+        Ok(ApiClient::new(&self.server, self.token.clone())?)
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct SubmitArgs {
+    /// The scene: a .glb, or a .gltf with embedded data.
+    pub scene: PathBuf,
+    #[command(flatten)]
+    pub settings: SettingsArgs,
+    /// Tile size in pixels (does not change the result).
+    #[arg(long, default_value_t = 64)]
+    pub tile: u32,
+    /// Stop once the estimated relative error falls below this (e.g. 0.02).
+    #[arg(long)]
+    pub noise_target: Option<f64>,
+    /// Stop after this many seconds of rendering.
+    #[arg(long)]
+    pub time_limit: Option<f64>,
+    #[arg(long, default_value_t = 0)]
+    pub priority: i32,
+    #[arg(long)]
+    pub name: Option<String>,
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// Wait for the job to finish, showing progress.
+    #[arg(long)]
+    pub wait: bool,
+    /// With --wait: save the final image (.exr float32, or .png tone-mapped).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// PNG exposure in stops.
+    #[arg(long, default_value_t = 0.0)]
+    pub exposure: f32,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
+pub async fn submit(args: SubmitArgs) -> Result<()> {
+    if args.out.is_some() && !args.wait {
+        bail!("--out needs --wait");
+    }
+    let client = args.client.client()?;
+    let bytes = std::fs::read(&args.scene)
+        .with_context(|| format!("cannot read {}", args.scene.display()))?;
+    let s = &args.settings;
+    let mut settings = JobSettings::new(s.width, s.height, s.spp);
+    settings.seed = s.seed;
+    settings.direct = s.direct;
+    settings.rr = s.rr;
+    settings.max_depth = s.max_depth;
+    settings.sampler = s.sampler;
+    settings.tile_size = args.tile;
+    settings.noise_target = args.noise_target;
+    settings.time_limit_s = args.time_limit;
+    settings.priority = args.priority;
+    settings.name = args.name.clone();
+    settings.camera = args.camera.clone();
+    let file_name = args
+        .scene
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into());
+    let created = client
+        .submit(bytes, &file_name, &settings)
+        .await
+        .with_context(|| format!("submitting {}", args.scene.display()))?;
+    println!("{}", created.id);
+    if !args.wait {
+        return Ok(());
+    }
+    let bar = ProgressBar::new(created.samples_planned);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent}% {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let job = loop {
+        let j = client.job(&created.id).await?;
+        bar.set_position(j.samples_done);
+        bar.set_message(format!(
+            "{} · {:.2} M samples/s · error {}",
+            j.state.as_str(),
+            j.samples_per_second / 1e6,
+            j.relative_error
+                .map_or("n/a".into(), |e| format!("{:.2}%", e * 100.0))
+        ));
+        if j.state.is_final() {
+            break j;
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    bar.finish_and_clear();
+    print_summary(&job);
+    if let Some(out) = &args.out {
+        let ext = out
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        let bytes = match ext.as_deref() {
+            Some("png") => client.preview_png(&job.id, args.exposure).await?,
+            Some("exr") => client.image_exr(&job.id, false).await?,
+            _ => bail!("--out must end in .exr or .png"),
+        };
+        std::fs::write(out, bytes).with_context(|| format!("cannot write {}", out.display()))?;
+        println!("wrote {}", out.display());
+    }
+    if job.state.as_str() != "completed" {
+        bail!("job {} ended {}", job.id, job.state.as_str());
+    }
+    Ok(())
+}
+
+fn print_summary(j: &JobView) {
+    println!(
+        "job {} ({}): {}, {}/{} samples, {:.2} M samples/s, estimated relative error {}{}",
+        j.id,
+        j.name,
+        j.state.as_str(),
+        j.samples_done,
+        j.samples_planned,
+        j.samples_per_second / 1e6,
+        j.relative_error
+            .map_or("n/a".into(), |e| format!("{:.2}%", e * 100.0)),
+        j.message
+            .as_ref()
+            .map_or(String::new(), |m| format!(" ({m})"))
+    );
+}
+
+#[derive(Args, Debug)]
+pub struct JobsArgs {
+    /// Only jobs in this state (queued, running, paused, completed, cancelled, failed).
+    #[arg(long)]
+    pub state: Option<String>,
+    #[arg(long, default_value_t = 1)]
+    pub page: u32,
+    #[arg(long, default_value_t = 50)]
+    pub per_page: u32,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
+pub async fn jobs(args: JobsArgs) -> Result<()> {
+    let list = args
+        .client
+        .client()?
+        .jobs(args.state.as_deref(), args.page, args.per_page)
+        .await?;
+    println!(
+        "{:<32}  {:<10} {:>4} {:>7} {:>9}  NAME",
+        "ID", "STATE", "PRIO", "DONE", "ERROR"
+    );
+    for j in &list.jobs {
+        println!(
+            "{:<32}  {:<10} {:>4} {:>6.1}% {:>9}  {}",
+            j.id,
+            j.state.as_str(),
+            j.priority,
+            100.0 * j.samples_done as f64 / j.samples_planned.max(1) as f64,
+            j.relative_error
+                .map_or("-".into(), |e| format!("{:.2}%", e * 100.0)),
+            j.name
+        );
+    }
+    println!(
+        "{} of {} jobs (page {})",
+        list.jobs.len(),
+        list.total,
+        list.page
+    );
+    Ok(())
+}
+
+#[derive(Args, Debug)]
+pub struct JobArgs {
+    pub id: String,
+    /// Print the full JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
+pub async fn job(args: JobArgs) -> Result<()> {
+    let j = args.client.client()?.job(&args.id).await?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&j)?);
+    } else {
+        print_summary(&j);
+    }
+    Ok(())
+}
+
+pub async fn cancel(args: JobArgs) -> Result<()> {
+    let j = args.client.client()?.job_action(&args.id, "cancel").await?;
+    print_summary(&j);
+    Ok(())
+}

@@ -1,0 +1,114 @@
+//! `pathfarm serve`: the server alone, until SIGINT or SIGTERM (in-flight requests finish first).
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use pathfarm_server::{AppState, ServerConfig};
+use std::net::SocketAddr;
+use std::time::Duration;
+
+/// Server settings shared by `serve` and `up`.
+#[derive(Args, Clone, Debug)]
+pub struct ServerArgs {
+    /// Database: a SQLite file (`pathfarm.db`, `sqlite://path`) or `postgres://…`.
+    #[arg(long, env = "PATHFARM_DB", default_value = "pathfarm.db")]
+    pub db: String,
+    /// Tokens API clients must present (comma-separated). Without any token the API is open, which
+    /// is allowed on loopback addresses only.
+    #[arg(long, env = "PATHFARM_CLIENT_TOKENS", value_delimiter = ',')]
+    pub client_token: Vec<String>,
+    /// Tokens workers must present (comma-separated).
+    #[arg(long, env = "PATHFARM_WORKER_TOKENS", value_delimiter = ',')]
+    pub worker_token: Vec<String>,
+    /// Seconds a lease lasts without a heartbeat; a dead worker's task is queued again after this.
+    #[arg(long, default_value_t = 30.0)]
+    pub lease_seconds: f64,
+    /// Largest scene upload in MiB.
+    #[arg(long, default_value_t = 256)]
+    pub max_scene_mib: usize,
+}
+
+impl ServerArgs {
+    pub fn config(&self) -> Result<ServerConfig> {
+        let mut c = ServerConfig::new(&self.db);
+        c.client_tokens = self
+            .client_token
+            .iter()
+            .filter(|t| !t.is_empty())
+            .cloned()
+            .collect();
+        c.worker_tokens = self
+            .worker_token
+            .iter()
+            .filter(|t| !t.is_empty())
+            .cloned()
+            .collect();
+        if !(self.lease_seconds.is_finite() && self.lease_seconds >= 0.1) {
+            bail!("--lease-seconds must be at least 0.1");
+        }
+        c.lease_duration = Duration::from_secs_f64(self.lease_seconds);
+        c.monitor_interval = Duration::from_secs_f64((self.lease_seconds / 10.0).clamp(0.05, 1.0));
+        c.limits.max_scene_bytes = self.max_scene_mib << 20;
+        Ok(c)
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Address to listen on.
+    #[arg(long, env = "PATHFARM_LISTEN", default_value = "127.0.0.1:8080")]
+    pub listen: SocketAddr,
+    #[command(flatten)]
+    pub server: ServerArgs,
+}
+
+/// Refuses to expose an open API beyond this machine.
+pub fn check_exposure(addr: &SocketAddr, config: &ServerConfig) -> Result<()> {
+    let has_both = !config.client_tokens.is_empty() && !config.worker_tokens.is_empty();
+    if !addr.ip().is_loopback() && !has_both {
+        bail!(
+            "refusing to listen on {addr} without tokens: set --client-token and --worker-token \
+             (or PATHFARM_CLIENT_TOKENS / PATHFARM_WORKER_TOKENS), or listen on 127.0.0.1"
+        );
+    }
+    Ok(())
+}
+
+pub async fn start(
+    addr: SocketAddr,
+    config: ServerConfig,
+) -> Result<(AppState, tokio::net::TcpListener)> {
+    check_exposure(&addr, &config)?;
+    let db = config.db_url.clone();
+    let state = AppState::open(config)
+        .await
+        .with_context(|| format!("cannot open the store {db}"))?;
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("cannot listen on {addr}"))?;
+    tracing::info!(addr = %listener.local_addr()?, store = state.store.dialect().name(), "serving");
+    Ok((state, listener))
+}
+
+/// Resolves on SIGINT (Ctrl-C) or SIGTERM.
+pub async fn shutdown_signal() {
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = term => {}
+    }
+}
+
+pub async fn run(args: ServeArgs) -> Result<()> {
+    let (state, listener) = start(args.listen, args.server.config()?).await?;
+    println!("pathfarm serving on http://{}", listener.local_addr()?);
+    pathfarm_server::serve(state, listener, shutdown_signal()).await?;
+    tracing::info!("server stopped");
+    Ok(())
+}

@@ -1,0 +1,84 @@
+//! `pathfarm up`: the embedded default in one command — a server on SQLite and N local worker
+//! processes. Ctrl-C stops the workers cleanly (they hand back their leases), then the server.
+
+use super::serve::{shutdown_signal, ServerArgs};
+use anyhow::{Context, Result};
+use clap::Args;
+use std::net::SocketAddr;
+use std::process::Stdio;
+use std::time::Duration;
+
+#[derive(Args, Debug)]
+pub struct UpArgs {
+    /// Local worker processes (default: one per core).
+    #[arg(long)]
+    pub workers: Option<usize>,
+    /// Render threads per worker.
+    #[arg(long, default_value_t = 1)]
+    pub threads_per_worker: usize,
+    #[arg(long, default_value_t = 8080)]
+    pub port: u16,
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1")]
+    pub host: std::net::IpAddr,
+    #[command(flatten)]
+    pub server: ServerArgs,
+}
+
+pub async fn run(args: UpArgs) -> Result<()> {
+    let config = args.server.config()?;
+    let worker_token = config.worker_tokens.first().cloned();
+    let (state, listener) =
+        super::serve::start(SocketAddr::new(args.host, args.port), config).await?;
+    let addr = listener.local_addr()?;
+    let url = format!("http://{addr}");
+    let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
+    let server = tokio::spawn(pathfarm_server::serve(state, listener, async move {
+        let _ = stop_rx.changed().await;
+    }));
+    let n = args
+        .workers
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let exe = std::env::current_exe().context("cannot find the pathfarm executable")?;
+    let mut children = Vec::new();
+    for i in 0..n {
+        let mut cmd = tokio::process::Command::new(&exe);
+        cmd.arg("worker")
+            .arg("--server")
+            .arg(&url)
+            .arg("--threads")
+            .arg(args.threads_per_worker.max(1).to_string())
+            .arg("--name")
+            .arg(format!("local-{}", i + 1))
+            .stdin(Stdio::null());
+        match &worker_token {
+            Some(t) => cmd.env("PATHFARM_WORKER_TOKEN", t),
+            None => cmd.env_remove("PATHFARM_WORKER_TOKEN"),
+        };
+        children.push(cmd.spawn().context("cannot start a worker process")?);
+    }
+    println!("pathfarm is up: dashboard and API at {url} ({n} local workers); Ctrl-C stops it");
+    shutdown_signal().await;
+    println!("stopping the workers…");
+    for c in &children {
+        if let Some(pid) = c.id() {
+            // SAFETY: kill(2) on a child we started; it has no memory-safety preconditions.
+            unsafe {
+                libc::kill(pid as libc::pid_t, libc::SIGTERM);
+            }
+        }
+    }
+    for mut c in children {
+        match tokio::time::timeout(Duration::from_secs(15), c.wait()).await {
+            Ok(_) => {}
+            Err(_) => {
+                tracing::warn!("a worker did not stop in 15 s; killing it");
+                let _ = c.kill().await;
+            }
+        }
+    }
+    let _ = stop_tx.send(true);
+    server.await.context("server task")??;
+    println!("stopped");
+    Ok(())
+}

@@ -1,0 +1,63 @@
+//! `pathfarm worker`: the worker daemon. SIGTERM or Ctrl-C: finish and upload the slice in hand,
+//! give the lease back, sign off, exit 0.
+
+use anyhow::Result;
+use clap::Args;
+use pathfarm_worker::WorkerConfig;
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(Args, Debug)]
+pub struct WorkerArgs {
+    /// The server's URL.
+    #[arg(long, env = "PATHFARM_SERVER", default_value = "http://127.0.0.1:8080")]
+    pub server: String,
+    /// Worker token (when the server requires one).
+    #[arg(long, env = "PATHFARM_WORKER_TOKEN")]
+    pub token: Option<String>,
+    /// Render threads (default: one per core).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Name shown in the dashboard (default: host-pid).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Where fetched scenes are cached (default: $XDG_CACHE_HOME/pathfarm/scenes or ~/.cache/…).
+    #[arg(long)]
+    pub cache_dir: Option<PathBuf>,
+    /// Target render time of one uploaded slice, in seconds.
+    #[arg(long, default_value_t = 1.5)]
+    pub slice_seconds: f64,
+    /// Fixed samples per pixel per slice (overrides --slice-seconds).
+    #[arg(long)]
+    pub slice_samples: Option<u32>,
+}
+
+fn default_cache_dir() -> Option<PathBuf> {
+    std::env::var_os("XDG_CACHE_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
+        .map(|d| d.join("pathfarm").join("scenes"))
+}
+
+pub async fn run(args: WorkerArgs) -> Result<()> {
+    let mut c = WorkerConfig::new(args.server);
+    c.token = args.token;
+    if let Some(t) = args.threads {
+        c.threads = t.max(1);
+    }
+    if let Some(n) = args.name {
+        c.name = n;
+    }
+    c.cache_dir = args.cache_dir.or_else(default_cache_dir);
+    c.slice_seconds = args.slice_seconds.clamp(0.01, 60.0);
+    c.slice_samples = args.slice_samples.filter(|&n| n > 0);
+    c.idle_poll = Duration::from_millis(500);
+    let (tx, rx) = tokio::sync::watch::channel(false);
+    tokio::spawn(async move {
+        super::serve::shutdown_signal().await;
+        tracing::info!("stopping: finishing the slice in hand");
+        let _ = tx.send(true);
+    });
+    pathfarm_worker::run(c, rx).await?;
+    Ok(())
+}
