@@ -1,0 +1,373 @@
+//! The lease and upload protocol, state changes and bad input, over real HTTP on both stores.
+
+mod common;
+
+use common::*;
+use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
+use pathfarm_tracer::{render_tile, Scene, Tile};
+use pathfarm_wire::api::{JobState, Lease, WorkerRegistration, WorkerState};
+use pathfarm_wire::{encode_slice, Slice};
+use pathfarm_worker::client::{ApiClient, ClientError};
+use reqwest::StatusCode;
+use std::time::Duration;
+
+fn load(scene: &[u8]) -> Scene {
+    gltf::load(scene, &NoExternalResources, &LoadOptions::default()).unwrap()
+}
+
+fn slice_body(scene: &Scene, lease: &Lease, begin: u32, end: u32) -> Vec<u8> {
+    let tile = Tile {
+        x0: lease.tile.x0,
+        y0: lease.tile.y0,
+        width: lease.tile.width,
+        height: lease.tile.height,
+    };
+    let acc = render_tile(scene, &lease.settings.render_settings(), tile, begin..end);
+    encode_slice(&Slice {
+        sample_begin: begin,
+        sample_end: end,
+        acc,
+    })
+}
+
+async fn register(c: &ApiClient, name: &str) -> String {
+    c.register(&WorkerRegistration {
+        name: name.into(),
+        threads: 1,
+        version: "test".into(),
+        host: "test".into(),
+    })
+    .await
+    .unwrap()
+    .worker_id
+}
+
+fn code(e: &ClientError) -> (StatusCode, String) {
+    match e {
+        ClientError::Api { status, code, .. } => (*status, code.clone()),
+        other => panic!("expected an API error, got {other}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn uploads_are_counted_once_and_stale_leases_are_fenced() {
+    let bytes = cornell();
+    let scene = load(&bytes);
+    for (store, url) in stores("fencing").await {
+        let mut cfg = config(&url);
+        cfg.lease_duration = Duration::from_millis(400);
+        cfg.monitor_interval = Duration::from_millis(50);
+        let server = TestServer::start(cfg).await;
+        let c = server.client(None);
+        // One tile, one pass after the first: tasks [0,1) and [1,8).
+        let mut s = settings(16, 16, 8, 16);
+        s.seed = 11;
+        let job = c.submit(bytes.clone(), "c.gltf", &s).await.unwrap();
+        assert_eq!(job.tasks, 4); // passes [0,1) [1,3) [3,7) [7,8)
+        let a = register(&c, "a").await;
+        let b = register(&c, "b").await;
+
+        let l0 = c.lease(&a).await.unwrap().expect("work");
+        assert_eq!((l0.sample_begin, l0.sample_end), (0, 1));
+        let body = slice_body(&scene, &l0, 0, 1);
+        let ack = c
+            .upload_slice(l0.task_id, &l0.lease_token, body.clone())
+            .await
+            .unwrap();
+        assert!(!ack.duplicate && ack.task_complete);
+        // The same upload again (a retry after a lost answer): acknowledged, not counted.
+        let again = c
+            .upload_slice(l0.task_id, &l0.lease_token, body)
+            .await
+            .unwrap();
+        assert!(again.duplicate, "{store}");
+        assert_eq!(c.job(&job.id).await.unwrap().samples_done, 256, "{store}");
+
+        // Task [1,3): upload [1,2), then worker a goes silent.
+        let l1 = c.lease(&a).await.unwrap().expect("work");
+        assert_eq!((l1.sample_begin, l1.sample_end), (1, 3));
+        let first = slice_body(&scene, &l1, 1, 2);
+        c.upload_slice(l1.task_id, &l1.lease_token, first.clone())
+            .await
+            .unwrap();
+        // A gap is refused: [2,3) must come before anything later.
+        let e = c
+            .upload_slice(
+                l1.task_id,
+                &l1.lease_token,
+                slice_body(&scene, &l1, 2, 2 + 1).clone(),
+            )
+            .await;
+        assert!(e.is_ok(), "{store}: the next slice in order is accepted");
+        // Wrong shape: a slice of another tile size.
+        let l2 = c.lease(&a).await.unwrap().expect("work");
+        let mut wrong = l2.clone();
+        wrong.tile.width = 8;
+        let e = c
+            .upload_slice(
+                l2.task_id,
+                &l2.lease_token,
+                slice_body(&scene, &wrong, l2.sample_begin, l2.sample_begin + 1),
+            )
+            .await
+            .unwrap_err();
+        assert_eq!(
+            code(&e),
+            (StatusCode::UNPROCESSABLE_ENTITY, "slice_shape".into()),
+            "{store}"
+        );
+        // Out of order within the task.
+        let e = c
+            .upload_slice(
+                l2.task_id,
+                &l2.lease_token,
+                slice_body(&scene, &l2, l2.sample_begin + 1, l2.sample_begin + 2),
+            )
+            .await
+            .unwrap_err();
+        assert_eq!(
+            code(&e),
+            (StatusCode::CONFLICT, "slice_out_of_order".into()),
+            "{store}"
+        );
+        // Merge one slice of l2, then let its lease expire: only the rest is queued again.
+        c.upload_slice(
+            l2.task_id,
+            &l2.lease_token,
+            slice_body(&scene, &l2, l2.sample_begin, l2.sample_begin + 1),
+        )
+        .await
+        .unwrap();
+        tokio::time::sleep(Duration::from_millis(700)).await;
+        let l2b = loop {
+            let l = c.lease(&b).await.unwrap().expect("work");
+            if l.task_id == l2.task_id {
+                break l;
+            }
+            // Another task: finish it properly so the queue moves on.
+            let body = slice_body(&scene, &l, l.sample_begin, l.sample_end);
+            c.upload_slice(l.task_id, &l.lease_token, body)
+                .await
+                .unwrap();
+        };
+        assert_eq!(
+            l2b.sample_begin,
+            l2.sample_begin + 1,
+            "{store}: merged samples are not rendered again"
+        );
+        assert_ne!(l2b.lease_token, l2.lease_token);
+        // The presumed-dead worker's late upload is fenced off.
+        let e = c
+            .upload_slice(
+                l2.task_id,
+                &l2.lease_token,
+                slice_body(&scene, &l2, l2.sample_begin + 1, l2.sample_end),
+            )
+            .await
+            .unwrap_err();
+        assert_eq!(
+            code(&e),
+            (StatusCode::CONFLICT, "stale_lease".into()),
+            "{store}"
+        );
+        let body = slice_body(&scene, &l2b, l2b.sample_begin, l2b.sample_end);
+        c.upload_slice(l2b.task_id, &l2b.lease_token, body)
+            .await
+            .unwrap();
+        // Finish the job with b and compare to a local render.
+        while let Some(l) = c.lease(&b).await.unwrap() {
+            let body = slice_body(&scene, &l, l.sample_begin, l.sample_end);
+            c.upload_slice(l.task_id, &l.lease_token, body)
+                .await
+                .unwrap();
+        }
+        let done = c.job(&job.id).await.unwrap();
+        assert_completed(&done);
+        assert_eq!(
+            c.image_exr(&job.id, false).await.unwrap(),
+            exr(&local_render(&bytes, &s)),
+            "{store}"
+        );
+        let workers = c.workers().await.unwrap().workers;
+        assert!(
+            workers
+                .iter()
+                .any(|w| w.id == a && w.state == WorkerState::Lost),
+            "{store}: silent worker a is shown lost: {workers:?}"
+        );
+        server.stop().await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn job_states_priorities_and_stopping_rules() {
+    let bytes = cornell();
+    let scene = load(&bytes);
+    for (store, url) in stores("states").await {
+        let server = TestServer::start(config(&url)).await;
+        let c = server.client(None);
+        let low = c
+            .submit(bytes.clone(), "low", &settings(16, 16, 4, 16))
+            .await
+            .unwrap();
+        let mut hs = settings(16, 16, 4, 16);
+        hs.priority = 5;
+        let high = c.submit(bytes.clone(), "high", &hs).await.unwrap();
+        let w = register(&c, "w").await;
+        let l = c.lease(&w).await.unwrap().unwrap();
+        assert_eq!(l.job_id, high.id, "{store}: higher priority first");
+        c.release(l.task_id, &l.lease_token).await.unwrap();
+        // Lower the high job's priority: now the low one (older) comes first.
+        let mut patch = c.job(&high.id).await.unwrap();
+        patch.priority = -1;
+        let resp = reqwest::Client::new()
+            .patch(format!("{}/api/v1/jobs/{}", server.url, high.id))
+            .json(&serde_json::json!({ "priority": -1 }))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(resp.status(), StatusCode::OK);
+        let l = c.lease(&w).await.unwrap().unwrap();
+        assert_eq!(l.job_id, low.id, "{store}");
+        // Fair share among equal priorities: a second worker gets the other job.
+        let mut eq = settings(16, 16, 4, 16);
+        eq.priority = 0;
+        let other = c.submit(bytes.clone(), "other", &eq).await.unwrap();
+        let w2 = register(&c, "w2").await;
+        let l2 = c.lease(&w2).await.unwrap().unwrap();
+        assert_eq!(
+            l2.job_id, other.id,
+            "{store}: the job without a leased task goes first"
+        );
+        // Pause: no new leases for it; the upload in hand is accepted and told to stop.
+        let v = c.job_action(&low.id, "pause").await.unwrap();
+        assert_eq!(v.state, JobState::Paused);
+        let ack = c
+            .upload_slice(
+                l.task_id,
+                &l.lease_token,
+                slice_body(&scene, &l, l.sample_begin, l.sample_end),
+            )
+            .await
+            .unwrap();
+        assert!(!ack.duplicate);
+        let e = c.job_action(&low.id, "pause").await.unwrap_err();
+        assert_eq!(code(&e), (StatusCode::CONFLICT, "invalid_state".into()));
+        assert_eq!(
+            c.job_action(&low.id, "resume").await.unwrap().state,
+            JobState::Running
+        );
+        // Cancel: outstanding leases are fenced.
+        let v = c.job_action(&other.id, "cancel").await.unwrap();
+        assert_eq!(v.state, JobState::Cancelled);
+        let e = c
+            .upload_slice(
+                l2.task_id,
+                &l2.lease_token,
+                slice_body(&scene, &l2, l2.sample_begin, l2.sample_end),
+            )
+            .await
+            .unwrap_err();
+        assert_eq!(code(&e).0, StatusCode::CONFLICT);
+        let e = c.job_action(&other.id, "resume").await.unwrap_err();
+        assert_eq!(code(&e).0, StatusCode::CONFLICT);
+        // Filtered, paged listing.
+        let cancelled = c.jobs(Some("cancelled"), 1, 10).await.unwrap();
+        assert_eq!(
+            (cancelled.total, cancelled.jobs[0].id.clone()),
+            (1, other.id.clone())
+        );
+        let page = c.jobs(None, 2, 2).await.unwrap();
+        assert_eq!((page.total, page.jobs.len()), (3, 1));
+        // Delete: gone, and its image too.
+        c.delete_job(&other.id).await.unwrap();
+        assert_eq!(
+            code(&c.job(&other.id).await.unwrap_err()).0,
+            StatusCode::NOT_FOUND
+        );
+        assert_eq!(
+            code(&c.image_exr(&other.id, false).await.unwrap_err()).0,
+            StatusCode::NOT_FOUND
+        );
+
+        // A noise target ends a job early; so does a time limit.
+        let mut ns = settings(24, 24, 4096, 24);
+        ns.noise_target = Some(0.2);
+        let noisy = c.submit(bytes.clone(), "noise", &ns).await.unwrap();
+        let mut ts = settings(24, 24, 1 << 20, 24);
+        ts.time_limit_s = Some(0.5);
+        let timed = c.submit(bytes.clone(), "time", &ts).await.unwrap();
+        c.job_action(&low.id, "cancel").await.unwrap();
+        c.job_action(&high.id, "cancel").await.unwrap();
+        let workers: Vec<_> = (0..2)
+            .map(|_| TestWorker::spawn(&server.url, None, None))
+            .collect();
+        let n = wait_final(&c, &noisy.id, Duration::from_secs(60)).await;
+        let t = wait_final(&c, &timed.id, Duration::from_secs(60)).await;
+        for w in workers {
+            w.stop().await;
+        }
+        assert_eq!(n.state, JobState::Completed, "{store}: {n:?}");
+        assert!(n.samples_done < n.samples_planned, "{store}: stopped early");
+        assert!(n.relative_error.unwrap() <= 0.2, "{store}: {n:?}");
+        assert!(
+            n.message.as_deref().unwrap_or("").contains("noise target"),
+            "{n:?}"
+        );
+        assert_eq!(t.state, JobState::Completed, "{store}: {t:?}");
+        assert!(
+            t.message.as_deref().unwrap_or("").contains("time limit"),
+            "{t:?}"
+        );
+        // Per-tile progress in the single-job view.
+        let view = c.job(&noisy.id).await.unwrap();
+        let tiles = view.tiles.unwrap();
+        assert_eq!(tiles.len(), 1);
+        assert!(tiles[0].samples_per_pixel >= 2);
+        server.stop().await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn two_servers_on_one_postgres_render_one_correct_image() {
+    let Ok(base) = std::env::var("PATHFARM_TEST_POSTGRES_URL") else {
+        eprintln!("SKIPPED: two servers on PostgreSQL (PATHFARM_TEST_POSTGRES_URL is not set)");
+        return;
+    };
+    let url = fresh_postgres(&base).await;
+    let s1 = TestServer::start(config(&url)).await;
+    let s2 = TestServer::start(config(&url)).await;
+    let bytes = cornell();
+    let s = settings(48, 40, 8, 16);
+    let job = s1
+        .client(None)
+        .submit(bytes.clone(), "c", &s)
+        .await
+        .unwrap();
+    let ws = vec![
+        TestWorker::spawn(&s1.url, None, Some(1)),
+        TestWorker::spawn(&s2.url, None, Some(2)),
+        TestWorker::spawn(&s2.url, None, None),
+    ];
+    let done = wait_final(&s2.client(None), &job.id, Duration::from_secs(120)).await;
+    let mut per_worker = Vec::new();
+    for w in ws {
+        per_worker.push(w.stop().await.slices);
+    }
+    assert_completed(&done);
+    assert!(
+        per_worker.iter().filter(|&&n| n > 0).count() >= 2,
+        "work was shared: {per_worker:?}"
+    );
+    let expected = exr(&local_render(&bytes, &s));
+    assert_eq!(
+        s1.client(None).image_exr(&job.id, false).await.unwrap(),
+        expected
+    );
+    assert_eq!(
+        s2.client(None).image_exr(&job.id, false).await.unwrap(),
+        expected
+    );
+    s1.stop().await;
+    s2.stop().await;
+}
