@@ -22,32 +22,51 @@ fn synthetic(x0: u32, y0: u32, w: u32, h: u32, begin: u32, end: u32) -> Vec<u8> 
             p.add_sample(Vec3::new(0.5, 0.25, 0.125));
         }
     }
-    encode_slice(&Slice { sample_begin: begin, sample_end: end, acc })
+    encode_slice(&Slice {
+        sample_begin: begin,
+        sample_end: end,
+        acc,
+    })
 }
 
 #[tokio::main(flavor = "multi_thread")]
 async fn main() {
     let args: Vec<String> = std::env::args().collect();
     let workers: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(64);
-    let db = args.get(2).cloned().filter(|s| !s.is_empty()).unwrap_or_else(|| {
-        let dir = std::env::temp_dir().join(format!("pathfarm-loadgen-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        format!("sqlite://{}", dir.join("load.db").display())
-    });
+    let db = args
+        .get(2)
+        .cloned()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| {
+            let dir = std::env::temp_dir().join(format!("pathfarm-loadgen-{}", std::process::id()));
+            std::fs::create_dir_all(&dir).unwrap();
+            format!("sqlite://{}", dir.join("load.db").display())
+        });
     let seconds: f64 = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(10.0);
     let mut config = ServerConfig::new(&db);
     config.lease_duration = Duration::from_secs(60);
     let state = AppState::open(config).await.expect("store");
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let url = format!("http://{}", listener.local_addr().unwrap());
-    tokio::spawn(pathfarm_server::serve(state, listener, std::future::pending()));
+    tokio::spawn(pathfarm_server::serve(
+        state,
+        listener,
+        std::future::pending(),
+    ));
     let client = ApiClient::new(&url, None).unwrap();
     // Many small tiles with many passes: uploads of 8×8 tiles, one sample each.
-    let scene = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/cornell.gltf")).unwrap();
+    let scene = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../scenes/cornell.gltf"
+    ))
+    .unwrap();
     let mut s = JobSettings::new(512, 512, 64);
     s.tile_size = 8;
     let job = client.submit(scene, "load", &s).await.unwrap();
-    println!("store {db}: job with {} tasks, {workers} simulated workers, {seconds} s", job.tasks);
+    println!(
+        "store {db}: job with {} tasks, {workers} simulated workers, {seconds} s",
+        job.tasks
+    );
 
     let uploads = Arc::new(AtomicU64::new(0));
     let lease_lat = Arc::new(Mutex::new(Vec::<f64>::new()));
@@ -55,22 +74,38 @@ async fn main() {
     let stop = Arc::new(AtomicBool::new(false));
     let mut handles = Vec::new();
     for i in 0..workers {
-        let (client, uploads, lease_lat, upload_lat, stop) =
-            (ApiClient::new(&url, None).unwrap(), uploads.clone(), lease_lat.clone(), upload_lat.clone(), stop.clone());
+        let (client, uploads, lease_lat, upload_lat, stop) = (
+            ApiClient::new(&url, None).unwrap(),
+            uploads.clone(),
+            lease_lat.clone(),
+            upload_lat.clone(),
+            stop.clone(),
+        );
         handles.push(tokio::spawn(async move {
             let id = client
-                .register(&WorkerRegistration { name: format!("sim-{i}"), threads: 1, version: "sim".into(), host: "sim".into() })
+                .register(&WorkerRegistration {
+                    name: format!("sim-{i}"),
+                    threads: 1,
+                    version: "sim".into(),
+                    host: "sim".into(),
+                })
                 .await
                 .unwrap()
                 .worker_id;
             while !stop.load(Ordering::Relaxed) {
                 let t = Instant::now();
-                let Some(l) = client.lease(&id).await.unwrap() else { break };
+                let Some(l) = client.lease(&id).await.unwrap() else {
+                    break;
+                };
                 lease_lat.lock().unwrap().push(t.elapsed().as_secs_f64());
                 for b in l.sample_begin..l.sample_end {
-                    let body = synthetic(l.tile.x0, l.tile.y0, l.tile.width, l.tile.height, b, b + 1);
+                    let body =
+                        synthetic(l.tile.x0, l.tile.y0, l.tile.width, l.tile.height, b, b + 1);
                     let t = Instant::now();
-                    client.upload_slice(l.task_id, &l.lease_token, body).await.unwrap();
+                    client
+                        .upload_slice(l.task_id, &l.lease_token, body)
+                        .await
+                        .unwrap();
                     upload_lat.lock().unwrap().push(t.elapsed().as_secs_f64());
                     uploads.fetch_add(1, Ordering::Relaxed);
                     if stop.load(Ordering::Relaxed) {
@@ -91,7 +126,11 @@ async fn main() {
     let pct = |v: &Mutex<Vec<f64>>, p: f64| {
         let mut v = v.lock().unwrap().clone();
         v.sort_by(f64::total_cmp);
-        if v.is_empty() { f64::NAN } else { v[((v.len() - 1) as f64 * p) as usize] * 1e3 }
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            v[((v.len() - 1) as f64 * p) as usize] * 1e3
+        }
     };
     println!(
         "{n} slice uploads merged in {secs:.1} s: {:.0} uploads/s; lease latency p50 {:.1} ms p99 {:.1} ms ({} leases); upload latency p50 {:.1} ms p99 {:.1} ms",
