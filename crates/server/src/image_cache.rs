@@ -18,7 +18,7 @@ pub struct JobImage {
     pub acc: Accumulation,
     /// The smallest per-pixel sample count over the tiles.
     pub min_samples: u64,
-    encoded: Mutex<HashMap<String, Arc<Vec<u8>>>>,
+    encoded: Mutex<HashMap<String, axum::body::Bytes>>,
 }
 
 impl JobImage {
@@ -27,11 +27,11 @@ impl JobImage {
         &self,
         key: &str,
         make: impl FnOnce(&Accumulation) -> ApiResult<Vec<u8>>,
-    ) -> ApiResult<Arc<Vec<u8>>> {
+    ) -> ApiResult<axum::body::Bytes> {
         if let Some(b) = self.encoded.lock().map_err(poisoned)?.get(key) {
             return Ok(b.clone());
         }
-        let bytes = Arc::new(make(&self.acc)?);
+        let bytes = axum::body::Bytes::from(make(&self.acc)?);
         let mut map = self.encoded.lock().map_err(poisoned)?;
         if map.len() > 16 {
             map.clear();

@@ -23,18 +23,14 @@ pub struct PngQuery {
     exposure: f32,
 }
 
-fn image_response(
-    bytes: std::sync::Arc<Vec<u8>>,
-    content_type: &'static str,
-    version: i64,
-) -> Response {
+fn image_response(bytes: axum::body::Bytes, content_type: &'static str, version: i64) -> Response {
     (
         [
             (header::CONTENT_TYPE, content_type.to_string()),
             (header::CACHE_CONTROL, "no-cache".to_string()),
             (header::ETAG, format!("\"v{version}\"")),
         ],
-        bytes.as_ref().clone(),
+        bytes,
     )
         .into_response()
 }

@@ -46,8 +46,7 @@ impl JobRow {
             settings: serde_json::from_str(&settings)
                 .map_err(|e| sqlx::Error::Decode(Box::new(e)))?,
             priority: row.try_get::<i64, _>("priority")? as i32,
-            state: JobState::parse(&state)
-                .ok_or_else(|| sqlx::Error::Protocol(format!("unknown job state {state:?}")))?,
+            state: job_state(&state)?,
             samples_planned: row.try_get::<i64, _>("samples_planned")? as u64,
             samples_done: row.try_get::<i64, _>("samples_done")? as u64,
             queued_tasks: row.try_get::<i64, _>("queued_tasks")? as u64,
@@ -60,6 +59,24 @@ impl JobRow {
             message: row.try_get("message")?,
         })
     }
+}
+
+/// A stored job state.
+pub(crate) fn job_state(s: &str) -> Result<JobState, sqlx::Error> {
+    JobState::parse(s).ok_or_else(|| sqlx::Error::Protocol(format!("unknown job state {s:?}")))
+}
+
+/// Frees the workers busy with a job that ends or disappears. Called after the job row is
+/// written, keeping the lock order (tasks, tiles, jobs, workers).
+async fn free_job_workers(w: &mut super::WriteTx<'_>, job_id: &str) -> Result<(), sqlx::Error> {
+    sqlx::query(
+        "UPDATE workers SET current_task = NULL, current_job = NULL, state = 'idle' \
+         WHERE current_job = $1 AND state = 'busy'",
+    )
+    .bind(job_id)
+    .execute(&mut *w.tx)
+    .await?;
+    Ok(())
 }
 
 /// A tile of a job and the samples per pixel merged into it.
@@ -323,13 +340,6 @@ impl Store {
             .bind(id)
             .execute(&mut *w.tx)
             .await?;
-            sqlx::query(
-                "UPDATE workers SET current_task = NULL, current_job = NULL, state = 'idle' \
-                 WHERE current_job = $1 AND state = 'busy'",
-            )
-            .bind(id)
-            .execute(&mut *w.tx)
-            .await?;
         }
         let row = sqlx::query(sql!(
             "SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1{}",
@@ -362,6 +372,7 @@ impl Store {
             .bind(id)
             .execute(&mut *w.tx)
             .await?;
+            free_job_workers(&mut w, id).await?;
         } else {
             sqlx::query("UPDATE jobs SET state = $1 WHERE id = $2")
                 .bind(to.as_str())
@@ -399,13 +410,6 @@ impl Store {
             .bind(id)
             .execute(&mut *w.tx)
             .await?;
-        sqlx::query(
-            "UPDATE workers SET current_task = NULL, current_job = NULL, state = 'idle' \
-             WHERE current_job = $1 AND state = 'busy'",
-        )
-        .bind(id)
-        .execute(&mut *w.tx)
-        .await?;
         let row = sqlx::query("DELETE FROM jobs WHERE id = $1 RETURNING scene_hash")
             .bind(id)
             .fetch_optional(&mut *w.tx)
@@ -413,6 +417,7 @@ impl Store {
         let Some(row) = row else {
             return Err(ApiError::not_found("job", id));
         };
+        free_job_workers(&mut w, id).await?;
         let hash: String = row.try_get("scene_hash")?;
         sqlx::query(
             "DELETE FROM scenes WHERE hash = $1 AND NOT EXISTS \

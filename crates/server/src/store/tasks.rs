@@ -3,6 +3,7 @@
 //! Lock order, in every transaction: tasks, then tiles, then jobs, then workers. PostgreSQL takes
 //! row locks in that order, so concurrent servers never deadlock; SQLite has one writer anyway.
 
+use super::jobs::job_state;
 use super::{now_ms, Store};
 use crate::error::{ApiError, ApiResult};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState};
@@ -94,9 +95,7 @@ impl Store {
             .bind(&job_id)
             .fetch_one(&mut *w.tx)
             .await?;
-            let state: String = job.try_get("state")?;
-            let state = JobState::parse(&state)
-                .ok_or_else(|| ApiError::internal(format!("unknown job state {state:?}")))?;
+            let state = job_state(&job.try_get::<String, _>("state")?)?;
             let job_to = job_transition(state, JobEvent::Leased).map_err(ApiError::internal)?;
             sqlx::query(
                 "UPDATE jobs SET state = $1, started_ms = COALESCE(started_ms, $2), \
@@ -304,17 +303,15 @@ impl Store {
         .bind(&job_id)
         .fetch_one(&mut *w.tx)
         .await?;
-        let job_state_s: String = job.try_get("state")?;
-        let job_state = JobState::parse(&job_state_s)
-            .ok_or_else(|| ApiError::internal(format!("unknown job state {job_state_s:?}")))?;
+        let current = job_state(&job.try_get::<String, _>("state")?)?;
         let samples = n as u64 * a.pixels.len() as u64;
         let done = job.try_get::<i64, _>("samples_done")? as u64 + samples;
         let planned = job.try_get::<i64, _>("samples_planned")? as u64;
         let job_completed = done >= planned;
         let new_state = if job_completed {
-            job_transition(job_state, JobEvent::Complete).map_err(ApiError::internal)?
+            job_transition(current, JobEvent::Complete).map_err(ApiError::internal)?
         } else {
-            job_state
+            current
         };
         let now = now_ms();
         sqlx::query(
