@@ -7,7 +7,9 @@
 
 pub mod auth;
 pub mod config;
+pub mod dashboard;
 pub mod error;
+pub mod heatmap;
 pub mod image_cache;
 pub mod metrics;
 pub mod monitor;
@@ -70,6 +72,7 @@ pub fn app(state: AppState) -> Router {
         router = router.route(r.path, r.handler);
     }
     router
+        .merge(dashboard::router())
         .fallback(|| async {
             ApiError::new(StatusCode::NOT_FOUND, "not_found", "no such endpoint")
         })

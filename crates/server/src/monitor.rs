@@ -3,7 +3,7 @@
 //! a transaction on the shared store, so any number of servers can run it side by side.
 
 use crate::states::JobEvent;
-use crate::store::now_ms;
+use crate::store::{now_ms, Estimate};
 use crate::AppState;
 use pathfarm_wire::api::JobState;
 
@@ -47,7 +47,16 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
         } else {
             None
         };
-        store.set_rel_error(&id, img.version, err).await?;
+        let samples = img.acc.total_samples();
+        let target_reached =
+            matches!((job.settings.noise_target, err), (Some(t), Some(e)) if e <= t);
+        let estimate = Estimate {
+            version: img.version,
+            relative_error: err,
+            samples,
+            last: target_reached || samples >= job.samples_planned || job.state.is_final(),
+        };
+        store.record_estimate(&id, &estimate).await?;
         if job.state == JobState::Running {
             if let (Some(target), Some(err)) = (job.settings.noise_target, err) {
                 if err <= target {

@@ -371,3 +371,65 @@ async fn two_servers_on_one_postgres_render_one_correct_image() {
     s1.stop().await;
     s2.stop().await;
 }
+
+/// Many uploads at once — on SQLite they are merged in shared transactions (group commit): each
+/// slice is counted once however many copies race, a stale upload in the same batch is fenced
+/// without failing its neighbours, and the final image is still the local render's.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn concurrent_uploads_merge_exactly_once() {
+    let bytes = cornell();
+    let scene = load(&bytes);
+    for (store, url) in stores("group-commit").await {
+        let server = TestServer::start(config(&url)).await;
+        let client = server.client(None);
+        let s = settings(32, 32, 1, 8); // 16 tiles, one pass of one sample
+        let expected = exr(&local_render(&bytes, &s));
+        let job = client
+            .submit(bytes.clone(), "cornell.gltf", &s)
+            .await
+            .unwrap();
+        let mut leases = Vec::new();
+        for i in 0..16 {
+            let w = register(&client, &format!("w{i}")).await;
+            leases.push(client.lease(&w).await.unwrap().expect("a task"));
+        }
+        let mut uploads = tokio::task::JoinSet::new();
+        for l in &leases {
+            let body = slice_body(&scene, l, 0, 1);
+            for copy in 0..3 {
+                let (c, l, body) = (server.client(None), l.clone(), body.clone());
+                uploads.spawn(async move {
+                    (copy, c.upload_slice(l.task_id, &l.lease_token, body).await)
+                });
+            }
+            // A stale token for the same task, racing the real ones.
+            let (c, l, body) = (server.client(None), l.clone(), body.clone());
+            uploads.spawn(async move { (9, c.upload_slice(l.task_id, "stale", body).await) });
+        }
+        let (mut merged, mut duplicates, mut fenced) = (0, 0, 0);
+        while let Some(r) = uploads.join_next().await {
+            match r.unwrap() {
+                (9, Err(e)) => {
+                    assert_eq!(code(&e), (StatusCode::CONFLICT, "stale_lease".into()));
+                    fenced += 1;
+                }
+                (9, Ok(ack)) => panic!("{store}: a stale upload was accepted: {ack:?}"),
+                (_, Ok(ack)) if ack.duplicate => duplicates += 1,
+                (_, Ok(ack)) => {
+                    assert!(ack.task_complete);
+                    merged += 1;
+                }
+                (_, Err(e)) => panic!("{store}: upload failed: {e}"),
+            }
+        }
+        assert_eq!((merged, duplicates, fenced), (16, 32, 16), "{store}");
+        let done = wait_final(&client, &job.id, Duration::from_secs(30)).await;
+        assert_completed(&done);
+        assert_eq!(done.samples_done, 32 * 32);
+        assert!(
+            client.image_exr(&job.id, false).await.unwrap() == expected,
+            "{store}"
+        );
+        server.stop().await;
+    }
+}

@@ -91,12 +91,21 @@ pub fn encode_png(acc: &Accumulation, exposure: f32) -> std::result::Result<Vec<
             ]
         })
         .collect();
+    encode_rgb8_png(acc.width, acc.height, &rgb)
+}
+
+/// Encodes 8-bit RGB pixels (row-major, `width × height × 3` bytes) as a PNG.
+pub fn encode_rgb8_png(
+    width: u32,
+    height: u32,
+    rgb: &[u8],
+) -> std::result::Result<Vec<u8>, ImageError> {
     let mut out = Cursor::new(Vec::new());
     image::write_buffer_with_format(
         &mut out,
-        &rgb,
-        acc.width,
-        acc.height,
+        rgb,
+        width,
+        height,
         image::ExtendedColorType::Rgb8,
         image::ImageFormat::Png,
     )

@@ -256,6 +256,55 @@ pub struct JobList {
     pub per_page: u32,
 }
 
+/// One point of a job's convergence history: recorded by the server as slices merge, roughly
+/// log-spaced in time, so that a chart of error against time has as many points per decade late in
+/// a long job as early on.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ConvergencePoint {
+    /// Seconds since the job's first lease.
+    pub elapsed_s: f64,
+    /// Samples merged into the image this point describes.
+    pub samples_done: u64,
+    /// Its estimated relative error (`None` until every pixel has two samples).
+    pub relative_error: Option<f64>,
+    /// Samples merged per second since the previous point (since the start for the first).
+    pub samples_per_second: f64,
+}
+
+/// `GET /api/v1/jobs/{id}/convergence`: the job's history, oldest first.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Convergence {
+    pub job_id: String,
+    pub points: Vec<ConvergencePoint>,
+}
+
+/// What `preview.png` shows.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PreviewView {
+    /// The tone-mapped mean.
+    #[default]
+    Image,
+    /// Per-pixel sample count as a heat map (linear scale).
+    Samples,
+    /// Per-pixel relative standard error of the mean luminance as a heat map (log scale).
+    Noise,
+}
+
+impl PreviewView {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PreviewView::Image => "image",
+            PreviewView::Samples => "samples",
+            PreviewView::Noise => "noise",
+        }
+    }
+}
+
+/// Response headers of a heat-map `preview.png`: the values at the two ends of its colour scale.
+pub const SCALE_MIN_HEADER: &str = "pathfarm-scale-min";
+pub const SCALE_MAX_HEADER: &str = "pathfarm-scale-max";
+
 /// `PATCH /api/v1/jobs/{id}`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -2,9 +2,9 @@
 //! command-line client (`pathfarm submit`, `jobs`, …).
 
 use pathfarm_wire::api::{
-    ErrorBody, Heartbeat, HeartbeatReply, JobCreated, JobList, JobSettings, JobView, Lease,
-    Release, SliceAck, WorkerList, WorkerRegistered, WorkerRegistration, LEASE_TOKEN_HEADER,
-    SLICE_CONTENT_TYPE,
+    Convergence, ErrorBody, Heartbeat, HeartbeatReply, JobCreated, JobList, JobSettings, JobView,
+    Lease, PreviewView, Release, SliceAck, WorkerList, WorkerRegistered, WorkerRegistration,
+    LEASE_TOKEN_HEADER, SCALE_MAX_HEADER, SCALE_MIN_HEADER, SLICE_CONTENT_TYPE,
 };
 use reqwest::{Method, RequestBuilder, Response, StatusCode};
 use serde::de::DeserializeOwned;
@@ -253,5 +253,25 @@ impl ApiClient {
         let path = format!("/api/v1/jobs/{id}/preview.png?exposure={exposure}");
         let resp = Self::send(self.request(Method::GET, &path)).await?;
         Ok(resp.bytes().await.map_err(ClientError::Transport)?.to_vec())
+    }
+
+    /// A heat map (or the image) with the two ends of its colour scale, from the response headers.
+    pub async fn preview_view(
+        &self,
+        id: &str,
+        view: PreviewView,
+    ) -> Result<(Vec<u8>, Option<(f64, f64)>), ClientError> {
+        let path = format!("/api/v1/jobs/{id}/preview.png?view={}", view.as_str());
+        let resp = Self::send(self.request(Method::GET, &path)).await?;
+        let header =
+            |name: &str| -> Option<f64> { resp.headers().get(name)?.to_str().ok()?.parse().ok() };
+        let scale = header(SCALE_MIN_HEADER).zip(header(SCALE_MAX_HEADER));
+        let bytes = resp.bytes().await.map_err(ClientError::Transport)?.to_vec();
+        Ok((bytes, scale))
+    }
+
+    /// The job's convergence history.
+    pub async fn convergence(&self, id: &str) -> Result<Convergence, ClientError> {
+        Self::json(self.request(Method::GET, &format!("/api/v1/jobs/{id}/convergence"))).await
     }
 }

@@ -3,11 +3,13 @@
 
 use crate::auth::ReadAuth;
 use crate::error::{ApiError, ApiResult};
+use crate::heatmap;
 use crate::AppState;
 use axum::extract::{Path, Query, State};
-use axum::http::header;
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
-use pathfarm_tracer::output::{encode_exr, encode_png, ExrChannels};
+use pathfarm_tracer::output::{encode_exr, encode_png, encode_rgb8_png, ExrChannels};
+use pathfarm_wire::api::{PreviewView, SCALE_MAX_HEADER, SCALE_MIN_HEADER};
 use serde::Deserialize;
 
 #[derive(Deserialize)]
@@ -21,6 +23,32 @@ pub struct ExrQuery {
 pub struct PngQuery {
     #[serde(default)]
     exposure: f32,
+    #[serde(default)]
+    view: PreviewView,
+}
+
+fn etag(version: i64) -> String {
+    format!("\"v{version}\"")
+}
+
+/// 304 Not Modified when the client already holds this version (`If-None-Match`): pollers of an
+/// image that did not change get no body at all.
+fn not_modified(request: &HeaderMap, version: i64) -> Option<Response> {
+    let tag = etag(version);
+    let held = request.get(header::IF_NONE_MATCH)?.to_str().ok()?;
+    held.split(',')
+        .map(|t| t.trim().trim_start_matches("W/"))
+        .any(|t| t == tag || t == "*")
+        .then(|| {
+            (
+                StatusCode::NOT_MODIFIED,
+                [
+                    (header::CACHE_CONTROL, "no-cache".to_string()),
+                    (header::ETAG, tag),
+                ],
+            )
+                .into_response()
+        })
 }
 
 fn image_response(bytes: axum::body::Bytes, content_type: &'static str, version: i64) -> Response {
@@ -28,7 +56,7 @@ fn image_response(bytes: axum::body::Bytes, content_type: &'static str, version:
         [
             (header::CONTENT_TYPE, content_type.to_string()),
             (header::CACHE_CONTROL, "no-cache".to_string()),
-            (header::ETAG, format!("\"v{version}\"")),
+            (header::ETAG, etag(version)),
         ],
         bytes,
     )
@@ -39,6 +67,7 @@ pub async fn image_exr(
     _: ReadAuth,
     State(state): State<AppState>,
     Path(id): Path<String>,
+    request: HeaderMap,
     query: Result<Query<ExrQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
@@ -47,6 +76,9 @@ pub async fn image_exr(
         .images
         .get(&state.store, &id, job.settings.width, job.settings.height)
         .await?;
+    if let Some(r) = not_modified(&request, img.version) {
+        return Ok(r);
+    }
     let key = if q.extra { "exr+extra" } else { "exr" };
     let bytes = img.encoded(key, |acc| {
         encode_exr(
@@ -65,6 +97,7 @@ pub async fn preview_png(
     _: ReadAuth,
     State(state): State<AppState>,
     Path(id): Path<String>,
+    request: HeaderMap,
     query: Result<Query<PngQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
@@ -79,9 +112,35 @@ pub async fn preview_png(
         .images
         .get(&state.store, &id, job.settings.width, job.settings.height)
         .await?;
-    let key = format!("png@{}", q.exposure);
-    let bytes = img.encoded(&key, |acc| {
-        encode_png(acc, q.exposure).map_err(|e| ApiError::internal(format!("PNG encoding: {e}")))
+    if let Some(r) = not_modified(&request, img.version) {
+        return Ok(r);
+    }
+    let (w, h) = (img.acc.width, img.acc.height);
+    let png_error =
+        |e: pathfarm_tracer::output::ImageError| ApiError::internal(format!("PNG encoding: {e}"));
+    let (key, scale) = match q.view {
+        PreviewView::Image => (format!("png@{}", q.exposure), None),
+        PreviewView::Samples => (
+            "png:samples".to_string(),
+            Some(heatmap::samples_scale(&img.acc)),
+        ),
+        PreviewView::Noise => ("png:noise".to_string(), Some(heatmap::NOISE_SCALE)),
+    };
+    let bytes = img.encoded(&key, |acc| match q.view {
+        PreviewView::Image => encode_png(acc, q.exposure).map_err(png_error),
+        PreviewView::Samples => {
+            encode_rgb8_png(w, h, &heatmap::samples(acc).rgb).map_err(png_error)
+        }
+        PreviewView::Noise => encode_rgb8_png(w, h, &heatmap::noise(acc).rgb).map_err(png_error),
     })?;
-    Ok(image_response(bytes, "image/png", img.version))
+    let mut resp = image_response(bytes, "image/png", img.version);
+    if let Some((lo, hi)) = scale {
+        let headers = resp.headers_mut();
+        for (name, v) in [(SCALE_MIN_HEADER, lo), (SCALE_MAX_HEADER, hi)] {
+            if let Ok(v) = HeaderValue::from_str(&v.to_string()) {
+                headers.insert(name, v);
+            }
+        }
+    }
+    Ok(resp)
 }

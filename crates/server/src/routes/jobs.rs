@@ -14,7 +14,8 @@ use axum::http::{HeaderMap, StatusCode};
 use axum::Json;
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_wire::api::{
-    JobCreated, JobList, JobPatch, JobSettings, JobState, JobView, TileProgress, TileRect,
+    Convergence, JobCreated, JobList, JobPatch, JobSettings, JobState, JobView, TileProgress,
+    TileRect,
 };
 use serde::Deserialize;
 use sha2::{Digest, Sha256};
@@ -269,6 +270,15 @@ pub async fn list(
         page,
         per_page,
     }))
+}
+
+/// The job's convergence history: estimated error and throughput against time.
+pub async fn convergence(
+    _: ReadAuth,
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Convergence>> {
+    Ok(Json(state.store.convergence(&id).await?))
 }
 
 pub async fn show(

@@ -44,6 +44,11 @@ pub fn api_routes() -> Vec<Route> {
         route(M::POST, "/api/v1/jobs/{id}/resume", post(jobs::resume)),
         route(
             M::GET,
+            "/api/v1/jobs/{id}/convergence",
+            get(jobs::convergence),
+        ),
+        route(
+            M::GET,
             "/api/v1/jobs/{id}/image.exr",
             get(images::image_exr),
         ),

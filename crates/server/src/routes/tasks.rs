@@ -76,7 +76,7 @@ pub async fn upload_slice(
             ));
         }
     };
-    match state.store.merge_slice(task_id, &token, &slice).await {
+    match state.store.merge_slice(task_id, &token, slice).await {
         Ok(out) => {
             if out.ack.duplicate {
                 state

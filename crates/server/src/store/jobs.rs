@@ -260,21 +260,6 @@ impl Store {
             .collect()
     }
 
-    pub async fn set_rel_error(&self, id: &str, version: i64, value: Option<f64>) -> ApiResult<()> {
-        let mut w = self.write().await?;
-        sqlx::query(
-            "UPDATE jobs SET rel_error = $1, rel_error_version = $2 \
-             WHERE id = $3 AND rel_error_version < $2",
-        )
-        .bind(value)
-        .bind(version)
-        .bind(id)
-        .execute(&mut *w.tx)
-        .await?;
-        w.commit().await?;
-        Ok(())
-    }
-
     pub async fn tiles(&self, job_id: &str) -> ApiResult<Vec<TileRow>> {
         let rows = sqlx::query(
             "SELECT tile_index, x0, y0, width, height, samples FROM tiles WHERE job_id = $1 \

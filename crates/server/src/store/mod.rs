@@ -13,10 +13,13 @@ macro_rules! sql {
     };
 }
 
+mod convergence;
+mod group_commit;
 mod jobs;
 mod tasks;
 mod workers;
 
+pub use convergence::Estimate;
 pub use jobs::{JobRow, NewJob, TileRow};
 pub use tasks::MergeOutcome;
 
@@ -74,6 +77,8 @@ pub struct Store {
     pool: AnyPool,
     dialect: Dialect,
     sqlite_writer: Option<Mutex<()>>,
+    /// SQLite only: merges and leases waiting for the next group commit.
+    write_queue: Option<group_commit::WriteQueue>,
 }
 
 /// A write transaction; on SQLite it also holds the process's writer lock until it ends.
@@ -156,6 +161,7 @@ impl Store {
             pool,
             dialect,
             sqlite_writer: (dialect == Dialect::Sqlite).then(|| Mutex::new(())),
+            write_queue: (dialect == Dialect::Sqlite).then(Default::default),
         })
     }
 

@@ -3,6 +3,7 @@
 //! Lock order, in every transaction: tasks, then tiles, then jobs, then workers. PostgreSQL takes
 //! row locks in that order, so concurrent servers never deadlock; SQLite has one writer anyway.
 
+use super::group_commit::{Done, Op};
 use super::jobs::job_state;
 use super::{now_ms, Store};
 use crate::error::{ApiError, ApiResult};
@@ -32,11 +33,34 @@ impl Store {
     /// Leases the next task for `worker_id`, or `None` when there is no work. Jobs are taken by
     /// priority (highest first), then fair share (the job with the fewest leased tasks), then age;
     /// within a job, by pass, so every tile gets its first samples before any gets more.
+    /// On SQLite leases share transactions with merges (group commit).
     pub async fn lease(&self, worker_id: &str, lease_ms: u64) -> ApiResult<Option<Lease>> {
+        if self.write_queue.is_some() {
+            let op = Op::Lease {
+                worker_id: worker_id.to_string(),
+                lease_ms,
+            };
+            return match self.grouped(op).await? {
+                Done::Leased(lease) => Ok(lease.map(|l| *l)),
+                Done::Merged(_) => Err(ApiError::internal("a lease answered as a merge")),
+            };
+        }
         let mut w = self.write().await?;
+        let lease = self.lease_in(&mut w.tx, worker_id, lease_ms).await?;
+        w.commit().await?;
+        Ok(lease)
+    }
+
+    /// The lease itself, inside the caller's transaction; client errors come before any write.
+    pub(super) async fn lease_in(
+        &self,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+        worker_id: &str,
+        lease_ms: u64,
+    ) -> ApiResult<Option<Lease>> {
         let worker = sqlx::query("SELECT id FROM workers WHERE id = $1")
             .bind(worker_id)
-            .fetch_optional(&mut *w.tx)
+            .fetch_optional(&mut **tx)
             .await?;
         if worker.is_none() {
             return Err(ApiError::not_found("worker", worker_id));
@@ -45,7 +69,7 @@ impl Store {
             "SELECT id FROM jobs WHERE state IN ('queued', 'running') AND queued_tasks > 0 \
              ORDER BY priority DESC, leased_tasks ASC, created_ms ASC, id ASC LIMIT 8",
         )
-        .fetch_all(&mut *w.tx)
+        .fetch_all(&mut **tx)
         .await?;
         for cand in candidates {
             let job_id: String = cand.try_get("id")?;
@@ -55,7 +79,7 @@ impl Store {
                 self.dialect().skip_locked()
             ))
             .bind(&job_id)
-            .fetch_optional(&mut *w.tx)
+            .fetch_optional(&mut **tx)
             .await?;
             let Some(task) = task else { continue };
             let task_id: i64 = task.try_get("id")?;
@@ -79,21 +103,21 @@ impl Store {
             .bind(worker_id)
             .bind(expires)
             .bind(task_id)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
             let tile = sqlx::query(
                 "SELECT x0, y0, width, height FROM tiles WHERE job_id = $1 AND tile_index = $2",
             )
             .bind(&job_id)
             .bind(tile_index)
-            .fetch_one(&mut *w.tx)
+            .fetch_one(&mut **tx)
             .await?;
             let job = sqlx::query(sql!(
                 "SELECT state, settings, scene_hash, priority FROM jobs WHERE id = $1{}",
                 self.dialect().for_update()
             ))
             .bind(&job_id)
-            .fetch_one(&mut *w.tx)
+            .fetch_one(&mut **tx)
             .await?;
             let state = job_state(&job.try_get::<String, _>("state")?)?;
             let job_to = job_transition(state, JobEvent::Leased).map_err(ApiError::internal)?;
@@ -104,7 +128,7 @@ impl Store {
             .bind(job_to.as_str())
             .bind(now)
             .bind(&job_id)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
             sqlx::query(
                 "UPDATE workers SET state = 'busy', current_task = $1, current_job = $2, \
@@ -114,7 +138,7 @@ impl Store {
             .bind(&job_id)
             .bind(now)
             .bind(worker_id)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
             let settings: String = job.try_get("settings")?;
             let settings: JobSettings = serde_json::from_str(&settings)
@@ -136,15 +160,13 @@ impl Store {
                 sample_begin: begin as u32,
                 sample_end: end as u32,
             };
-            w.commit().await?;
             return Ok(Some(lease));
         }
         sqlx::query("UPDATE workers SET state = 'idle', current_task = NULL, current_job = NULL, last_seen_ms = $1 WHERE id = $2")
             .bind(now_ms())
             .bind(worker_id)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
-        w.commit().await?;
         Ok(None)
     }
 
@@ -154,20 +176,50 @@ impl Store {
     /// (`done_end`). One that ends at or before it is a retry or a replay and is acknowledged as a
     /// duplicate without being counted again; one with a token other than the task's current lease
     /// is rejected (fencing: a worker presumed dead cannot touch a task leased to another).
+    ///
+    /// On SQLite, whose one writer is the bottleneck, concurrent uploads are merged in one
+    /// transaction (group commit, see [`super::group_commit`]); on PostgreSQL each is its own
+    /// transaction, so that the documented lock order holds and servers never deadlock.
     pub async fn merge_slice(
         &self,
         task_id: i64,
         token: &str,
+        slice: Slice,
+    ) -> ApiResult<MergeOutcome> {
+        if self.write_queue.is_some() {
+            let op = Op::Merge {
+                task_id,
+                token: token.to_string(),
+                slice,
+            };
+            return match self.grouped(op).await? {
+                Done::Merged(out) => Ok(out),
+                Done::Leased(_) => Err(ApiError::internal("a merge answered as a lease")),
+            };
+        }
+        let mut w = self.write().await?;
+        let out = self.merge_in(&mut w.tx, task_id, token, &slice).await?;
+        w.commit().await?;
+        Ok(out)
+    }
+
+    /// The merge itself, inside the caller's transaction. Every client error (4xx) is returned
+    /// before the first write, so a batch can answer it and go on; any other error leaves the
+    /// transaction half done and must roll it back.
+    pub(super) async fn merge_in(
+        &self,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+        task_id: i64,
+        token: &str,
         slice: &Slice,
     ) -> ApiResult<MergeOutcome> {
-        let mut w = self.write().await?;
         let task = sqlx::query(sql!(
             "SELECT job_id, tile_index, sample_begin, sample_end, done_end, state, lease_token, \
              worker_id FROM tasks WHERE id = $1{}",
             self.dialect().for_update()
         ))
         .bind(task_id)
-        .fetch_optional(&mut *w.tx)
+        .fetch_optional(&mut **tx)
         .await?;
         let Some(task) = task else {
             return Err(ApiError::not_found("task", task_id));
@@ -224,7 +276,7 @@ impl Store {
         ))
         .bind(&job_id)
         .bind(tile_index)
-        .fetch_one(&mut *w.tx)
+        .fetch_one(&mut **tx)
         .await?;
         let g = |c: &str| tile.try_get::<i64, _>(c);
         let (x0, y0, tw, th) = (
@@ -285,7 +337,7 @@ impl Store {
         .bind(&encoded)
         .bind(&job_id)
         .bind(tile_index)
-        .execute(&mut *w.tx)
+        .execute(&mut **tx)
         .await?;
         let complete = s_end == t_end;
         let to =
@@ -294,14 +346,14 @@ impl Store {
             .bind(s_end as i64)
             .bind(to.as_str())
             .bind(task_id)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
         let job = sqlx::query(sql!(
             "SELECT state, samples_done, samples_planned, started_ms FROM jobs WHERE id = $1{}",
             self.dialect().for_update()
         ))
         .bind(&job_id)
-        .fetch_one(&mut *w.tx)
+        .fetch_one(&mut **tx)
         .await?;
         let current = job_state(&job.try_get::<String, _>("state")?)?;
         let samples = n as u64 * a.pixels.len() as u64;
@@ -325,7 +377,7 @@ impl Store {
         .bind(job_completed as i64)
         .bind(now)
         .bind(&job_id)
-        .execute(&mut *w.tx)
+        .execute(&mut **tx)
         .await?;
         if let Some(worker) = &worker_id {
             sqlx::query(
@@ -338,10 +390,9 @@ impl Store {
             .bind(now)
             .bind(complete as i64)
             .bind(worker)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
         }
-        w.commit().await?;
         Ok(MergeOutcome {
             ack: SliceAck {
                 duplicate: false,

@@ -1,0 +1,112 @@
+//! Each job's error estimate and its convergence history (error and samples against time).
+
+use super::{now_ms, Store};
+use crate::error::{ApiError, ApiResult};
+use pathfarm_wire::api::{Convergence, ConvergencePoint};
+use sqlx::Row;
+
+/// A new point is recorded once the job has run this much longer than at its last point, as a
+/// fraction of the elapsed time: points are log-spaced, about 50 per decade of time, so a job of
+/// an hour keeps a few hundred rows and the chart on log–log axes stays evenly covered.
+const RELATIVE_SPACING: f64 = 0.05;
+/// …but never closer than this (early in a job, when the relative spacing would be tiny).
+const MIN_SPACING_MS: i64 = 200;
+
+/// An error estimate of one image of a job.
+pub struct Estimate {
+    /// The job version (merged slices) the image was assembled at.
+    pub version: i64,
+    pub relative_error: Option<f64>,
+    /// Samples in that image.
+    pub samples: u64,
+    /// Record a history point whatever the spacing (the job's last image).
+    pub last: bool,
+}
+
+impl Store {
+    /// Stores the job's current error estimate (unless a newer one is already stored, as another
+    /// server may have made it) and adds a point to its history when enough time has passed.
+    pub async fn record_estimate(&self, id: &str, e: &Estimate) -> ApiResult<()> {
+        let mut w = self.write().await?;
+        let row = sqlx::query(
+            "UPDATE jobs SET rel_error = $1, rel_error_version = $2 \
+             WHERE id = $3 AND rel_error_version < $2 RETURNING started_ms, finished_ms",
+        )
+        .bind(e.relative_error)
+        .bind(e.version)
+        .bind(id)
+        .fetch_optional(&mut *w.tx)
+        .await?;
+        let Some(row) = row else {
+            return Ok(()); // deleted, or a newer estimate won
+        };
+        let started: Option<i64> = row.try_get("started_ms")?;
+        let finished: Option<i64> = row.try_get("finished_ms")?;
+        if let Some(started) = started {
+            let elapsed = (finished.unwrap_or_else(now_ms).min(now_ms()) - started).max(0);
+            let last: Option<i64> =
+                sqlx::query("SELECT MAX(elapsed_ms) AS last FROM job_progress WHERE job_id = $1")
+                    .bind(id)
+                    .fetch_one(&mut *w.tx)
+                    .await?
+                    .try_get("last")?;
+            let due = last.is_none_or(|last| {
+                let gap = ((last as f64 * RELATIVE_SPACING) as i64).max(MIN_SPACING_MS);
+                elapsed - last >= gap
+            });
+            if (due || e.last) && last.is_none_or(|last| elapsed > last) {
+                sqlx::query(
+                    "INSERT INTO job_progress (job_id, elapsed_ms, samples_done, rel_error) \
+                     VALUES ($1, $2, $3, $4) ON CONFLICT (job_id, elapsed_ms) DO NOTHING",
+                )
+                .bind(id)
+                .bind(elapsed)
+                .bind(e.samples as i64)
+                .bind(e.relative_error)
+                .execute(&mut *w.tx)
+                .await?;
+            }
+        }
+        w.commit().await?;
+        Ok(())
+    }
+
+    /// The job's convergence history, oldest first.
+    pub async fn convergence(&self, id: &str) -> ApiResult<Convergence> {
+        let mut tx = self.pool().begin().await?;
+        let exists = sqlx::query("SELECT 1 AS one FROM jobs WHERE id = $1")
+            .bind(id)
+            .fetch_optional(&mut *tx)
+            .await?
+            .is_some();
+        if !exists {
+            return Err(ApiError::not_found("job", id));
+        }
+        let rows = sqlx::query(
+            "SELECT elapsed_ms, samples_done, rel_error FROM job_progress WHERE job_id = $1 \
+             ORDER BY elapsed_ms",
+        )
+        .bind(id)
+        .fetch_all(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        let mut points = Vec::with_capacity(rows.len());
+        let (mut prev_t, mut prev_n) = (0i64, 0i64);
+        for r in &rows {
+            let t: i64 = r.try_get("elapsed_ms")?;
+            let n: i64 = r.try_get("samples_done")?;
+            let dt = (t - prev_t).max(1) as f64 / 1000.0;
+            points.push(ConvergencePoint {
+                elapsed_s: t as f64 / 1000.0,
+                samples_done: n.max(0) as u64,
+                relative_error: r.try_get("rel_error")?,
+                samples_per_second: (n - prev_n).max(0) as f64 / dt,
+            });
+            (prev_t, prev_n) = (t, n);
+        }
+        Ok(Convergence {
+            job_id: id.to_string(),
+            points,
+        })
+    }
+}

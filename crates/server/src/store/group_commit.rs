@@ -1,0 +1,166 @@
+//! Group commit of the hot writes (slice merges and leases) on SQLite.
+//!
+//! SQLite has one writer, so every merge and lease waits for the writer lock, and each paid for
+//! its own transaction. Here a request joins a queue and then waits for the lock; whoever gets the
+//! lock runs everything queued so far, in order, in one transaction and answers every request in
+//! it. Under load the batches grow by themselves (what arrived during one commit forms the next
+//! batch); with one request at a time a batch is that one request, at no extra latency.
+//!
+//! Every request is answered only after its batch committed, so an acknowledged slice or a granted
+//! lease is durable exactly as before. A client error (stale token, gap, wrong shape, unknown
+//! worker) concerns one request and leaves the others alone: those are all found before the
+//! request's first write. Any other error rolls the whole batch back and every request in it is
+//! answered with that error (workers retry; merges are idempotent, and a lease that was never
+//! answered was never granted).
+
+use super::tasks::MergeOutcome;
+use super::{Store, WriteTx};
+use crate::error::{ApiError, ApiResult};
+use pathfarm_wire::api::Lease;
+use pathfarm_wire::Slice;
+use tokio::sync::oneshot;
+
+/// A write that may share a transaction.
+pub(super) enum Op {
+    Merge {
+        task_id: i64,
+        token: String,
+        slice: Slice,
+    },
+    Lease {
+        worker_id: String,
+        lease_ms: u64,
+    },
+}
+
+/// What an [`Op`] returns.
+pub(super) enum Done {
+    Merged(MergeOutcome),
+    Leased(Option<Box<Lease>>),
+}
+
+struct Pending {
+    id: u64,
+    op: Op,
+    reply: oneshot::Sender<ApiResult<Done>>,
+}
+
+/// Requests waiting for the writer lock.
+#[derive(Default)]
+pub struct WriteQueue {
+    pending: std::sync::Mutex<Vec<Pending>>,
+    next_id: std::sync::atomic::AtomicU64,
+}
+
+impl WriteQueue {
+    fn lock(&self) -> ApiResult<std::sync::MutexGuard<'_, Vec<Pending>>> {
+        self.pending
+            .lock()
+            .map_err(|_| ApiError::internal("write queue lock poisoned"))
+    }
+}
+
+/// At most this many requests per transaction, so one batch never holds the writer for long.
+const MAX_BATCH: usize = 256;
+
+impl Store {
+    /// Runs `op` in the next group commit.
+    pub(super) async fn grouped(&self, op: Op) -> ApiResult<Done> {
+        let (Some(queue), Some(writer)) = (&self.write_queue, &self.sqlite_writer) else {
+            return Err(ApiError::internal("group commit without a SQLite writer"));
+        };
+        let (reply, answer) = oneshot::channel();
+        let id = queue
+            .next_id
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        queue.lock()?.push(Pending { id, op, reply });
+        // Whoever holds the lock next takes the queue, ours included if it is still there; we
+        // drain again after any batch, so every queued upload is merged by a lock holder that
+        // came after it.
+        loop {
+            let guard = writer.lock().await;
+            let batch: Vec<Pending> = {
+                let mut q = queue.lock()?;
+                let n = q.len().min(MAX_BATCH);
+                q.drain(..n).collect()
+            };
+            if !batch.is_empty() {
+                let tx = self.pool().begin().await?;
+                let w = WriteTx {
+                    tx,
+                    _writer: Some(guard),
+                };
+                self.run_batch(w, batch).await;
+            } else {
+                drop(guard);
+            }
+            // Ours was in this batch or an earlier one once its answer is there; otherwise it is
+            // still queued (a batch was full) and we go again.
+            if !queue.lock()?.iter().any(|p| p.id == id) {
+                break;
+            }
+        }
+        answer.await.unwrap_or_else(|_| {
+            Err(ApiError::new(
+                axum::http::StatusCode::SERVICE_UNAVAILABLE,
+                "write_interrupted",
+                "the write was interrupted before it committed; try again",
+            ))
+        })
+    }
+
+    async fn run_batch(&self, mut w: WriteTx<'_>, batch: Vec<Pending>) {
+        let mut answers = Vec::with_capacity(batch.len());
+        let mut failure: Option<ApiError> = None;
+        for p in batch {
+            if failure.is_some() {
+                answers.push((p.reply, Err(ApiError::internal("batch failed"))));
+                continue;
+            }
+            let result = match p.op {
+                Op::Merge {
+                    task_id,
+                    token,
+                    slice,
+                } => self
+                    .merge_in(&mut w.tx, task_id, &token, &slice)
+                    .await
+                    .map(Done::Merged),
+                Op::Lease {
+                    worker_id,
+                    lease_ms,
+                } => self
+                    .lease_in(&mut w.tx, &worker_id, lease_ms)
+                    .await
+                    .map(|l| Done::Leased(l.map(Box::new))),
+            };
+            match result {
+                Err(e) if !e.status.is_client_error() => {
+                    failure = Some(e);
+                    answers.push((p.reply, Err(ApiError::internal("batch failed"))));
+                }
+                result => answers.push((p.reply, result)),
+            }
+        }
+        if let Some(e) = failure {
+            drop(w); // rolls back
+            for (reply, _) in answers {
+                let _ = reply.send(Err(e.clone()));
+            }
+            return;
+        }
+        match w.commit().await {
+            Ok(()) => {
+                for (reply, result) in answers {
+                    let _ = reply.send(result);
+                }
+            }
+            Err(e) => {
+                let e = ApiError::from(e);
+                for (reply, _) in answers {
+                    let _ = reply.send(Err(e.clone()));
+                }
+            }
+        }
+    }
+}

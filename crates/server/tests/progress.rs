@@ -1,0 +1,160 @@
+//! What the dashboard reads besides the image: the convergence history recorded as a job renders,
+//! and the per-pixel sample-count and noise heat maps, on both stores.
+
+mod common;
+
+use common::*;
+use pathfarm_server::heatmap::{viridis, NOISE_SCALE};
+use pathfarm_wire::api::PreviewView;
+use pathfarm_worker::client::ClientError;
+use std::time::Duration;
+
+fn decode(png: &[u8]) -> image::RgbImage {
+    image::load_from_memory_with_format(png, image::ImageFormat::Png)
+        .expect("a PNG")
+        .to_rgb8()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn convergence_history_and_heat_maps() {
+    let scene = cornell();
+    for (store, url) in stores("progress").await {
+        let server = TestServer::start(config(&url)).await;
+        let client = server.client(None);
+        let s = settings(48, 32, 40, 16);
+        let job = client
+            .submit(scene.clone(), "cornell.gltf", &s)
+            .await
+            .unwrap();
+        let worker = TestWorker::spawn(&server.url, None, Some(1));
+        let done = wait_final(&client, &job.id, Duration::from_secs(120)).await;
+        worker.stop().await;
+        assert_completed(&done);
+
+        // The monitor records the last image's point shortly after the last merge.
+        let mut history = client.convergence(&job.id).await.unwrap();
+        for _ in 0..100 {
+            if history.points.last().map(|p| p.samples_done) == Some(done.samples_planned) {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            history = client.convergence(&job.id).await.unwrap();
+        }
+        let points = &history.points;
+        assert_eq!(history.job_id, job.id);
+        assert!(!points.is_empty(), "{store}: no convergence points");
+        assert_eq!(
+            points.last().unwrap().samples_done,
+            done.samples_planned,
+            "{store}: the last point is the final image: {points:?}"
+        );
+        for w in points.windows(2) {
+            assert!(w[0].elapsed_s < w[1].elapsed_s, "{store}: {points:?}");
+            assert!(
+                w[0].samples_done <= w[1].samples_done,
+                "{store}: {points:?}"
+            );
+        }
+        assert!(points
+            .iter()
+            .all(|p| p.samples_per_second.is_finite() && p.samples_per_second >= 0.0));
+        assert!(
+            points.iter().any(|p| p.samples_per_second > 0.0),
+            "{store}: {points:?}"
+        );
+        let last_err = points
+            .last()
+            .unwrap()
+            .relative_error
+            .expect("final error estimate");
+        assert!(last_err > 0.0 && last_err < 1.0, "{store}: {last_err}");
+        // With more samples the estimate falls (roughly as 1/√n): the first estimate, made with
+        // fewer samples, is larger than the last.
+        if let Some(first) = points.iter().find_map(|p| p.relative_error) {
+            if points.iter().filter(|p| p.relative_error.is_some()).count() > 1 {
+                assert!(first > last_err, "{store}: {points:?}");
+            }
+        }
+
+        // Sample counts: every pixel has the full count at the end, so the scale is 0…spp and
+        // every pixel is the top colour.
+        let (png, scale) = client
+            .preview_view(&job.id, PreviewView::Samples)
+            .await
+            .unwrap();
+        assert_eq!(scale, Some((0.0, s.spp as f64)), "{store}");
+        let img = decode(&png);
+        assert_eq!((img.width(), img.height()), (s.width, s.height));
+        assert!(img.pixels().all(|p| p.0 == viridis(1.0)), "{store}");
+
+        // Noise: the fixed log scale, and the map varies over the image (the light and the dark
+        // corners are not equally noisy).
+        let (png, scale) = client
+            .preview_view(&job.id, PreviewView::Noise)
+            .await
+            .unwrap();
+        assert_eq!(scale, Some(NOISE_SCALE), "{store}");
+        let img = decode(&png);
+        assert_eq!((img.width(), img.height()), (s.width, s.height));
+        let first = img.get_pixel(0, 0).0;
+        assert!(
+            img.pixels().any(|p| p.0 != first),
+            "{store}: a flat noise map"
+        );
+
+        // The plain image has no scale headers.
+        let (png, scale) = client
+            .preview_view(&job.id, PreviewView::Image)
+            .await
+            .unwrap();
+        assert_eq!(scale, None);
+        assert_eq!(png, client.preview_png(&job.id, 0.0).await.unwrap());
+
+        // Conditional requests: the current version's ETag gets a 304 without a body.
+        let url = format!("{}/api/v1/jobs/{}/preview.png", server.url, job.id);
+        let http = reqwest::Client::new();
+        let first = http.get(&url).send().await.unwrap();
+        let tag = first.headers()["etag"].to_str().unwrap().to_string();
+        let again = http
+            .get(&url)
+            .header("If-None-Match", &tag)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(again.status().as_u16(), 304, "{store}");
+        assert_eq!(again.headers()["etag"].to_str().unwrap(), tag);
+        assert!(again.bytes().await.unwrap().is_empty());
+        let other = http
+            .get(format!("{url}?view=noise"))
+            .header("If-None-Match", "\"v0\"")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(
+            other.status().as_u16(),
+            200,
+            "{store}: an old version is sent again"
+        );
+
+        // Unknown job and unknown view.
+        match client.convergence("nope").await {
+            Err(ClientError::Api { status, code, .. }) => {
+                assert_eq!(status.as_u16(), 404);
+                assert_eq!(code, "not_found");
+            }
+            other => panic!("{store}: expected 404, got {other:?}"),
+        }
+        let resp = reqwest::get(format!(
+            "{}/api/v1/jobs/{}/preview.png?view=sparkles",
+            server.url, job.id
+        ))
+        .await
+        .unwrap();
+        assert_eq!(resp.status().as_u16(), 400);
+
+        // Deleting the job deletes its history.
+        client.delete_job(&job.id).await.unwrap();
+        assert!(client.convergence(&job.id).await.is_err());
+        server.stop().await;
+    }
+}
