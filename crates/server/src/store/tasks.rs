@@ -5,7 +5,7 @@
 
 use super::group_commit::{Done, Op};
 use super::jobs::job_state;
-use super::{now_ms, Store};
+use super::{now_ms, Dialect, Store};
 use crate::error::{ApiError, ApiResult};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState};
 use pathfarm_tracer::Accumulation;
@@ -105,20 +105,22 @@ impl Store {
             .bind(task_id)
             .execute(&mut **tx)
             .await?;
-            let tile = sqlx::query(
-                "SELECT x0, y0, width, height FROM tiles WHERE job_id = $1 AND tile_index = $2",
-            )
+            // The tile's rectangle and the job's row in one statement; only the job row is locked
+            // (tiles are not written here), so the lock order holds.
+            let job = sqlx::query(sql!(
+                "SELECT ti.x0, ti.y0, ti.width, ti.height, j.state, j.settings, j.scene_hash, \
+                 j.priority FROM tiles ti JOIN jobs j ON j.id = ti.job_id \
+                 WHERE ti.job_id = $1 AND ti.tile_index = $2{}",
+                match self.dialect() {
+                    Dialect::Sqlite => "",
+                    Dialect::Postgres => " FOR UPDATE OF j",
+                }
+            ))
             .bind(&job_id)
             .bind(tile_index)
             .fetch_one(&mut **tx)
             .await?;
-            let job = sqlx::query(sql!(
-                "SELECT state, settings, scene_hash, priority FROM jobs WHERE id = $1{}",
-                self.dialect().for_update()
-            ))
-            .bind(&job_id)
-            .fetch_one(&mut **tx)
-            .await?;
+            let tile = &job;
             let state = job_state(&job.try_get::<String, _>("state")?)?;
             let job_to = job_transition(state, JobEvent::Leased).map_err(ApiError::internal)?;
             sqlx::query(
@@ -213,14 +215,28 @@ impl Store {
         token: &str,
         slice: &Slice,
     ) -> ApiResult<MergeOutcome> {
-        let task = sqlx::query(sql!(
-            "SELECT job_id, tile_index, sample_begin, sample_end, done_end, state, lease_token, \
-             worker_id FROM tasks WHERE id = $1{}",
-            self.dialect().for_update()
-        ))
-        .bind(task_id)
-        .fetch_optional(&mut **tx)
-        .await?;
+        // SQLite, with its single writer, reads the task and its tile in one statement; PostgreSQL
+        // locks them one after the other, in the documented order.
+        let joined = self.dialect() == Dialect::Sqlite;
+        let task = if joined {
+            sqlx::query(
+                "SELECT t.job_id, t.tile_index, t.sample_begin, t.sample_end, t.done_end, t.state, \
+                 t.lease_token, t.worker_id, ti.x0, ti.y0, ti.width, ti.height, ti.samples, \
+                 ti.accum FROM tasks t JOIN tiles ti \
+                 ON ti.job_id = t.job_id AND ti.tile_index = t.tile_index WHERE t.id = $1",
+            )
+            .bind(task_id)
+            .fetch_optional(&mut **tx)
+            .await?
+        } else {
+            sqlx::query(
+                "SELECT job_id, tile_index, sample_begin, sample_end, done_end, state, \
+                 lease_token, worker_id FROM tasks WHERE id = $1 FOR UPDATE",
+            )
+            .bind(task_id)
+            .fetch_optional(&mut **tx)
+            .await?
+        };
         let Some(task) = task else {
             return Err(ApiError::not_found("task", task_id));
         };
@@ -269,15 +285,18 @@ impl Store {
                 format!("task {task_id} has samples up to {done_end} merged; a slice starting at {s_begin} does not follow them"),
             ));
         }
-        let tile = sqlx::query(sql!(
-            "SELECT x0, y0, width, height, samples, accum FROM tiles \
-             WHERE job_id = $1 AND tile_index = $2{}",
-            self.dialect().for_update()
-        ))
-        .bind(&job_id)
-        .bind(tile_index)
-        .fetch_one(&mut **tx)
-        .await?;
+        let tile = if joined {
+            task
+        } else {
+            sqlx::query(
+                "SELECT x0, y0, width, height, samples, accum FROM tiles \
+                 WHERE job_id = $1 AND tile_index = $2 FOR UPDATE",
+            )
+            .bind(&job_id)
+            .bind(tile_index)
+            .fetch_one(&mut **tx)
+            .await?
+        };
         let g = |c: &str| tile.try_get::<i64, _>(c);
         let (x0, y0, tw, th) = (
             g("x0")? as u32,
@@ -348,37 +367,36 @@ impl Store {
             .bind(task_id)
             .execute(&mut **tx)
             .await?;
-        let job = sqlx::query(sql!(
-            "SELECT state, samples_done, samples_planned, started_ms FROM jobs WHERE id = $1{}",
-            self.dialect().for_update()
-        ))
+        // One statement counts the samples and returns what decides completion; the state
+        // changes (a second statement) only on the job's last merge.
+        let samples = n as u64 * a.pixels.len() as u64;
+        let job = sqlx::query(
+            "UPDATE jobs SET samples_done = samples_done + $1, version = version + 1, \
+             leased_tasks = leased_tasks - $2 WHERE id = $3 \
+             RETURNING state, samples_done, samples_planned",
+        )
+        .bind(samples as i64)
+        .bind(complete as i64)
         .bind(&job_id)
         .fetch_one(&mut **tx)
         .await?;
         let current = job_state(&job.try_get::<String, _>("state")?)?;
-        let samples = n as u64 * a.pixels.len() as u64;
-        let done = job.try_get::<i64, _>("samples_done")? as u64 + samples;
+        let done = job.try_get::<i64, _>("samples_done")? as u64;
         let planned = job.try_get::<i64, _>("samples_planned")? as u64;
         let job_completed = done >= planned;
+        let now = now_ms();
         let new_state = if job_completed {
-            job_transition(current, JobEvent::Complete).map_err(ApiError::internal)?
+            let to = job_transition(current, JobEvent::Complete).map_err(ApiError::internal)?;
+            sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3")
+                .bind(to.as_str())
+                .bind(now)
+                .bind(&job_id)
+                .execute(&mut **tx)
+                .await?;
+            to
         } else {
             current
         };
-        let now = now_ms();
-        sqlx::query(
-            "UPDATE jobs SET samples_done = $1, version = version + 1, \
-             leased_tasks = leased_tasks - $2, state = $3, \
-             finished_ms = CASE WHEN $4 = 1 THEN $5 ELSE finished_ms END WHERE id = $6",
-        )
-        .bind(done as i64)
-        .bind(complete as i64)
-        .bind(new_state.as_str())
-        .bind(job_completed as i64)
-        .bind(now)
-        .bind(&job_id)
-        .execute(&mut **tx)
-        .await?;
         if let Some(worker) = &worker_id {
             sqlx::query(
                 "UPDATE workers SET samples_done = samples_done + $1, last_seen_ms = $2, \
