@@ -2,8 +2,13 @@
 //! slices over real HTTP to an in-process server; reports merged uploads per second and lease
 //! latency percentiles.
 //!
-//! `cargo run --release -p pathfarm-server --example loadgen -- [WORKERS] [DB_URL] [SECONDS]`
-//! (defaults: 64 workers, a fresh SQLite file, 10 s).
+//! `cargo run --release -p pathfarm-server --example loadgen -- [WORKERS] [DB_URL] [SECONDS] [PACE]`
+//! (defaults: 64 workers, a fresh SQLite file, 10 s, no pause).
+//!
+//! Without PACE every simulated worker uploads again as soon as it is answered (a closed loop:
+//! the server's capacity; latencies are then mostly queueing, ~workers / throughput). With PACE
+//! (seconds) each worker "renders" that long before each upload, as a real worker does (a slice is
+//! ~1.5 s of work), starting at random offsets: the latencies a farm of that many workers sees.
 
 use glam::Vec3;
 use pathfarm_server::{AppState, ServerConfig};
@@ -43,6 +48,7 @@ async fn main() {
             format!("sqlite://{}", dir.join("load.db").display())
         });
     let seconds: f64 = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(10.0);
+    let pace: f64 = args.get(4).and_then(|s| s.parse().ok()).unwrap_or(0.0);
     let mut config = ServerConfig::new(&db);
     config.lease_duration = Duration::from_secs(60);
     let state = AppState::open(config).await.expect("store");
@@ -64,7 +70,7 @@ async fn main() {
     s.tile_size = 8;
     let job = client.submit(scene, "load", &s).await.unwrap();
     println!(
-        "store {db}: job with {} tasks, {workers} simulated workers, {seconds} s",
+        "store {db}: job with {} tasks, {workers} simulated workers, {seconds} s, pace {pace} s",
         job.tasks
     );
 
@@ -92,6 +98,9 @@ async fn main() {
                 .await
                 .unwrap()
                 .worker_id;
+            // Spread the workers' first uploads over one pace interval.
+            let offset = pace * (i as f64 + 0.5) / workers as f64;
+            tokio::time::sleep(Duration::from_secs_f64(offset)).await;
             while !stop.load(Ordering::Relaxed) {
                 let t = Instant::now();
                 let Some(l) = client.lease(&id).await.unwrap() else {
@@ -99,6 +108,9 @@ async fn main() {
                 };
                 lease_lat.lock().unwrap().push(t.elapsed().as_secs_f64());
                 for b in l.sample_begin..l.sample_end {
+                    if pace > 0.0 {
+                        tokio::time::sleep(Duration::from_secs_f64(pace)).await;
+                    }
                     let body =
                         synthetic(l.tile.x0, l.tile.y0, l.tile.width, l.tile.height, b, b + 1);
                     let t = Instant::now();
