@@ -72,6 +72,10 @@ pub fn app(state: AppState) -> Router {
         router = router.route(r.path, r.handler);
     }
     router
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            routes::metrics::track_latency,
+        ))
         .merge(dashboard::router())
         .fallback(|| async {
             ApiError::new(StatusCode::NOT_FOUND, "not_found", "no such endpoint")

@@ -1,7 +1,20 @@
-//! Counters the server keeps in memory (per process) for logs, benchmarks and `/metrics` later.
+//! What the server counts, and `GET /metrics` in the Prometheus text format (version 0.0.4).
+//!
+//! Counters and latency histograms live in this process (a farm with several servers is scraped
+//! per server and summed by Prometheus); the gauges (jobs, tasks and workers by state) are read
+//! from the shared store at scrape time, so every server reports the whole farm's.
 
+use std::collections::BTreeMap;
+use std::fmt::Write;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
 use std::time::Duration;
+
+/// Upper bounds of the latency buckets, in seconds (Prometheus' defaults, plus finer ones below
+/// 5 ms where most of our requests fall).
+pub const LATENCY_BUCKETS: [f64; 14] = [
+    0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0,
+];
 
 #[derive(Default)]
 pub struct Metrics {
@@ -12,6 +25,36 @@ pub struct Metrics {
     pub lease_expiries: AtomicU64,
     pub leases: AtomicU64,
     pub lease_micros_total: AtomicU64,
+    /// Request latency per (method, route template).
+    requests: Mutex<BTreeMap<(String, String), Histogram>>,
+}
+
+#[derive(Clone, Default)]
+struct Histogram {
+    /// Non-cumulative counts per bucket of [`LATENCY_BUCKETS`], plus one for +Inf.
+    buckets: [u64; LATENCY_BUCKETS.len() + 1],
+    sum: f64,
+    count: u64,
+}
+
+impl Histogram {
+    fn observe(&mut self, seconds: f64) {
+        let i = LATENCY_BUCKETS
+            .iter()
+            .position(|&le| seconds <= le)
+            .unwrap_or(LATENCY_BUCKETS.len());
+        self.buckets[i] += 1;
+        self.sum += seconds;
+        self.count += 1;
+    }
+}
+
+/// The farm's state as the store sees it, for the gauges.
+#[derive(Debug, Default)]
+pub struct Gauges {
+    pub jobs: Vec<(&'static str, u64)>,
+    pub tasks: Vec<(&'static str, u64)>,
+    pub workers: Vec<(&'static str, u64)>,
 }
 
 impl Metrics {
@@ -19,5 +62,139 @@ impl Metrics {
         self.leases.fetch_add(1, Ordering::Relaxed);
         self.lease_micros_total
             .fetch_add(d.as_micros() as u64, Ordering::Relaxed);
+    }
+
+    /// Records one request's latency; `route` is the matched route template, never the raw path
+    /// (ids would make the label set grow without bound).
+    pub fn observe_request(&self, method: &str, route: &str, d: Duration) {
+        if let Ok(mut map) = self.requests.lock() {
+            map.entry((method.to_string(), route.to_string()))
+                .or_default()
+                .observe(d.as_secs_f64());
+        }
+    }
+
+    /// The Prometheus text exposition of the counters, the histograms and `gauges`.
+    pub fn render(&self, gauges: &Gauges) -> String {
+        let mut out = String::with_capacity(4096);
+        let counter = |out: &mut String, name: &str, help: &str, v: u64| {
+            let _ = writeln!(
+                out,
+                "# HELP {name} {help}\n# TYPE {name} counter\n{name} {v}"
+            );
+        };
+        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        counter(
+            &mut out,
+            "pathfarm_slice_uploads_merged_total",
+            "Slice uploads merged into a job's image.",
+            get(&self.merged_uploads),
+        );
+        counter(
+            &mut out,
+            "pathfarm_slice_uploads_duplicate_total",
+            "Slice uploads acknowledged as duplicates (retries, replays) and not counted again.",
+            get(&self.duplicate_uploads),
+        );
+        counter(
+            &mut out,
+            "pathfarm_slice_uploads_rejected_total",
+            "Slice uploads rejected (stale lease, wrong shape or values, out of order).",
+            get(&self.rejected_uploads),
+        );
+        counter(
+            &mut out,
+            "pathfarm_merged_samples_total",
+            "Samples merged (pixel samples, summed over uploads).",
+            get(&self.merged_samples),
+        );
+        counter(
+            &mut out,
+            "pathfarm_leases_total",
+            "Lease requests answered (with a task or with no work).",
+            get(&self.leases),
+        );
+        counter(
+            &mut out,
+            "pathfarm_lease_expiries_total",
+            "Leases that expired without their task finishing (their unmerged samples requeued).",
+            get(&self.lease_expiries),
+        );
+        let gauge = |out: &mut String, name: &str, help: &str, values: &[(&str, u64)]| {
+            let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge");
+            for (state, v) in values {
+                let _ = writeln!(out, "{name}{{state=\"{state}\"}} {v}");
+            }
+        };
+        gauge(&mut out, "pathfarm_jobs", "Jobs by state.", &gauges.jobs);
+        gauge(&mut out, "pathfarm_tasks", "Tasks by state.", &gauges.tasks);
+        gauge(
+            &mut out,
+            "pathfarm_workers",
+            "Workers by state.",
+            &gauges.workers,
+        );
+
+        let name = "pathfarm_http_request_duration_seconds";
+        let _ = writeln!(
+            out,
+            "# HELP {name} HTTP request latency by method and route.\n# TYPE {name} histogram"
+        );
+        let requests = self.requests.lock().map(|m| m.clone()).unwrap_or_default();
+        for ((method, route), h) in &requests {
+            let labels = format!("method=\"{method}\",route=\"{}\"", escape(route));
+            let mut cumulative = 0;
+            for (i, le) in LATENCY_BUCKETS.iter().enumerate() {
+                cumulative += h.buckets[i];
+                let _ = writeln!(out, "{name}_bucket{{{labels},le=\"{le}\"}} {cumulative}");
+            }
+            let _ = writeln!(out, "{name}_bucket{{{labels},le=\"+Inf\"}} {}", h.count);
+            let _ = writeln!(out, "{name}_sum{{{labels}}} {}", h.sum);
+            let _ = writeln!(out, "{name}_count{{{labels}}} {}", h.count);
+        }
+        out
+    }
+}
+
+/// Escapes a label value (backslash, double quote, newline).
+fn escape(v: &str) -> String {
+    v.replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn histogram_buckets_are_cumulative_in_the_exposition() {
+        let m = Metrics::default();
+        for ms in [0.2, 3.0, 3.0, 40.0, 20_000.0] {
+            m.observe_request("GET", "/api/v1/jobs", Duration::from_secs_f64(ms / 1000.0));
+        }
+        let text = m.render(&Gauges::default());
+        let line = |le: &str| {
+            text.lines()
+                .find(|l| l.contains(&format!("le=\"{le}\"")))
+                .unwrap_or_else(|| panic!("no bucket {le} in\n{text}"))
+                .rsplit(' ')
+                .next()
+                .unwrap()
+                .to_string()
+        };
+        assert_eq!(line("0.0005"), "1");
+        assert_eq!(line("0.005"), "3");
+        assert_eq!(line("0.05"), "4");
+        assert_eq!(line("10"), "4");
+        assert_eq!(line("+Inf"), "5");
+        assert!(text.contains(
+            "pathfarm_http_request_duration_seconds_count{method=\"GET\",route=\"/api/v1/jobs\"} 5"
+        ));
+    }
+
+    #[test]
+    fn label_values_are_escaped() {
+        assert_eq!(escape("a\"b\\c\nd"), "a\\\"b\\\\c\\nd");
     }
 }

@@ -4,6 +4,7 @@
 mod health;
 mod images;
 mod jobs;
+pub(crate) mod metrics;
 mod tasks;
 mod workers;
 
@@ -34,6 +35,7 @@ pub fn api_routes() -> Vec<Route> {
     vec![
         route(M::GET, "/healthz", get(health::healthz)),
         route(M::GET, "/readyz", get(health::healthz)),
+        route(M::GET, "/metrics", get(metrics::metrics)),
         route(M::POST, "/api/v1/jobs", post(jobs::submit)),
         route(M::GET, "/api/v1/jobs", get(jobs::list)),
         route(M::GET, "/api/v1/jobs/{id}", get(jobs::show)),

@@ -14,6 +14,7 @@ macro_rules! sql {
 }
 
 mod convergence;
+mod gauges;
 mod group_commit;
 mod jobs;
 mod tasks;
