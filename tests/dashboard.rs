@@ -48,7 +48,8 @@ const HEIGHT: u32 = 128;
 const SPP: u32 = 640;
 
 /// Environment variables the binary reads that must not leak in from the developer's shell.
-const CLEARED_ENV: [&str; 8] = [
+const CLEARED_ENV: [&str; 20] = [
+    "PATHFARM_CONFIG",
     "PATHFARM_SERVER",
     "PATHFARM_TOKEN",
     "PATHFARM_WORKER_TOKEN",
@@ -56,6 +57,17 @@ const CLEARED_ENV: [&str; 8] = [
     "PATHFARM_LISTEN",
     "PATHFARM_CLIENT_TOKENS",
     "PATHFARM_WORKER_TOKENS",
+    "PATHFARM_LEASE_SECONDS",
+    "PATHFARM_MAX_SCENE_MIB",
+    "PATHFARM_WORKERS",
+    "PATHFARM_THREADS_PER_WORKER",
+    "PATHFARM_PORT",
+    "PATHFARM_HOST",
+    "PATHFARM_THREADS",
+    "PATHFARM_WORKER_NAME",
+    "PATHFARM_CACHE_DIR",
+    "PATHFARM_SLICE_SECONDS",
+    "PATHFARM_SLICE_SAMPLES",
     "RUST_LOG",
 ];
 

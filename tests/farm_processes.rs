@@ -21,7 +21,8 @@ const BIN: &str = env!("CARGO_BIN_EXE_pathfarm");
 const SCENE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/cornell.gltf");
 
 /// Environment variables the binary reads that must not leak in from the developer's shell.
-const CLEARED_ENV: [&str; 8] = [
+const CLEARED_ENV: [&str; 20] = [
+    "PATHFARM_CONFIG",
     "PATHFARM_SERVER",
     "PATHFARM_TOKEN",
     "PATHFARM_WORKER_TOKEN",
@@ -29,6 +30,17 @@ const CLEARED_ENV: [&str; 8] = [
     "PATHFARM_LISTEN",
     "PATHFARM_CLIENT_TOKENS",
     "PATHFARM_WORKER_TOKENS",
+    "PATHFARM_LEASE_SECONDS",
+    "PATHFARM_MAX_SCENE_MIB",
+    "PATHFARM_WORKERS",
+    "PATHFARM_THREADS_PER_WORKER",
+    "PATHFARM_PORT",
+    "PATHFARM_HOST",
+    "PATHFARM_THREADS",
+    "PATHFARM_WORKER_NAME",
+    "PATHFARM_CACHE_DIR",
+    "PATHFARM_SLICE_SECONDS",
+    "PATHFARM_SLICE_SAMPLES",
     "RUST_LOG",
 ];
 
@@ -743,4 +755,78 @@ async fn up_runs_a_job_end_to_end() {
     assert_eq!(jobs.jobs.len(), 1, "{jobs:?}");
     assert_eq!(jobs.jobs[0].state, JobState::Completed, "{jobs:?}");
     assert_eq!(jobs.jobs[0].samples_done, 48 * 48 * 16, "{jobs:?}");
+}
+
+/// `--config FILE`: a server configured only by its TOML file listens where the file says, with the
+/// file's tokens; a flag wins over the file; a worker reads its own table; a typo is an error that
+/// names the file and the key, and nothing starts.
+#[tokio::test(flavor = "multi_thread")]
+async fn configuration_file_flags_win_over_it() {
+    let dir = TestDir::new("config");
+    let (port, other) = (free_port(), free_port());
+    let db = dir.arg("farm.db");
+    let config = dir.path("farm.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[serve]\nlisten = \"127.0.0.1:{port}\"\ndb = \"{db}\"\n\
+             client-tokens = [\"client-secret\"]\nworker-tokens = [\"worker-secret\"]\n\
+             [worker]\nserver = \"http://127.0.0.1:{port}\"\ntoken = \"worker-secret\"\n\
+             name = \"from-the-file\"\nthreads = 1\n"
+        ),
+    )
+    .expect("write the configuration");
+    let config_arg = config.to_string_lossy().into_owned();
+
+    let mut server = Proc::start("serve", &dir, &["serve", "--config", &config_arg]);
+    wait_healthy(port, &mut server).await;
+    let url = format!("http://127.0.0.1:{port}");
+    // The file's tokens hold: no token is refused, the client token reads.
+    let anonymous = ApiClient::new(&url, None).expect("client");
+    assert!(anonymous.jobs(None, 1, 10).await.is_err());
+    let api = ApiClient::new(&url, Some("client-secret".into())).expect("client");
+    api.jobs(None, 1, 10)
+        .await
+        .expect("the file's client token");
+
+    // The worker is configured by the file alone: it registers under the file's name.
+    let _worker = Proc::start("worker", &dir, &["worker", "--config", &config_arg]);
+    poll(
+        "the worker from the file",
+        Duration::from_secs(30),
+        || async { named(&workers(&api).await, "from-the-file").map(|_| ()) },
+    )
+    .await;
+
+    // A flag wins over the file.
+    let mut second = Proc::start(
+        "serve-flag",
+        &dir,
+        &[
+            "serve",
+            "--config",
+            &config_arg,
+            "--listen",
+            &format!("127.0.0.1:{other}"),
+            "--db",
+            &dir.arg("second.db"),
+        ],
+    );
+    wait_healthy(other, &mut second).await;
+
+    // A typo names the file and the key.
+    let bad = dir.path("bad.toml");
+    std::fs::write(&bad, "[serve]\nlisten-address = \"127.0.0.1:1\"\n").expect("write");
+    let out = run_cli(
+        &dir,
+        &["serve", "--config", &bad.to_string_lossy()],
+        Duration::from_secs(30),
+    )
+    .await;
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("bad.toml") && err.contains("`listen-address`"),
+        "{err}"
+    );
 }

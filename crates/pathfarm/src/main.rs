@@ -2,6 +2,7 @@
 //! progress bars; the rendering lives in `pathfarm-tracer`.
 
 mod commands;
+mod config_file;
 mod resolver;
 
 use clap::{Parser, Subcommand};
@@ -20,6 +21,10 @@ struct Cli {
     /// Log format: text, or json (one object per line, for log collectors).
     #[arg(long, global = true, default_value = "text", value_parser = ["text", "json"])]
     log_format: String,
+    /// A TOML file of settings ([serve], [up], [worker], [client]); flags and environment
+    /// variables win over it. See the README's "Configuration".
+    #[arg(long, global = true, env = "PATHFARM_CONFIG")]
+    config: Option<std::path::PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -53,7 +58,13 @@ fn block_on<F: std::future::Future<Output = anyhow::Result<()>>>(f: F) -> anyhow
 }
 
 fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().collect();
+    if let Err(e) = config_file::apply(&args) {
+        eprintln!("error: {e:#}");
+        return ExitCode::FAILURE;
+    }
     let cli = Cli::parse();
+    let _ = &cli.config; // read by config_file::apply before parsing
     let filter = tracing_subscriber::EnvFilter::try_new(&cli.log)
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let builder = tracing_subscriber::fmt()

@@ -20,10 +20,10 @@ pub struct ServerArgs {
     #[arg(long, env = "PATHFARM_WORKER_TOKENS", value_delimiter = ',')]
     pub worker_token: Vec<String>,
     /// Seconds a lease lasts without a heartbeat; a dead worker's task is queued again after this.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, env = "PATHFARM_LEASE_SECONDS", default_value_t = 30.0)]
     pub lease_seconds: f64,
     /// Largest scene upload in MiB.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, env = "PATHFARM_MAX_SCENE_MIB", default_value_t = 256)]
     pub max_scene_mib: usize,
 }
 

@@ -11,15 +11,15 @@ use std::time::Duration;
 #[derive(Args, Debug)]
 pub struct UpArgs {
     /// Local worker processes (default: one per core).
-    #[arg(long)]
+    #[arg(long, env = "PATHFARM_WORKERS")]
     pub workers: Option<usize>,
     /// Render threads per worker.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, env = "PATHFARM_THREADS_PER_WORKER", default_value_t = 1)]
     pub threads_per_worker: usize,
-    #[arg(long, default_value_t = 8080)]
+    #[arg(long, env = "PATHFARM_PORT", default_value_t = 8080)]
     pub port: u16,
     /// Address to listen on.
-    #[arg(long, default_value = "127.0.0.1")]
+    #[arg(long, env = "PATHFARM_HOST", default_value = "127.0.0.1")]
     pub host: std::net::IpAddr,
     #[command(flatten)]
     pub server: ServerArgs,

@@ -16,19 +16,19 @@ pub struct WorkerArgs {
     #[arg(long, env = "PATHFARM_WORKER_TOKEN")]
     pub token: Option<String>,
     /// Render threads (default: one per core).
-    #[arg(long)]
+    #[arg(long, env = "PATHFARM_THREADS")]
     pub threads: Option<usize>,
     /// Name shown in the dashboard (default: host-pid).
-    #[arg(long)]
+    #[arg(long, env = "PATHFARM_WORKER_NAME")]
     pub name: Option<String>,
     /// Where fetched scenes are cached (default: $XDG_CACHE_HOME/pathfarm/scenes or ~/.cache/…).
-    #[arg(long)]
+    #[arg(long, env = "PATHFARM_CACHE_DIR")]
     pub cache_dir: Option<PathBuf>,
     /// Target render time of one uploaded slice, in seconds.
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, env = "PATHFARM_SLICE_SECONDS", default_value_t = 1.5)]
     pub slice_seconds: f64,
     /// Fixed samples per pixel per slice (overrides --slice-seconds).
-    #[arg(long)]
+    #[arg(long, env = "PATHFARM_SLICE_SAMPLES")]
     pub slice_samples: Option<u32>,
 }
 
