@@ -47,30 +47,6 @@ const WIDTH: u32 = 128;
 const HEIGHT: u32 = 128;
 const SPP: u32 = 640;
 
-/// Environment variables the binary reads that must not leak in from the developer's shell.
-const CLEARED_ENV: [&str; 20] = [
-    "PATHFARM_CONFIG",
-    "PATHFARM_SERVER",
-    "PATHFARM_TOKEN",
-    "PATHFARM_WORKER_TOKEN",
-    "PATHFARM_DB",
-    "PATHFARM_LISTEN",
-    "PATHFARM_CLIENT_TOKENS",
-    "PATHFARM_WORKER_TOKENS",
-    "PATHFARM_LEASE_SECONDS",
-    "PATHFARM_MAX_SCENE_MIB",
-    "PATHFARM_WORKERS",
-    "PATHFARM_THREADS_PER_WORKER",
-    "PATHFARM_PORT",
-    "PATHFARM_HOST",
-    "PATHFARM_THREADS",
-    "PATHFARM_WORKER_NAME",
-    "PATHFARM_CACHE_DIR",
-    "PATHFARM_SLICE_SECONDS",
-    "PATHFARM_SLICE_SAMPLES",
-    "RUST_LOG",
-];
-
 /// One browser and one farm at a time: they share two cores, and the timings above assume it.
 static SERIAL: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
@@ -163,8 +139,12 @@ impl Proc {
     /// `pathfarm ARGS…` with a clean environment, run in the test directory.
     fn pathfarm(name: &str, dir: &TestDir, args: &[&str]) -> Proc {
         let mut cmd = Command::new(BIN);
-        for v in CLEARED_ENV {
-            cmd.env_remove(v);
+        // Every PATHFARM_* variable of the developer's shell is cleared, so that children run
+        // only on what the test gives them (new settings need no list kept up to date here).
+        for (k, _) in std::env::vars_os() {
+            if k.to_string_lossy().starts_with("PATHFARM_") {
+                cmd.env_remove(k);
+            }
         }
         cmd.env("XDG_CACHE_HOME", dir.path("xdg-cache"))
             .env("RUST_LOG", "info")

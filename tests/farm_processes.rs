@@ -20,30 +20,6 @@ use std::time::{Duration, Instant};
 const BIN: &str = env!("CARGO_BIN_EXE_pathfarm");
 const SCENE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/cornell.gltf");
 
-/// Environment variables the binary reads that must not leak in from the developer's shell.
-const CLEARED_ENV: [&str; 20] = [
-    "PATHFARM_CONFIG",
-    "PATHFARM_SERVER",
-    "PATHFARM_TOKEN",
-    "PATHFARM_WORKER_TOKEN",
-    "PATHFARM_DB",
-    "PATHFARM_LISTEN",
-    "PATHFARM_CLIENT_TOKENS",
-    "PATHFARM_WORKER_TOKENS",
-    "PATHFARM_LEASE_SECONDS",
-    "PATHFARM_MAX_SCENE_MIB",
-    "PATHFARM_WORKERS",
-    "PATHFARM_THREADS_PER_WORKER",
-    "PATHFARM_PORT",
-    "PATHFARM_HOST",
-    "PATHFARM_THREADS",
-    "PATHFARM_WORKER_NAME",
-    "PATHFARM_CACHE_DIR",
-    "PATHFARM_SLICE_SECONDS",
-    "PATHFARM_SLICE_SAMPLES",
-    "RUST_LOG",
-];
-
 /// A fresh directory per test; removed at the end unless the test failed or `PATHFARM_E2E_KEEP` is
 /// set (then it is kept, and named, for the post-mortem).
 struct TestDir(PathBuf);
@@ -82,8 +58,12 @@ impl Drop for TestDir {
 
 fn command(dir: &TestDir) -> Command {
     let mut cmd = Command::new(BIN);
-    for v in CLEARED_ENV {
-        cmd.env_remove(v);
+    // Every PATHFARM_* variable of the developer's shell is cleared, so that children run
+    // only on what the test gives them (new settings need no list kept up to date here).
+    for (k, _) in std::env::vars_os() {
+        if k.to_string_lossy().starts_with("PATHFARM_") {
+            cmd.env_remove(k);
+        }
     }
     // Workers without --cache-dir (those `up` starts) cache scenes under the test directory.
     cmd.env("XDG_CACHE_HOME", dir.path("xdg-cache"))
