@@ -47,6 +47,9 @@ enum Command {
     Job(commands::client::JobArgs),
     /// Cancel a job.
     Cancel(commands::client::JobArgs),
+    /// Measure speed against accuracy (every estimator on every bench scene) and the farm's
+    /// scaling; writes report.md, results.json and charts.
+    Bench(commands::bench::BenchArgs),
 }
 
 fn block_on<F: std::future::Future<Output = anyhow::Result<()>>>(f: F) -> anyhow::Result<()> {
@@ -86,6 +89,7 @@ fn main() -> ExitCode {
         Command::Jobs(args) => block_on(commands::client::jobs(args)),
         Command::Job(args) => block_on(commands::client::job(args)),
         Command::Cancel(args) => block_on(commands::client::cancel(args)),
+        Command::Bench(args) => commands::bench::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

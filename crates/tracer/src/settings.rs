@@ -69,6 +69,11 @@ pub enum RussianRoulette {
     Auto,
     /// After the second path vertex, survive with this fixed probability in (0, 1].
     Fixed(f32),
+    /// After the second path vertex, terminate with probability `terminate` ∈ (0, 1) whenever the
+    /// throughput's luminance is below `below` (> 0); brighter paths always go on. Written
+    /// `TERMINATE@BELOW`, e.g. `0.5@0.25`: "terminate 50 % below luminance 0.25", the classic
+    /// textbook form.
+    Threshold { terminate: f32, below: f32 },
 }
 
 impl fmt::Display for RussianRoulette {
@@ -77,6 +82,7 @@ impl fmt::Display for RussianRoulette {
             RussianRoulette::Off => f.write_str("off"),
             RussianRoulette::Auto => f.write_str("auto"),
             RussianRoulette::Fixed(p) => write!(f, "{p}"),
+            RussianRoulette::Threshold { terminate, below } => write!(f, "{terminate}@{below}"),
         }
     }
 }
@@ -87,9 +93,20 @@ impl FromStr for RussianRoulette {
         match s {
             "off" => Ok(RussianRoulette::Off),
             "auto" => Ok(RussianRoulette::Auto),
+            _ if s.contains('@') => {
+                let bad = || format!("invalid Russian roulette {s:?} (expected TERMINATE@BELOW, e.g. 0.5@0.25: terminate with probability TERMINATE in (0, 1) when the throughput's luminance is below BELOW > 0)");
+                let (t, b) = s.split_once('@').ok_or_else(bad)?;
+                let terminate: f32 = t.parse().map_err(|_| bad())?;
+                let below: f32 = b.parse().map_err(|_| bad())?;
+                if terminate > 0.0 && terminate < 1.0 && below > 0.0 && below.is_finite() {
+                    Ok(RussianRoulette::Threshold { terminate, below })
+                } else {
+                    Err(bad())
+                }
+            }
             _ => match s.parse::<f32>() {
                 Ok(p) if p > 0.0 && p <= 1.0 => Ok(RussianRoulette::Fixed(p)),
-                _ => Err(format!("invalid Russian roulette {s:?} (expected off, auto, or a survival probability in (0, 1])")),
+                _ => Err(format!("invalid Russian roulette {s:?} (expected off, auto, a survival probability in (0, 1], or TERMINATE@BELOW)")),
             },
         }
     }
@@ -163,5 +180,35 @@ impl RenderSettings {
         self.max_depth
             .unwrap_or(SAFETY_MAX_DEPTH)
             .min(SAFETY_MAX_DEPTH)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn russian_roulette_round_trips_and_rejects_nonsense() {
+        for s in ["off", "auto", "0.5", "1", "0.5@0.25", "0.9@0.1"] {
+            let rr: RussianRoulette = s.parse().unwrap();
+            assert_eq!(
+                rr.to_string().parse::<RussianRoulette>().unwrap(),
+                rr,
+                "{s}"
+            );
+        }
+        assert_eq!(
+            "0.5@0.25".parse::<RussianRoulette>().unwrap(),
+            RussianRoulette::Threshold {
+                terminate: 0.5,
+                below: 0.25
+            }
+        );
+        for bad in [
+            "0", "1.5", "0@0.25", "1@0.25", "0.5@0", "0.5@", "@0.2", "0.5@x", "x",
+        ] {
+            let err = bad.parse::<RussianRoulette>().unwrap_err();
+            assert!(err.contains(bad), "{bad}: {err}");
+        }
     }
 }

@@ -62,6 +62,12 @@ fn furnace_box_with_high_albedo_and_roulette_settings() {
         RussianRoulette::Auto,
         RussianRoulette::Fixed(0.8),
         RussianRoulette::Fixed(0.95),
+        // Terminates half of the paths whose throughput luminance fell below 0.25 (after ~6
+        // bounces at albedo 0.8): the textbook rule.
+        RussianRoulette::Threshold {
+            terminate: 0.5,
+            below: 0.25,
+        },
     ] {
         let settings = RenderSettings {
             rr,

@@ -130,6 +130,12 @@ pub fn trace_path(
             break;
         }
         beta *= bs.weight;
+        if beta == Vec3::ZERO {
+            // The throughput underflowed (a long path without roulette, or full absorption):
+            // nothing further can contribute, and without this test the path would run on to
+            // the safety cap of 65,536 bounces.
+            break;
+        }
         emission = if bs.delta {
             EmissionWeight::Full
         } else {
@@ -163,6 +169,12 @@ pub fn trace_path(
             RussianRoulette::Auto => 1.0,
             RussianRoulette::Fixed(p) if depth >= 1 => p,
             RussianRoulette::Fixed(_) => 1.0,
+            RussianRoulette::Threshold { terminate, below }
+                if depth >= 1 && crate::math::luminance(beta) < below =>
+            {
+                1.0 - terminate
+            }
+            RussianRoulette::Threshold { .. } => 1.0,
         };
         if survive < 1.0 {
             if sampler.bounce1(depth, dims::ROULETTE) >= survive {

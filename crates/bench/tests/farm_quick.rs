@@ -1,0 +1,161 @@
+//! The farm benchmark in quick mode, end to end: a real server and real workers in this process
+//! on SQLite, and on PostgreSQL when `PATHFARM_TEST_POSTGRES_URL` is set. Checks outcomes, not
+//! speeds: the farm's image is bit-identical to a direct render, every run made progress, every
+//! acknowledged upload was merged exactly once, and the report links charts that exist.
+
+use pathfarm_bench::farm::{run, write_report, FarmOptions};
+use std::path::PathBuf;
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "pathfarm-bench-{tag}-{}-{}",
+        std::process::id(),
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos())
+    ));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run_and_check(quick: bool) {
+    let mode = if quick { "quick" } else { "normal" };
+    let postgres_url = std::env::var("PATHFARM_TEST_POSTGRES_URL")
+        .ok()
+        .filter(|u| !u.is_empty());
+    if postgres_url.is_none() {
+        eprintln!(
+            "SKIPPED: the {mode} farm benchmark on PostgreSQL (PATHFARM_TEST_POSTGRES_URL is not \
+             set); running it on SQLite only"
+        );
+    }
+    let work = temp_dir("work");
+    let out = temp_dir("out");
+    let opts = FarmOptions {
+        quick,
+        scene_path: PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenes/cornell.gltf"
+        )),
+        work_dir: work.clone(),
+        postgres_url: postgres_url.clone(),
+        threads: 2,
+    };
+    let t0 = std::time::Instant::now();
+    let r = run(&opts).unwrap_or_else(|e| panic!("farm benchmark failed: {e}"));
+    eprintln!("{mode} farm benchmark: {:.1} s", t0.elapsed().as_secs_f64());
+    eprintln!("{}", serde_json::to_string_pretty(&r).unwrap());
+    assert_eq!(r.quick, quick);
+
+    // Throughput: every configuration rendered its job.
+    assert!(r.throughput.rows.len() >= 3, "{:?}", r.throughput.rows);
+    for row in &r.throughput.rows {
+        assert!(row.samples_per_second > 0.0, "{row:?}");
+        assert_eq!(row.samples, r.throughput.job.samples(), "{row:?}");
+        assert!(row.slices > 0, "{row:?}");
+    }
+
+    // The farm against a direct render.
+    let o = &r.overhead;
+    assert!(
+        o.identical,
+        "the farm's image differs from the direct render: {o:?}"
+    );
+    assert!(o.direct_seconds > 0.0 && o.farm_seconds > 0.0, "{o:?}");
+    assert!(
+        o.first_preview_seconds > 0.0 && o.first_preview_seconds < o.farm_wall_seconds,
+        "first preview must come before the job ends: {o:?}"
+    );
+
+    // Simulated workers: one run per store and worker count, each merged what it was told.
+    let stores = if postgres_url.is_some() { 2 } else { 1 };
+    assert_eq!(
+        r.loadgen.runs.len(),
+        stores * r.loadgen.worker_counts.len(),
+        "{:?}",
+        r.loadgen.runs
+    );
+    if postgres_url.is_some() {
+        assert!(r.loadgen.runs.iter().any(|run| run.store == "postgres"));
+    }
+    for run in &r.loadgen.runs {
+        assert_eq!(run.errors, 0, "{run:?}");
+        assert!(
+            run.uploads > 0 && run.uploads_per_second > 0.0,
+            "no uploads: {run:?}"
+        );
+        assert!(run.leases > 0, "{run:?}");
+        assert_eq!(
+            run.accepted_uploads, run.merged_uploads,
+            "accepted and merged differ: {run:?}"
+        );
+        assert_eq!(
+            run.merged_uploads, run.store_merged_uploads,
+            "the store holds a different count: {run:?}"
+        );
+        assert!(run.consistent(), "{run:?}");
+        assert!(run.lease_p99_ms >= run.lease_p50_ms, "{run:?}");
+    }
+
+    // The results survive a JSON round trip (the report's results.json).
+    let json = serde_json::to_string(&r).unwrap();
+    let back: pathfarm_bench::farm::FarmResults = serde_json::from_str(&json).unwrap();
+    assert_eq!(back.loadgen.runs.len(), r.loadgen.runs.len());
+
+    // The report: its section, its tables, and every chart it links.
+    let md = write_report(&r, &out).unwrap_or_else(|e| panic!("report failed: {e}"));
+    assert!(md.starts_with("## Farm scaling"), "{md}");
+    let charts: Vec<&str> = md
+        .split("](")
+        .skip(1)
+        .filter_map(|rest| rest.split(')').next())
+        .filter(|link| link.ends_with(".svg"))
+        .collect();
+    for expected in [
+        "charts/farm-throughput.svg",
+        "charts/farm-loadgen-uploads.svg",
+        "charts/farm-loadgen-lease-p99.svg",
+    ] {
+        assert!(
+            charts.contains(&expected),
+            "{expected} not linked: {charts:?}"
+        );
+    }
+    for link in &charts {
+        assert!(link.starts_with("charts/farm-"), "{link}");
+        let path = out.join(link);
+        let svg =
+            std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert!(svg.starts_with("<svg"), "{} is not an SVG", path.display());
+    }
+    assert!(md.contains("sqlite"));
+    if postgres_url.is_some() {
+        assert!(md.contains("postgres"));
+    }
+    assert!(md.contains(&r.overhead.job.describe()), "{md}");
+    if std::env::var_os("PATHFARM_BENCH_KEEP_REPORT").is_some() {
+        eprintln!("{md}");
+        eprintln!("report and charts kept in {}", out.display());
+        let _ = std::fs::remove_dir_all(&work);
+        return;
+    }
+    // The scratch files of the run are gone; the work directory stays.
+    assert!(work.is_dir());
+    assert_eq!(std::fs::read_dir(&work).map(|d| d.count()).unwrap_or(1), 0);
+    let _ = std::fs::remove_dir_all(&work);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn quick_farm_benchmark_measures_and_reports() {
+    run_and_check(true);
+}
+
+/// The full measurement (a few minutes on 2 cores; the test profile is optimized):
+/// `cargo test -p pathfarm-bench
+/// --test farm_quick -- --ignored --nocapture`.
+#[test]
+#[ignore = "several minutes; run by hand"]
+fn normal_farm_benchmark_measures_and_reports() {
+    run_and_check(false);
+}
