@@ -243,9 +243,13 @@ fn tracer_study(opts: &BenchOptions, results: &mut BenchResults) -> Result<(), B
         budget: opts.time_budget,
         max_spp: opts.quick_spp(),
     };
+    // MIS with *independent* samples: the per-pixel sample variance is then an unbiased estimate
+    // of the reference's own error, which is subtracted from every measured MSE. (Sobol would
+    // converge faster, but its sample variance overstates its error, and the subtraction would
+    // then eat the error of the best runs.)
     let reference_settings = study::Config {
         direct: pathfarm_tracer::DirectStrategy::Mis,
-        sampler: pathfarm_tracer::SamplerKind::Sobol,
+        sampler: pathfarm_tracer::SamplerKind::Independent,
         rr: pathfarm_tracer::RussianRoulette::Auto,
     };
     // The reference uses its own seed, so its noise is independent of every measured image.

@@ -139,7 +139,7 @@ pub fn reference(
                 .map_err(|e| BenchError::Invalid(e.to_string()))?,
         }
         begin = end;
-        tracing::debug!(scene = scene.name, done = end, spp, "reference");
+        tracing::info!(scene = scene.name, done = end, spp, "reference pass");
     }
     let acc = acc.ok_or_else(|| BenchError::Invalid("reference of 0 samples per pixel".into()))?;
     let bytes = encode_exr(

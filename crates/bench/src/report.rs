@@ -45,6 +45,16 @@ fn eff(v: Option<f64>) -> String {
     v.map_or("–".into(), si)
 }
 
+/// A relative RMSE, or a note when the error is below what the reference can resolve (its own
+/// noise was subtracted and nothing measurable was left).
+fn rel_err(rmse: f64, rel_rmse: f64) -> String {
+    if rmse > 0.0 {
+        pct(rel_rmse)
+    } else {
+        "below the reference's noise".into()
+    }
+}
+
 fn pct(v: f64) -> String {
     format!("{:.2}%", v * 100.0)
 }
@@ -108,7 +118,7 @@ fn scene_section(
         format!("exact (mean luminance {})", f(s.reference.mean, 4))
     } else {
         format!(
-            "the project's own render, MIS + Sobol, {} spp{} (mean luminance {}; its own noise, RMS {} = {} of the mean, is subtracted from every MSE)",
+            "the project's own render, MIS with independent samples, {} spp{} (mean luminance {}; its own noise, RMS {} = {} of the mean, is subtracted from every MSE)",
             s.reference.spp,
             if s.reference.cached { ", from the cache" } else { "" },
             f(s.reference.mean, 4),
@@ -178,7 +188,7 @@ fn scene_section(
             si(x.rays_per_second),
             f(x.rays_per_sample, 2),
             f(x.errors.rmse, 5),
-            pct(x.errors.rel_rmse),
+            rel_err(x.errors.rmse, x.errors.rel_rmse),
             f(x.errors.rel_mse, 5),
             eff(x.efficiency),
             slope(x.slope_time),
@@ -221,7 +231,7 @@ fn entries_table(out: &mut String, entries: &[Entry]) {
             f(e.seconds, 3),
             f(e.rays_per_sample, 2),
             f(e.rmse, 5),
-            pct(e.rel_rmse),
+            rel_err(e.rmse, e.rel_rmse),
             eff(e.efficiency)
         );
     }
