@@ -15,6 +15,8 @@
 //! Child processes (the farm, chromedriver and its chromium) run in process groups of their own,
 //! killed when their guard is dropped, so a failing test leaves nothing running.
 
+mod support;
+
 use fantoccini::{Client, ClientBuilder, Locator};
 use pathfarm_wire::api::{JobSettings, JobState, WorkerState};
 use pathfarm_worker::client::ApiClient;
@@ -23,14 +25,13 @@ use std::collections::BTreeSet;
 use std::fs::File;
 use std::future::Future;
 use std::io::{Read, Write};
-use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
+use std::net::{Ipv4Addr, SocketAddr, TcpStream};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
+use support::{command, free_port, processes_with_args, TestDir, SCENE};
 
-const BIN: &str = env!("CARGO_BIN_EXE_pathfarm");
-const SCENE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/cornell.gltf");
 /// Debian's packages (`chromium`, `chromium-driver`); `PATHFARM_CHROMIUM` and
 /// `PATHFARM_CHROMEDRIVER` point elsewhere.
 fn chromium() -> String {
@@ -72,42 +73,6 @@ fn browser_installed() -> bool {
     false
 }
 
-/// A fresh directory per test; removed at the end unless the test failed or `PATHFARM_E2E_KEEP` is
-/// set (then it is kept, and named, for the post-mortem).
-struct TestDir(PathBuf);
-
-impl TestDir {
-    fn new(test: &str) -> TestDir {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos());
-        let dir = std::env::temp_dir().join(format!(
-            "pathfarm-dashboard-{test}-{}-{nanos}",
-            std::process::id()
-        ));
-        std::fs::create_dir_all(&dir).expect("create the test directory");
-        TestDir(dir)
-    }
-
-    fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-
-    fn arg(&self, name: &str) -> String {
-        self.path(name).to_string_lossy().into_owned()
-    }
-}
-
-impl Drop for TestDir {
-    fn drop(&mut self) {
-        if std::thread::panicking() || std::env::var_os("PATHFARM_E2E_KEEP").is_some() {
-            eprintln!("test files kept in {}", self.0.display());
-        } else {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
-}
-
 /// A running child process and its process group (the workers `up` starts, the chromium
 /// chromedriver starts), all killed when dropped.
 struct Proc {
@@ -136,20 +101,10 @@ impl Proc {
         }
     }
 
-    /// `pathfarm ARGS…` with a clean environment, run in the test directory.
+    /// `pathfarm ARGS…` with the end-to-end tests' clean environment, in the test directory.
     fn pathfarm(name: &str, dir: &TestDir, args: &[&str]) -> Proc {
-        let mut cmd = Command::new(BIN);
-        // Every PATHFARM_* variable of the developer's shell is cleared, so that children run
-        // only on what the test gives them (new settings need no list kept up to date here).
-        for (k, _) in std::env::vars_os() {
-            if k.to_string_lossy().starts_with("PATHFARM_") {
-                cmd.env_remove(k);
-            }
-        }
-        cmd.env("XDG_CACHE_HOME", dir.path("xdg-cache"))
-            .env("RUST_LOG", "info")
-            .current_dir(&dir.0)
-            .args(args);
+        let mut cmd = command(dir);
+        cmd.args(args);
         Proc::start(name, dir, cmd)
     }
 
@@ -201,12 +156,6 @@ impl Drop for Proc {
             );
         }
     }
-}
-
-/// A port nothing listens on right now (bound to 0 and released).
-fn free_port() -> u16 {
-    let l = TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).expect("bind 127.0.0.1:0");
-    l.local_addr().expect("local_addr").port()
 }
 
 /// The status code of `GET PATH` (a bare HTTP/1.1 request), or `None` without an answer.
@@ -490,30 +439,6 @@ async fn job_page(b: &Browser) -> JobPage {
         error_points: v["error_points"].as_u64().unwrap_or(0),
         rate_points: v["rate_points"].as_u64().unwrap_or(0),
     }
-}
-
-/// Live processes whose command line holds every one of `needles`.
-fn processes_with_args(needles: &[&str]) -> Vec<i32> {
-    let mut found = Vec::new();
-    let Ok(entries) = std::fs::read_dir("/proc") else {
-        return found;
-    };
-    for e in entries.flatten() {
-        let Some(pid) = e.file_name().to_str().and_then(|s| s.parse::<i32>().ok()) else {
-            continue;
-        };
-        let Ok(raw) = std::fs::read(e.path().join("cmdline")) else {
-            continue;
-        };
-        let args: Vec<String> = raw
-            .split(|&b| b == 0)
-            .map(|a| String::from_utf8_lossy(a).into_owned())
-            .collect();
-        if needles.iter().all(|n| args.iter().any(|a| a == n)) {
-            found.push(pid);
-        }
-    }
-    found
 }
 
 /// The whole flow against `pathfarm up`, with tokens when `tokens` is `(client, worker)`.
@@ -924,7 +849,7 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
     // SAFETY: kill(2) on a worker process of this test's own farm (its command line names this
     // test's server URL); no memory-safety preconditions.
     unsafe {
-        libc::kill(victims[0], libc::SIGKILL);
+        libc::kill(victims[0].0, libc::SIGKILL);
     }
     until("local-2 shown as lost", Duration::from_secs(30), || async {
         let v = b

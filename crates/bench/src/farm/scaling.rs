@@ -1,13 +1,15 @@
 //! Real renders through the farm: throughput against the number of workers, and the farm against
 //! a direct render of the same job (overhead, time to first preview, bit-identity).
 
-use super::harness::{farm_err, watch_job, Server, StoreSpec, WorkerSetup, Workers};
+use super::harness::{farm_err, watch_job, Server, StoreSpec, Watched, WorkerSetup, Workers};
 use crate::BenchError;
 use pathfarm_server::ServerConfig;
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::output::{encode_exr, ExrChannels};
 use pathfarm_tracer::{render_image, Accumulation};
 use pathfarm_wire::api::{JobSettings, JobState, JobView};
+use pathfarm_worker::client::ApiClient;
+use pathfarm_worker::WorkerReport;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -120,6 +122,33 @@ fn check_completed(view: &JobView, what: &str) -> Result<(), BenchError> {
     Ok(())
 }
 
+/// Submits `job` to workers already registered, watches it to the end, stops the workers whatever
+/// happened, and checks that it completed with every sample.
+async fn run_job(
+    client: &ApiClient,
+    ws: Workers,
+    scene: &[u8],
+    job: &JobSpec,
+    poll: Duration,
+    timeout: Duration,
+    what: &str,
+) -> Result<(Watched, WorkerReport), BenchError> {
+    let t0 = Instant::now();
+    let watched = async {
+        let created = client
+            .submit(scene.to_vec(), "cornell.gltf", &job.settings())
+            .await
+            .map_err(|e| farm_err(format!("submitting the {what}: {e}")))?;
+        watch_job(client, &created.id, t0, poll, timeout).await
+    }
+    .await;
+    let report = ws.stop().await;
+    let watched = watched?;
+    let report = report?;
+    check_completed(&watched.view, what)?;
+    Ok((watched, report))
+}
+
 /// Throughput of one server (fresh SQLite file) for each `(workers, threads per worker)`.
 pub(crate) async fn throughput(
     scene: &[u8],
@@ -152,19 +181,7 @@ pub(crate) async fn throughput(
                 &format!("tp{workers}x{threads}"),
             )
             .await?;
-            let t0 = Instant::now();
-            let watched = async {
-                let created = client
-                    .submit(scene.to_vec(), "cornell.gltf", &job.settings())
-                    .await
-                    .map_err(|e| farm_err(format!("submitting the throughput job: {e}")))?;
-                watch_job(&client, &created.id, t0, poll, timeout).await
-            }
-            .await;
-            let report = ws.stop().await;
-            let watched = watched?;
-            let report = report?;
-            check_completed(&watched.view, &label)?;
+            let (watched, report) = run_job(&client, ws, scene, job, poll, timeout, &label).await?;
             let job_seconds = seconds_between(&watched.view)?;
             let row = ThroughputRow {
                 label,
@@ -255,19 +272,8 @@ pub(crate) async fn overhead(
             "overhead",
         )
         .await?;
-        let t0 = Instant::now();
-        let watched = async {
-            let created = client
-                .submit(scene.to_vec(), "cornell.gltf", &job.settings())
-                .await
-                .map_err(|e| farm_err(format!("submitting the overhead job: {e}")))?;
-            watch_job(&client, &created.id, t0, poll, timeout).await
-        }
-        .await;
-        let report = ws.stop().await;
-        let watched = watched?;
-        let report = report?;
-        check_completed(&watched.view, "overhead job")?;
+        let (watched, report) =
+            run_job(&client, ws, scene, job, poll, timeout, "overhead job").await?;
         let image = client
             .image_exr(&watched.view.id, false)
             .await

@@ -1,0 +1,177 @@
+//! PostgreSQL restarted under load: a server on PostgreSQL and two workers render a job; in the
+//! middle of it the database is restarted (every connection dropped, writes refused for a moment).
+//! Requests fail while it is down, the workers retry, and the job still completes bit-identical to a
+//! local render, with every sample merged exactly once: no accepted slice lost, none merged twice.
+//!
+//! Needs `PATHFARM_TEST_POSTGRES_URL` and `PATHFARM_TEST_POSTGRES_RESTART`, the shell command that
+//! restarts that PostgreSQL (`.ci/run` sets both, as root: `service postgresql restart`). Without
+//! them the test prints `SKIPPED`; with `PATHFARM_REQUIRE_PG_RESTART=1` it fails instead.
+
+mod support;
+
+use pathfarm_worker::client::ApiClient;
+use std::process::Command;
+use std::time::Duration;
+use support::*;
+
+/// A database of its own on the test server, dropped when done.
+struct Database {
+    admin_url: String,
+    name: String,
+}
+
+impl Database {
+    fn psql(url: &str, sql: &str) -> Result<(), String> {
+        let out = Command::new("psql")
+            .args([url, "-v", "ON_ERROR_STOP=1", "-q", "-c", sql])
+            .output()
+            .map_err(|e| format!("psql: {e}"))?;
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(format!(
+                "psql {sql:?}: {}",
+                String::from_utf8_lossy(&out.stderr).trim()
+            ))
+        }
+    }
+
+    fn create(admin_url: &str) -> Database {
+        let name = format!("pathfarm_pg_restart_{}", std::process::id());
+        let _ = Database::psql(admin_url, &format!("DROP DATABASE IF EXISTS {name}"));
+        Database::psql(admin_url, &format!("CREATE DATABASE {name}"))
+            .unwrap_or_else(|e| panic!("cannot create the test database: {e}"));
+        Database {
+            admin_url: admin_url.to_string(),
+            name,
+        }
+    }
+
+    /// The URL of this database: the admin URL with its database name replaced.
+    fn url(&self) -> String {
+        let base = self
+            .admin_url
+            .rsplit_once('/')
+            .map_or(self.admin_url.as_str(), |(b, _)| b);
+        format!("{base}/{}", self.name)
+    }
+}
+
+impl Drop for Database {
+    fn drop(&mut self) {
+        let _ = Database::psql(
+            &self.admin_url,
+            &format!("DROP DATABASE IF EXISTS {} WITH (FORCE)", self.name),
+        );
+    }
+}
+
+fn settings_or_skip() -> Option<(String, String)> {
+    let url = std::env::var("PATHFARM_TEST_POSTGRES_URL").ok();
+    let restart = std::env::var("PATHFARM_TEST_POSTGRES_RESTART").ok();
+    match (url, restart) {
+        (Some(u), Some(r)) if !u.is_empty() && !r.is_empty() => Some((u, r)),
+        _ => {
+            if std::env::var_os("PATHFARM_REQUIRE_PG_RESTART").is_some_and(|v| v == "1") {
+                panic!("PATHFARM_REQUIRE_PG_RESTART=1 but PATHFARM_TEST_POSTGRES_URL or PATHFARM_TEST_POSTGRES_RESTART is unset");
+            }
+            eprintln!("SKIPPED: the PostgreSQL restart test needs PATHFARM_TEST_POSTGRES_URL and PATHFARM_TEST_POSTGRES_RESTART");
+            None
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn postgres_restart_mid_job_loses_nothing() {
+    let Some((admin_url, restart)) = settings_or_skip() else {
+        return;
+    };
+    let db = Database::create(&admin_url);
+    let dir = TestDir::new("pg-restart");
+    let port = free_port();
+    let listen = format!("127.0.0.1:{port}");
+    let db_url = db.url();
+    let mut server = Proc::start(
+        "server",
+        &dir,
+        &[
+            "serve",
+            "--listen",
+            &listen,
+            "--db",
+            &db_url,
+            "--lease-seconds",
+            "5",
+        ],
+    );
+    wait_healthy(port, &mut server).await;
+    let url = format!("http://{listen}");
+    let api = ApiClient::new(&url, None).expect("API client");
+
+    let settings = [
+        "--width", "96", "--height", "96", "--spp", "1024", "--seed", "13",
+    ];
+    let mut submitted = settings.to_vec();
+    submitted.extend_from_slice(&["--tile", "32"]);
+    let id = submit(&dir, &url, &submitted).await;
+    let planned = 96 * 96 * 1024;
+    let reference = render_reference(&dir, "local.exr", &settings);
+
+    let worker = |name: &str| {
+        let cache = dir.arg(&format!("cache-{name}"));
+        Proc::start(
+            name,
+            &dir,
+            &[
+                "worker",
+                "--server",
+                &url,
+                "--threads",
+                "1",
+                "--slice-samples",
+                "4",
+                "--cache-dir",
+                &cache,
+                "--name",
+                name,
+            ],
+        )
+    };
+    let w1 = worker("worker-1");
+    let w2 = worker("worker-2");
+    poll("both workers merging", Duration::from_secs(60), || async {
+        let ws = workers(&api).await;
+        let merging = |n: &str| named(&ws, n).is_some_and(|w| w.samples_done > 0);
+        (merging("worker-1") && merging("worker-2")).then_some(())
+    })
+    .await;
+    let before = job(&api, &id).await;
+    assert!(
+        !before.state.is_final() && before.samples_done < planned,
+        "the job ended before the restart: {before:?}"
+    );
+
+    // Restart PostgreSQL under the farm's feet.
+    let status =
+        tokio::task::spawn_blocking(move || Command::new("sh").args(["-c", &restart]).status())
+            .await
+            .expect("restart task")
+            .expect("run the restart command");
+    assert!(status.success(), "the PostgreSQL restart command failed");
+
+    let done = wait_completed(&api, &id, Duration::from_secs(300)).await;
+    assert_eq!(done.samples_done, planned);
+    assert!(done.samples_done > before.samples_done);
+    let ws = workers(&api).await;
+    let (a, b) = (
+        named(&ws, "worker-1").expect("worker 1"),
+        named(&ws, "worker-2").expect("worker 2"),
+    );
+    // Every sample merged exactly once, by one worker or the other.
+    assert_eq!(a.samples_done + b.samples_done, planned, "{ws:?}");
+    let exr = api.image_exr(&id, false).await.expect("GET image.exr");
+    let local = reference.await.expect("the local render");
+    assert_same_bytes(&exr, &local, "PostgreSQL restart");
+    assert!(server.is_running(), "the server died with its database");
+    drop((w1, w2, server));
+}
