@@ -330,16 +330,14 @@ async fn worker_link_cut_mid_task_and_restored() {
     let done = wait_completed(&api, &id, Duration::from_secs(240)).await;
     assert_eq!(done.samples_done, planned);
     assert_eq!(done.leased_tasks, 0);
-    let ws = workers(&api).await;
-    let (a, b) = (
-        named(&ws, "worker-1").expect("worker 1"),
-        named(&ws, "worker-2").expect("worker 2"),
-    );
-    // Nothing merged twice: the workers' merged samples add up to exactly the plan.
-    assert_eq!(a.samples_done + b.samples_done, planned, "{ws:?}");
-
-    let exr = api.image_exr(&id, false).await.expect("GET image.exr");
-    let local = reference.await.expect("the local render");
-    assert_same_bytes(&exr, &local, "netns link cut");
+    assert_merged_once_and_identical(
+        &api,
+        &id,
+        planned,
+        &["worker-1", "worker-2"],
+        reference,
+        "netns link cut",
+    )
+    .await;
     drop((w1, w2, server));
 }

@@ -162,16 +162,15 @@ async fn postgres_restart_mid_job_loses_nothing() {
     let done = wait_completed(&api, &id, Duration::from_secs(300)).await;
     assert_eq!(done.samples_done, planned);
     assert!(done.samples_done > before.samples_done);
-    let ws = workers(&api).await;
-    let (a, b) = (
-        named(&ws, "worker-1").expect("worker 1"),
-        named(&ws, "worker-2").expect("worker 2"),
-    );
-    // Every sample merged exactly once, by one worker or the other.
-    assert_eq!(a.samples_done + b.samples_done, planned, "{ws:?}");
-    let exr = api.image_exr(&id, false).await.expect("GET image.exr");
-    let local = reference.await.expect("the local render");
-    assert_same_bytes(&exr, &local, "PostgreSQL restart");
+    assert_merged_once_and_identical(
+        &api,
+        &id,
+        planned,
+        &["worker-1", "worker-2"],
+        reference,
+        "PostgreSQL restart",
+    )
+    .await;
     assert!(server.is_running(), "the server died with its database");
     drop((w1, w2, server));
 }

@@ -457,3 +457,29 @@ impl Farm {
         )
     }
 }
+
+/// The end state every fault test asserts: the named workers' merged samples add up to exactly
+/// `planned` (nothing merged twice, nothing lost), and the job's image is byte-identical to the
+/// local render `reference` yields.
+pub async fn assert_merged_once_and_identical(
+    api: &ApiClient,
+    id: &str,
+    planned: u64,
+    worker_names: &[&str],
+    reference: tokio::task::JoinHandle<Vec<u8>>,
+    what: &str,
+) {
+    let ws = workers(api).await;
+    let merged: u64 = worker_names
+        .iter()
+        .map(|n| {
+            named(&ws, n)
+                .unwrap_or_else(|| panic!("{n} not listed"))
+                .samples_done
+        })
+        .sum();
+    assert_eq!(merged, planned, "{what}: {ws:?}");
+    let exr = api.image_exr(id, false).await.expect("GET image.exr");
+    let local = reference.await.expect("the local render");
+    assert_same_bytes(&exr, &local, what);
+}
