@@ -483,3 +483,84 @@ pub async fn assert_merged_once_and_identical(
     let local = reference.await.expect("the local render");
     assert_same_bytes(&exr, &local, what);
 }
+
+/// The workspace's `target/` (or `CARGO_TARGET_DIR`): where tests leave reports.
+pub fn target_dir() -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../target")))
+}
+
+/// Raises this process's open-file limit to its hard limit, for tests that hold hundreds of
+/// connections (children started afterwards, such as a server, inherit it). CI machines often
+/// start with a soft limit of 1024.
+pub fn raise_fd_limit() {
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit/setrlimit with a valid pointer to an rlimit this function owns.
+    unsafe {
+        if libc::getrlimit(libc::RLIMIT_NOFILE, &mut lim) == 0 && lim.rlim_cur < lim.rlim_max {
+            lim.rlim_cur = lim.rlim_max;
+            let _ = libc::setrlimit(libc::RLIMIT_NOFILE, &lim);
+        }
+    }
+}
+
+/// A PostgreSQL database of a test's own, created with `psql` beside the one `admin_url` names,
+/// and dropped (connections and all) when this is dropped.
+pub struct PgTestDatabase {
+    pub admin_url: String,
+    pub name: String,
+}
+
+impl PgTestDatabase {
+    pub fn psql(url: &str, sql: &str) -> Result<(), String> {
+        let out = Command::new("psql")
+            .args([url, "-v", "ON_ERROR_STOP=1", "-q", "-c", sql])
+            .output()
+            .map_err(|e| format!("psql: {e}"))?;
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(format!(
+                "psql {sql:?}: {}",
+                String::from_utf8_lossy(&out.stderr).trim()
+            ))
+        }
+    }
+
+    /// `pathfarm_TEST_PID`: unique per test and process.
+    pub fn create(admin_url: &str, test: &str) -> PgTestDatabase {
+        let name = format!("pathfarm_{test}_{}", std::process::id());
+        let _ = PgTestDatabase::psql(admin_url, &format!("DROP DATABASE IF EXISTS {name}"));
+        PgTestDatabase::psql(admin_url, &format!("CREATE DATABASE {name}"))
+            .unwrap_or_else(|e| panic!("cannot create the test database {name}: {e}"));
+        PgTestDatabase {
+            admin_url: admin_url.to_string(),
+            name,
+        }
+    }
+
+    /// The admin URL with its database name replaced (a query string is kept).
+    pub fn url(&self) -> String {
+        let (base, rest) = self
+            .admin_url
+            .rsplit_once('/')
+            .unwrap_or((self.admin_url.as_str(), ""));
+        let query = rest
+            .split_once('?')
+            .map_or(String::new(), |(_, q)| format!("?{q}"));
+        format!("{base}/{}{query}", self.name)
+    }
+}
+
+impl Drop for PgTestDatabase {
+    fn drop(&mut self) {
+        let _ = PgTestDatabase::psql(
+            &self.admin_url,
+            &format!("DROP DATABASE IF EXISTS {} WITH (FORCE)", self.name),
+        );
+    }
+}

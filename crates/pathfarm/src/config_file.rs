@@ -17,6 +17,12 @@ pub const KEYS: &[(&str, &str, &str)] = &[
     ("serve", "worker-tokens", "PATHFARM_WORKER_TOKENS"),
     ("serve", "lease-seconds", "PATHFARM_LEASE_SECONDS"),
     ("serve", "max-scene-mib", "PATHFARM_MAX_SCENE_MIB"),
+    ("serve", "scene-checks", "PATHFARM_SCENE_CHECKS"),
+    (
+        "serve",
+        "max-scene-triangles",
+        "PATHFARM_MAX_SCENE_TRIANGLES",
+    ),
     ("up", "workers", "PATHFARM_WORKERS"),
     ("up", "threads-per-worker", "PATHFARM_THREADS_PER_WORKER"),
     ("up", "port", "PATHFARM_PORT"),

@@ -16,6 +16,14 @@ pub struct Limits {
     pub max_tiles: u64,
     /// Largest slice body (bytes).
     pub max_slice_bytes: usize,
+    /// Most submitted scenes validated (loaded) at once; further submissions wait their turn.
+    /// Loading takes memory up to a few times the scene's size (its triangles, its decoded
+    /// textures, within the loader's limits), so this bounds what submissions can take together.
+    pub scene_checks: usize,
+    /// Most triangles a submitted scene may declare, every instance and degenerate triangle
+    /// counted, checked before any geometry is read. A loaded triangle takes 40–170 bytes, so this
+    /// bounds the memory of a scene check.
+    pub max_scene_triangles: u64,
 }
 
 impl Default for Limits {
@@ -27,6 +35,8 @@ impl Default for Limits {
             max_spp: 1 << 20,
             max_tiles: 65536,
             max_slice_bytes: 64 << 20,
+            scene_checks: 2,
+            max_scene_triangles: 20_000_000,
         }
     }
 }

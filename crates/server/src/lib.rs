@@ -37,6 +37,8 @@ pub struct Inner {
     pub config: ServerConfig,
     pub images: image_cache::ImageCache,
     pub metrics: metrics::Metrics,
+    /// Permits to validate a submitted scene ([`config::Limits::scene_checks`]).
+    pub scene_checks: tokio::sync::Semaphore,
 }
 
 impl std::ops::Deref for AppState {
@@ -50,8 +52,10 @@ impl AppState {
     /// Opens the store (applying migrations) and builds the state.
     pub async fn open(config: ServerConfig) -> Result<AppState, store::StoreError> {
         let store = Store::connect(&config.db_url).await?;
+        let scene_checks = tokio::sync::Semaphore::new(config.limits.scene_checks.max(1));
         Ok(AppState(Arc::new(Inner {
             store,
+            scene_checks,
             config,
             images: Default::default(),
             metrics: Default::default(),

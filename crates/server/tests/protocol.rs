@@ -433,3 +433,69 @@ async fn concurrent_uploads_merge_exactly_once() {
         server.stop().await;
     }
 }
+
+/// A later pass of a tile may be merged before an earlier one (two workers on two passes). A
+/// recorded invalid sample of the later pass then lies beyond the tile's sample count so far; the
+/// stored tile must still decode, for the next merge and for the image.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn invalid_samples_of_a_later_pass_merged_first_keep_the_tile_readable() {
+    use glam::Vec3;
+    use pathfarm_tracer::accumulation::InvalidSample;
+    use pathfarm_tracer::Accumulation;
+    let bytes = cornell();
+    let scene = load(&bytes);
+    for (store, url) in stores("invalid-order").await {
+        let server = TestServer::start(config(&url)).await;
+        let c = server.client(None);
+        // One 16×16 tile; passes [0,1) [1,3) [3,7) [7,8).
+        let job = c
+            .submit(bytes.clone(), "c.gltf", &settings(16, 16, 8, 16))
+            .await
+            .unwrap();
+        let a = register(&c, "a").await;
+        let b = register(&c, "b").await;
+        let first = c.lease(&a).await.unwrap().expect("work");
+        let second = c.lease(&b).await.unwrap().expect("work");
+        assert_eq!(
+            (first.sample_end, second.sample_begin, second.sample_end),
+            (1, 1, 3),
+            "{store}"
+        );
+        // Pass [1,3) first, with its sample 2 of the corner pixel invalid (NaN on a worker).
+        let t = &second.tile;
+        let mut acc = Accumulation::new(t.x0, t.y0, t.width, t.height);
+        for (i, p) in acc.pixels.iter_mut().enumerate() {
+            for _ in 0..if i == 0 { 1 } else { 2 } {
+                p.add_sample(Vec3::new(0.25, 0.5, 1.0));
+            }
+        }
+        acc.invalid_count = 1;
+        acc.invalid.push(InvalidSample {
+            x: t.x0,
+            y: t.y0,
+            index: 2,
+        });
+        let body = encode_slice(&Slice {
+            sample_begin: 1,
+            sample_end: 3,
+            acc,
+        });
+        c.upload_slice(second.task_id, &second.lease_token, body)
+            .await
+            .unwrap_or_else(|e| panic!("{store}: the later pass: {e}"));
+        // Then the first pass, and the image: both read the stored tile back.
+        c.upload_slice(
+            first.task_id,
+            &first.lease_token,
+            slice_body(&scene, &first, 0, 1),
+        )
+        .await
+        .unwrap_or_else(|e| panic!("{store}: the first pass after the later one: {e}"));
+        c.image_exr(&job.id, true)
+            .await
+            .unwrap_or_else(|e| panic!("{store}: the image: {e}"));
+        let j = c.job(&job.id).await.unwrap();
+        assert_eq!(j.samples_done, 256 * 3, "{store}");
+        server.stop().await;
+    }
+}

@@ -13,6 +13,8 @@
 pub mod accumulation;
 pub mod bsdf;
 pub mod camera;
+#[doc(hidden)]
+pub mod fuzzing; // the checks of the fuzz targets (fuzz/), shared with tests/fuzz_corpus.rs
 pub mod geometry;
 pub mod gltf;
 pub mod integrator;

@@ -932,6 +932,7 @@ fn camera_chosen_by_name() {
     );
     let (fov, cam) = yfov(&LoadOptions {
         camera: Some("tele".into()),
+        ..LoadOptions::default()
     });
     assert_eq!(fov, 0.3);
     let forward = cam.to_world.transform_vector3(Vec3::NEG_Z);
@@ -939,7 +940,8 @@ fn camera_chosen_by_name() {
     assert!((cam.to_world.matrix3.determinant() - 1.0).abs() < 1e-5);
     assert_eq!(
         yfov(&LoadOptions {
-            camera: Some("rig_b".into())
+            camera: Some("rig_b".into()),
+            ..LoadOptions::default()
         })
         .0,
         0.3,
@@ -950,6 +952,7 @@ fn camera_chosen_by_name() {
         &NoExternalResources,
         &LoadOptions {
             camera: Some("nope".into()),
+            ..LoadOptions::default()
         },
     );
     assert_contains(
@@ -1272,7 +1275,68 @@ fn nan_positions() {
     assert_contains(&error_of(&d2.gltf()), &["infinite component at element 2"]);
 }
 
-/// A PNG whose IHDR claims `width × height` (valid CRCs, no image data).
+#[test]
+fn degenerate_triangles_are_dropped_as_they_are_read() {
+    // One real triangle, a collinear one and a point; the mesh instanced twice, once flattened to
+    // a line by a zero scale.
+    let mut d = Doc::new();
+    let p = d.positions(&[
+        TRI[0],
+        TRI[1],
+        TRI[2],
+        [0.0, 0.0, 0.0],
+        [1.0, 1.0, 1.0],
+        [2.0, 2.0, 2.0],
+        [5.0, 5.0, 5.0],
+        [5.0, 5.0, 5.0],
+        [5.0, 5.0, 5.0],
+    ]);
+    d.mesh(
+        "Mixed",
+        j(&format!(r#"[{{"attributes":{{"POSITION":{p}}}}}]"#)),
+    );
+    let a = d.node(j(r#"{"mesh":0}"#));
+    d.root(a);
+    let b = d.node(j(r#"{"mesh":0,"scale":[1,0,1]}"#));
+    d.root(b);
+    let loaded = parts(&d.gltf());
+    assert_eq!(loaded.mesh.len(), 1, "only the real triangle is kept");
+    assert_eq!(loaded.degenerate_dropped, 5);
+    let scene = load(&d.gltf(), &NoExternalResources, &LoadOptions::default()).expect("loads");
+    assert_eq!(
+        (scene.info.triangles, scene.info.degenerate_dropped),
+        (1, 5)
+    );
+
+    // Nothing but degenerate triangles: an error, not an empty scene. Instancing makes 100 × 2
+    // triangles out of two.
+    let mut d = Doc::new();
+    let p = d.positions(&[[0.0; 3], [1.0; 3], [2.0; 3], [4.0; 3], [4.0; 3], [4.0; 3]]);
+    d.mesh(
+        "Flat",
+        j(&format!(r#"[{{"attributes":{{"POSITION":{p}}}}}]"#)),
+    );
+    for _ in 0..100 {
+        let n = d.node(j(r#"{"mesh":0}"#));
+        d.root(n);
+    }
+    assert_contains(
+        &error_of(&d.gltf()),
+        &["all 200 triangles of the scene are degenerate"],
+    );
+    // The declared count is checked from the JSON before anything is read: 100 instances of two
+    // triangles against a limit of 199.
+    let options = LoadOptions {
+        max_triangles: 199,
+        ..LoadOptions::default()
+    };
+    assert_contains(
+        &error_with(&d.gltf(), &NoExternalResources, &options),
+        &["the scene declares 200 triangles (100 mesh instances), over the limit of 199"],
+    );
+}
+
+/// A PNG whose IHDR claims `width × height` (valid CRCs, an empty IDAT: no image data).
 fn png_header_only(width: u32, height: u32) -> Vec<u8> {
     fn crc32(data: &[u8]) -> u32 {
         let mut crc = 0xFFFF_FFFFu32;
@@ -1296,6 +1360,9 @@ fn png_header_only(width: u32, height: u32) -> Vec<u8> {
     out.extend(13u32.to_be_bytes());
     out.extend(&chunk);
     out.extend(crc32(&chunk).to_be_bytes());
+    out.extend(0u32.to_be_bytes());
+    out.extend(b"IDAT");
+    out.extend(crc32(b"IDAT").to_be_bytes());
     out.extend(0u32.to_be_bytes());
     out.extend(b"IEND");
     out.extend(crc32(b"IEND").to_be_bytes());
@@ -1343,6 +1410,16 @@ fn images_that_fail_to_decode() {
         &error_of(&textured_doc(&bomb).gltf()),
         &["image 0 \"tex\": cannot decode"],
     );
+    // Within the largest side, but over the decoded size: refused from the header.
+    let wide = png_header_only(16384, 8192);
+    assert_contains(
+        &error_of(&textured_doc(&wide).gltf()),
+        &[
+            "image 0 \"tex\"",
+            "16384×8192 decodes to 512 MiB",
+            "limit of 256 MiB",
+        ],
+    );
 }
 
 #[test]
@@ -1359,6 +1436,7 @@ fn camera_name_not_found() {
         &NoExternalResources,
         &LoadOptions {
             camera: Some("other".into()),
+            ..LoadOptions::default()
         },
     );
     assert_contains(
@@ -1371,6 +1449,7 @@ fn camera_name_not_found() {
         &NoExternalResources,
         &LoadOptions {
             camera: Some("x".into()),
+            ..LoadOptions::default()
         },
     );
     assert_contains(&e, &["camera \"x\" not found; the scene's cameras: none"]);

@@ -31,6 +31,70 @@ mod by_name {
     }
 }
 
+/// Integers in request bodies, as JSON Schema counts them: `5` and `5.0` are the same integer
+/// (`{"type": "integer"}` accepts any number with a zero fractional part), so an integral float is
+/// accepted where it is exact and in range; `5.5`, `1e300` and out-of-range values are errors.
+mod integer {
+    use serde::de::{Error, Unexpected, Visitor};
+    use serde::{Deserialize, Deserializer};
+    use std::fmt;
+    use std::marker::PhantomData;
+
+    /// Largest integer every f64 below it represents exactly (2^53).
+    const EXACT: f64 = 9_007_199_254_740_992.0;
+
+    struct Exact<T>(PhantomData<T>);
+
+    impl<T: TryFrom<i64> + TryFrom<u64>> Visitor<'_> for Exact<T> {
+        type Value = T;
+
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            write!(f, "an integer in range for {}", std::any::type_name::<T>())
+        }
+
+        fn visit_i64<E: Error>(self, v: i64) -> Result<T, E> {
+            T::try_from(v).map_err(|_| E::invalid_value(Unexpected::Signed(v), &self))
+        }
+
+        fn visit_u64<E: Error>(self, v: u64) -> Result<T, E> {
+            T::try_from(v).map_err(|_| E::invalid_value(Unexpected::Unsigned(v), &self))
+        }
+
+        fn visit_f64<E: Error>(self, v: f64) -> Result<T, E> {
+            if v.fract() != 0.0 || v.abs() > EXACT {
+                return Err(E::invalid_value(Unexpected::Float(v), &self));
+            }
+            // Integral and at most 2^53 in magnitude: the cast is exact.
+            self.visit_i64(v as i64)
+        }
+    }
+
+    pub fn deserialize<'de, T, D>(d: D) -> Result<T, D::Error>
+    where
+        T: TryFrom<i64> + TryFrom<u64>,
+        D: Deserializer<'de>,
+    {
+        d.deserialize_any(Exact(PhantomData))
+    }
+
+    /// The same for an optional field (`null` or absent is `None`).
+    pub mod option {
+        use super::*;
+
+        pub fn deserialize<'de, T, D>(d: D) -> Result<Option<T>, D::Error>
+        where
+            T: TryFrom<i64> + TryFrom<u64>,
+            D: Deserializer<'de>,
+        {
+            #[derive(Deserialize)]
+            struct Wrap<T: TryFrom<i64> + TryFrom<u64>>(
+                #[serde(deserialize_with = "super::deserialize")] T,
+            );
+            Ok(Option::<Wrap<T>>::deserialize(d)?.map(|Wrap(v)| v))
+        }
+    }
+}
+
 fn default_tile() -> u32 {
     64
 }
@@ -43,21 +107,28 @@ fn default_tile() -> u32 {
 pub struct JobSettings {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub name: Option<String>,
+    #[serde(deserialize_with = "integer::deserialize")]
     pub width: u32,
+    #[serde(deserialize_with = "integer::deserialize")]
     pub height: u32,
     /// Samples (camera paths) per pixel.
+    #[serde(deserialize_with = "integer::deserialize")]
     pub spp: u32,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "integer::deserialize")]
     pub seed: u64,
     /// Tile edge in pixels (does not change the image).
-    #[serde(default = "default_tile")]
+    #[serde(default = "default_tile", deserialize_with = "integer::deserialize")]
     pub tile_size: u32,
     #[serde(default, with = "by_name")]
     pub direct: DirectStrategy,
     #[serde(default, with = "by_name")]
     pub rr: RussianRoulette,
     /// Maximum bounces; absent is unlimited (unbiased).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "integer::option::deserialize"
+    )]
     pub max_depth: Option<u32>,
     #[serde(default, with = "by_name")]
     pub sampler: SamplerKind,
@@ -65,7 +136,7 @@ pub struct JobSettings {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<String>,
     /// Higher runs first.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "integer::deserialize")]
     pub priority: i32,
     /// Stop once the estimated relative error of the image falls below this (e.g. 0.02).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -309,6 +380,7 @@ pub const SCALE_MAX_HEADER: &str = "pathfarm-scale-max";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct JobPatch {
+    #[serde(deserialize_with = "integer::deserialize")]
     pub priority: i32,
 }
 
@@ -317,6 +389,7 @@ pub struct JobPatch {
 #[serde(deny_unknown_fields)]
 pub struct WorkerRegistration {
     pub name: String,
+    #[serde(deserialize_with = "integer::deserialize")]
     pub threads: u32,
     pub version: String,
     pub host: String,
@@ -372,7 +445,7 @@ pub struct Lease {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Heartbeat {
-    #[serde(default)]
+    #[serde(default, deserialize_with = "integer::option::deserialize")]
     pub task_id: Option<i64>,
     #[serde(default)]
     pub lease_token: Option<String>,
@@ -457,5 +530,42 @@ mod tests {
         let e = serde_json::from_str::<JobSettings>(r#"{"width":8,"height":4,"spp":2,"sppp":3}"#)
             .unwrap_err();
         assert!(e.to_string().contains("unknown field"), "{e}");
+    }
+
+    #[test]
+    fn integers_may_be_written_as_integral_numbers() {
+        // JSON Schema's `integer` is any number with no fractional part: 99999.0 is 99999.
+        let s: JobSettings = serde_json::from_str(
+            r#"{"width":8.0,"height":4,"spp":2e0,"seed":7.0,"tile_size":16.0,"max_depth":3.0,"priority":-99999.0}"#,
+        )
+        .unwrap();
+        assert_eq!((s.width, s.height, s.spp, s.seed), (8, 4, 2, 7));
+        assert_eq!(
+            (s.tile_size, s.max_depth, s.priority),
+            (16, Some(3), -99999)
+        );
+        let none: JobSettings =
+            serde_json::from_str(r#"{"width":8,"height":4,"spp":2,"max_depth":null}"#).unwrap();
+        assert_eq!(none.max_depth, None);
+        let p: JobPatch = serde_json::from_str(r#"{"priority":99999.0}"#).unwrap();
+        assert_eq!(p.priority, 99999);
+        let r: WorkerRegistration =
+            serde_json::from_str(r#"{"name":"w","threads":4.0,"version":"v","host":"h"}"#).unwrap();
+        assert_eq!(r.threads, 4);
+        let h: Heartbeat = serde_json::from_str(r#"{"task_id":12.0}"#).unwrap();
+        assert_eq!(h.task_id, Some(12));
+
+        // Fractions, out-of-range values and inexact huge floats are still errors.
+        for bad in [
+            r#"{"width":8.5,"height":4,"spp":2}"#,
+            r#"{"width":-8,"height":4,"spp":2}"#,
+            r#"{"width":4294967296,"height":4,"spp":2}"#,
+            r#"{"width":8,"height":4,"spp":2,"seed":1e300}"#,
+            r#"{"width":8,"height":4,"spp":2,"priority":3000000000.0}"#,
+            r#"{"width":8,"height":4,"spp":"2"}"#,
+        ] {
+            let e = serde_json::from_str::<JobSettings>(bad).unwrap_err();
+            assert!(e.to_string().contains("an integer in range"), "{bad}: {e}");
+        }
     }
 }

@@ -6,6 +6,8 @@
 //! range) in [`slice`].
 
 pub mod api;
+#[doc(hidden)]
+pub mod fuzzing; // the checks of the fuzz targets (fuzz/), shared with tests/fuzz_corpus.rs
 pub mod slice;
 mod varint;
 

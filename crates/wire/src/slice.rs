@@ -9,8 +9,9 @@
 //! x0 y0 w h    4 × u32  the tile
 //! begin end    2 × u32  the sample range [begin, end)
 //! rays         v (u64)
-//! invalid      v (u64)  samples rejected as NaN/∞/negative/huge
-//! recorded     v        number of recorded invalid samples (≤ 64), then for each: x, y, index (v each)
+//! invalid      v (u64)  samples rejected as NaN/∞/negative/huge (≤ w × h × (end − begin))
+//! recorded     v        number of recorded invalid samples (≤ 64, ≤ invalid), then for each: x, y,
+//!                       index (v each)
 //! pixels       w × h ×  count v(u64), sum R v(u128), sum G v(u128), sum B v(u128), Σ luminance² v(u128)
 //! checksum     u64      FNV-1a 64 of every byte before it
 //! ```
@@ -70,6 +71,10 @@ pub enum SliceError {
     PixelCount { index: u64, count: u64, range: u32 },
     #[error("{0} recorded invalid samples (at most {MAX_RECORDED_INVALID})")]
     Recorded(u64),
+    #[error("{count} invalid samples, more than the {max} samples the slice covers")]
+    InvalidCount { count: u64, max: u128 },
+    #[error("{recorded} recorded invalid samples, but only {count} counted")]
+    RecordedCount { recorded: u64, count: u64 },
     #[error("recorded invalid sample ({x}, {y}) #{index} lies outside the slice")]
     RecordedOutside { x: u32, y: u32, index: u32 },
     #[error("checksum mismatch: the body was corrupted")]
@@ -78,7 +83,7 @@ pub enum SliceError {
     Trailing(usize),
 }
 
-fn fnv1a64(bytes: &[u8]) -> u64 {
+pub(crate) fn fnv1a64(bytes: &[u8]) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for &b in bytes {
         h ^= b as u64;
@@ -200,11 +205,30 @@ pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceEr
     if begin >= end {
         return Err(SliceError::SampleRange { begin, end });
     }
+    let range = end - begin;
     let rays = r.var(64, "rays")? as u64;
     let invalid_count = r.var(64, "invalid count")? as u64;
+    // Each sample of each pixel is either accumulated (and counted in its pixel) or invalid, so a
+    // slice cannot hold more invalid samples than it covers. Besides rejecting a lie, this bounds
+    // the server's accounting (Σ pixel counts + invalid count ≤ 2 × pixels × range), which would
+    // otherwise overflow on an invalid count near 2⁶⁴ (see "Findings" in docs/fuzzing.md).
+    let max_invalid = pixels as u128 * range as u128;
+    if invalid_count as u128 > max_invalid {
+        return Err(SliceError::InvalidCount {
+            count: invalid_count,
+            max: max_invalid,
+        });
+    }
     let recorded = r.var(64, "recorded invalid samples")? as u64;
     if recorded > MAX_RECORDED_INVALID as u64 {
         return Err(SliceError::Recorded(recorded));
+    }
+    // The recorded samples are some of the counted ones.
+    if recorded > invalid_count {
+        return Err(SliceError::RecordedCount {
+            recorded,
+            count: invalid_count,
+        });
     }
     let mut invalid = Vec::with_capacity(recorded as usize);
     for _ in 0..recorded {
@@ -226,7 +250,6 @@ pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceEr
     if (body.len() - r.pos) as u64 / 5 < pixels {
         return Err(SliceError::Truncated("pixels"));
     }
-    let range = end - begin;
     let mut px = Vec::with_capacity(pixels as usize);
     for index in 0..pixels {
         let count = r.var(64, "pixel count")? as u64;
@@ -266,4 +289,53 @@ pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceEr
             invalid,
         },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn slice(invalid_count: u64, invalid: Vec<InvalidSample>) -> Slice {
+        let mut acc = Accumulation::new(10, 20, 2, 1);
+        acc.pixels[0].count = 3;
+        acc.invalid_count = invalid_count;
+        acc.invalid = invalid;
+        Slice {
+            sample_begin: 5,
+            sample_end: 8,
+            acc,
+        }
+    }
+
+    #[test]
+    fn invalid_counts_are_bounded_by_the_samples_covered() {
+        let limits = SliceLimits::default();
+        let one = InvalidSample {
+            x: 11,
+            y: 20,
+            index: 7,
+        };
+        // 2 pixels × 3 samples: up to 6 invalid ones.
+        let ok = slice(6, vec![one]);
+        assert_eq!(decode_slice(&encode_slice(&ok), &limits), Ok(ok));
+        assert_eq!(
+            decode_slice(&encode_slice(&slice(7, vec![])), &limits),
+            Err(SliceError::InvalidCount { count: 7, max: 6 })
+        );
+        // Near 2⁶⁴ the server's Σ counts + invalid count would overflow.
+        assert_eq!(
+            decode_slice(&encode_slice(&slice(u64::MAX, vec![])), &limits),
+            Err(SliceError::InvalidCount {
+                count: u64::MAX,
+                max: 6
+            })
+        );
+        assert_eq!(
+            decode_slice(&encode_slice(&slice(0, vec![one])), &limits),
+            Err(SliceError::RecordedCount {
+                recorded: 1,
+                count: 0
+            })
+        );
+    }
 }

@@ -96,7 +96,14 @@ impl SceneCache {
         };
         let cam = camera.clone();
         let scene = tokio::task::spawn_blocking(move || {
-            gltf::load(&bytes, &NoExternalResources, &LoadOptions { camera: cam })
+            gltf::load(
+                &bytes,
+                &NoExternalResources,
+                &LoadOptions {
+                    camera: cam,
+                    ..LoadOptions::default()
+                },
+            )
         })
         .await
         .map_err(|e| SceneError::Load {

@@ -104,7 +104,7 @@ impl LoadgenRun {
 }
 
 /// A one-sample slice of constant radiance for a tile.
-fn synthetic(x0: u32, y0: u32, w: u32, h: u32, begin: u32, end: u32) -> Vec<u8> {
+pub(crate) fn synthetic(x0: u32, y0: u32, w: u32, h: u32, begin: u32, end: u32) -> Vec<u8> {
     let mut acc = Accumulation::new(x0, y0, w, h);
     for p in &mut acc.pixels {
         for _ in begin..end {

@@ -9,6 +9,8 @@
 //! 3. **Simulated workers** ([`loadgen`]): closed-loop workers that lease and upload synthetic
 //!    slices, on SQLite and (with a URL) PostgreSQL: merged uploads per second, lease and upload
 //!    latency, and a check that every acknowledged upload was merged exactly once.
+//! 4. **Soak** ([`soak`], not part of [`run`]): simulated workers, dashboard pollers and job churn
+//!    against an external server process for minutes, with its memory sampled throughout.
 //!
 //! [`run`] measures (synchronously, on its own tokio runtime); [`write_report`] charts and
 //! tabulates.
@@ -17,6 +19,7 @@ mod harness;
 pub mod loadgen;
 mod report;
 pub mod scaling;
+pub mod soak;
 
 use crate::BenchError;
 use harness::{farm_err, unique_suffix, StoreSpec, WorkerSetup};

@@ -229,6 +229,7 @@ pub(crate) fn direct_render(
         &NoExternalResources,
         &LoadOptions {
             camera: settings.camera.clone(),
+            ..LoadOptions::default()
         },
     )
     .map_err(|e| farm_err(format!("loading the scene for the direct render: {e}")))?;

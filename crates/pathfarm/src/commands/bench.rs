@@ -14,6 +14,10 @@ pub enum Suite {
     /// Farm scaling only: workers, overhead against a direct render, first preview, simulated
     /// workers on SQLite (and PostgreSQL with --postgres).
     Farm,
+    /// A soak of a real `pathfarm serve` process: 200 simulated workers, 20 dashboard pollers and
+    /// a churn of jobs for --seconds on SQLite (and PostgreSQL with --postgres); latencies, the
+    /// server's memory, exactness. Writes soak-{store}.md and .json; fails if anything failed.
+    Soak,
 }
 
 #[derive(Args, Debug)]
@@ -45,12 +49,51 @@ pub struct BenchArgs {
     /// Also measure the farm's simulated workers on this PostgreSQL database.
     #[arg(long, env = "PATHFARM_BENCH_POSTGRES")]
     pub postgres: Option<String>,
+    /// The soak's window per store, in seconds (`soak` only).
+    #[arg(long, default_value_t = 120.0)]
+    pub seconds: f64,
     /// Output directory: report.md, results.json, charts/, images/.
     #[arg(long)]
     pub out: PathBuf,
 }
 
+fn soak(args: BenchArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.seconds > 0.0 && args.seconds.is_finite(),
+        "--seconds must be a positive number"
+    );
+    let scene_path = args.scenes_dir.join("cornell.gltf");
+    anyhow::ensure!(
+        scene_path.is_file(),
+        "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
+        args.scenes_dir.display()
+    );
+    let opts = pathfarm_bench::farm::soak::SoakOptions {
+        server_exe: std::env::current_exe().context("cannot find this executable")?,
+        scene_path,
+        seconds: args.seconds,
+        postgres_url: args.postgres,
+        out_dir: args.out.clone(),
+    };
+    let reports = pathfarm_bench::farm::soak::run_with_servers(&opts).context("soak failed")?;
+    let mut failures = Vec::new();
+    for r in &reports {
+        println!("{}", r.markdown());
+        failures.extend(
+            r.failures()
+                .into_iter()
+                .map(|f| format!("{}: {f}", r.store)),
+        );
+    }
+    eprintln!("soak reports in {}", args.out.display());
+    anyhow::ensure!(failures.is_empty(), "soak failed:\n{}", failures.join("\n"));
+    Ok(())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    if args.suite == Suite::Soak {
+        return soak(args);
+    }
     for s in &args.scenes {
         scenes::find(s)?;
     }

@@ -98,8 +98,15 @@ pub fn load_scene(path: &Path, camera: Option<String>) -> Result<Scene> {
         std::fs::read(path).with_context(|| format!("cannot read scene {}", path.display()))?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let resolver = DirectoryResolver { base };
-    let scene = gltf::load(&bytes, &resolver, &LoadOptions { camera })
-        .with_context(|| format!("cannot load {}", path.display()))?;
+    let scene = gltf::load(
+        &bytes,
+        &resolver,
+        &LoadOptions {
+            camera,
+            ..LoadOptions::default()
+        },
+    )
+    .with_context(|| format!("cannot load {}", path.display()))?;
     Ok(scene)
 }
 

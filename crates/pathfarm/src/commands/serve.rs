@@ -25,6 +25,18 @@ pub struct ServerArgs {
     /// Largest scene upload in MiB.
     #[arg(long, env = "PATHFARM_MAX_SCENE_MIB", default_value_t = 256)]
     pub max_scene_mib: usize,
+    /// Most submitted scenes validated at once (each load takes memory up to a few times the
+    /// scene's size); further submissions wait.
+    #[arg(long, env = "PATHFARM_SCENE_CHECKS", default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..))]
+    pub scene_checks: u16,
+    /// Most triangles a submitted scene may declare (every instance counted); loading one takes
+    /// 40–170 bytes per triangle.
+    #[arg(
+        long,
+        env = "PATHFARM_MAX_SCENE_TRIANGLES",
+        default_value_t = 20_000_000
+    )]
+    pub max_scene_triangles: u64,
 }
 
 impl ServerArgs {
@@ -48,6 +60,8 @@ impl ServerArgs {
         c.lease_duration = Duration::from_secs_f64(self.lease_seconds);
         c.monitor_interval = Duration::from_secs_f64((self.lease_seconds / 10.0).clamp(0.05, 1.0));
         c.limits.max_scene_bytes = self.max_scene_mib << 20;
+        c.limits.scene_checks = usize::from(self.scene_checks);
+        c.limits.max_scene_triangles = self.max_scene_triangles;
         Ok(c)
     }
 }

@@ -8,7 +8,7 @@ use crate::states::JobEvent;
 use crate::store::{now_ms, JobRow, NewJob};
 use crate::AppState;
 use axum::body::Bytes;
-use axum::extract::multipart::{Multipart, MultipartRejection};
+use axum::extract::multipart::{Multipart, MultipartError, MultipartRejection};
 use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::Json;
@@ -20,16 +20,28 @@ use pathfarm_wire::api::{
 use serde::Deserialize;
 use sha2::{Digest, Sha256};
 
-fn multipart_error(e: impl std::fmt::Display) -> ApiError {
-    let msg = e.to_string();
-    if msg.contains("limit") {
+/// Both limits in one unit people read: `67108864 bytes (64 MiB)`.
+fn bytes_and_mib(bytes: usize) -> String {
+    format!("{bytes} bytes ({} MiB)", bytes >> 20)
+}
+
+fn multipart_error(e: MultipartError, state: &AppState) -> ApiError {
+    // The body limit shows as a multipart parse error whose status says what it is.
+    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
         ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
             "too_large",
-            format!("request body too large: {msg}"),
+            format!(
+                "request body too large ({}): a scene may be at most {}",
+                e.body_text(),
+                bytes_and_mib(state.config.limits.max_scene_bytes)
+            ),
         )
     } else {
-        ApiError::bad_request("bad_multipart", format!("invalid multipart body: {msg}"))
+        ApiError::bad_request(
+            "bad_multipart",
+            format!("invalid multipart body: {}", e.body_text()),
+        )
     }
 }
 
@@ -51,14 +63,26 @@ pub async fn submit(
     let mut scene: Option<Bytes> = None;
     let mut settings: Option<JobSettings> = None;
     let mut file_name: Option<String> = None;
-    while let Some(field) = multipart.next_field().await.map_err(multipart_error)? {
+    while let Some(field) = multipart
+        .next_field()
+        .await
+        .map_err(|e| multipart_error(e, &state))?
+    {
         match field.name() {
             Some("scene") => {
                 file_name = field.file_name().map(str::to_string);
-                scene = Some(field.bytes().await.map_err(multipart_error)?);
+                scene = Some(
+                    field
+                        .bytes()
+                        .await
+                        .map_err(|e| multipart_error(e, &state))?,
+                );
             }
             Some("settings") => {
-                let bytes = field.bytes().await.map_err(multipart_error)?;
+                let bytes = field
+                    .bytes()
+                    .await
+                    .map_err(|e| multipart_error(e, &state))?;
                 settings = Some(serde_json::from_slice(&bytes).map_err(|e| {
                     ApiError::unprocessable("invalid_settings", format!("settings: {e}"))
                 })?);
@@ -81,12 +105,21 @@ pub async fn submit(
     // Load the scene exactly as a worker will (no external resources: a URI in a submitted scene
     // never reads the server's files or the network).
     let camera = settings.camera.clone();
+    let max_triangles = state.config.limits.max_scene_triangles;
     let scene_for_load = scene.clone();
+    let _permit = state
+        .scene_checks
+        .acquire()
+        .await
+        .map_err(|e| ApiError::internal(format!("scene validation: {e}")))?;
     let loaded = tokio::task::spawn_blocking(move || {
         gltf::load(
             &scene_for_load,
             &NoExternalResources,
-            &LoadOptions { camera },
+            &LoadOptions {
+                camera,
+                max_triangles,
+            },
         )
         .map(|s| s.info.triangles)
     })
@@ -161,7 +194,7 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
             "too_large",
             format!(
                 "scene of {scene_bytes} bytes exceeds the limit of {}",
-                l.max_scene_bytes
+                bytes_and_mib(l.max_scene_bytes)
             ),
         ));
     }

@@ -344,9 +344,12 @@ impl Store {
             .merge(a)
             .map_err(|e| ApiError::internal(format!("merge: {e}")))?;
         let new_samples = tile_samples + n as u64;
+        // The stored tile is the union of sample ranges that may not be contiguous yet (a later
+        // pass can be merged before an earlier one), so its recorded invalid samples can lie beyond
+        // `new_samples`: it is stored as covering every sample index. Its count is in `samples`.
         let encoded = encode_slice(&Slice {
             sample_begin: 0,
-            sample_end: new_samples.min(u32::MAX as u64) as u32,
+            sample_end: u32::MAX,
             acc: merged,
         });
         sqlx::query(

@@ -156,6 +156,7 @@ pub fn local_render(scene: &[u8], s: &JobSettings) -> Accumulation {
         &NoExternalResources,
         &LoadOptions {
             camera: s.camera.clone(),
+            ..LoadOptions::default()
         },
     )
     .unwrap();

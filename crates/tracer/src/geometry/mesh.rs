@@ -28,6 +28,16 @@ pub struct MeshError {
     pub triangles: usize,
 }
 
+/// True if a triangle with these corners has a positive, finite area and finite corners. Others
+/// (zero-area, NaN or infinite) cannot be hit, sampled or shaded; loaders drop them as they read
+/// them, and [`crate::scene::Scene::build`] drops any that are left.
+#[inline]
+pub fn renderable(p: &[Vec3; 3]) -> bool {
+    let [a, b, c] = *p;
+    let area = 0.5 * (b - a).cross(c - a).length();
+    area > 0.0 && area.is_finite() && p.iter().all(|v| v.is_finite())
+}
+
 impl Mesh {
     pub fn len(&self) -> usize {
         self.positions.len()
@@ -66,6 +76,12 @@ impl Mesh {
     #[inline]
     pub fn area(&self, i: usize) -> f32 {
         0.5 * self.cross(i).length()
+    }
+
+    /// True if triangle `i` can be hit, sampled and shaded: see [`renderable`].
+    #[inline]
+    pub fn is_renderable(&self, i: usize) -> bool {
+        renderable(&self.positions[i])
     }
 
     /// Rebuilds every array in a new order (`order[k]` is the old index of new triangle k); triangles

@@ -6,6 +6,6 @@ mod ray;
 mod triangle;
 
 pub use bvh::Bvh;
-pub use mesh::{Mesh, MeshError};
+pub use mesh::{renderable, Mesh, MeshError};
 pub use ray::Ray;
 pub use triangle::{intersect_watertight, RayPrecomp, TriangleHit};

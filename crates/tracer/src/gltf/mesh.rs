@@ -4,8 +4,9 @@
 //! triples, validated (every index below the vertex count, every float finite), then emitted per
 //! instance: positions by the node's world matrix, normals by its inverse transpose, tangents by the
 //! matrix with the handedness sign flipped under a mirroring transform. A negative determinant swaps
-//! two corners so counter-clockwise stays the front face. Degenerate triangles are kept (the scene
-//! build drops and counts them).
+//! two corners so counter-clockwise stays the front face. Degenerate triangles (zero area or
+//! non-finite corners after the transform) are dropped and counted as they are emitted, so a file of
+//! millions of them costs no memory per triangle beyond its own index data.
 //!
 //! Tangents: a primitive whose material has a normal map but no TANGENT attribute gets a per-triangle
 //! tangent from its UVs (the standard dP/du, with the sign chosen so that cross(N, T)·w points to
@@ -14,7 +15,7 @@
 
 use super::accessors::Accessors;
 use super::error::{label, GltfError, Warnings};
-use crate::geometry::Mesh;
+use crate::geometry::{renderable, Mesh};
 use glam::{DMat3, DMat4, Vec2, Vec3, Vec4};
 use gltf::json;
 use json::mesh::{Mode, Semantic};
@@ -107,6 +108,32 @@ pub(crate) fn scan_mesh(
     out
 }
 
+/// The triangles mesh `mesh` declares, from the JSON alone (accessor counts; no data read): what
+/// reading it would cost, degenerate triangles included.
+pub(crate) fn declared_triangles(root: &json::Root, mesh: usize) -> u64 {
+    let Some(m) = root.meshes.get(mesh) else {
+        return 0;
+    };
+    let count = |i: usize| root.accessors.get(i).map_or(0, |a| a.count.0);
+    m.primitives
+        .iter()
+        .map(|p| {
+            let n = match &p.indices {
+                Some(i) => count(i.value()),
+                None => p
+                    .attributes
+                    .get(&Checked::Valid(Semantic::Positions))
+                    .map_or(0, |i| count(i.value())),
+            };
+            match p.mode {
+                Checked::Valid(Mode::Triangles) => n / 3,
+                Checked::Valid(Mode::TriangleStrip | Mode::TriangleFan) => n.saturating_sub(2),
+                _ => 0,
+            }
+        })
+        .fold(0u64, u64::saturating_add)
+}
+
 /// One primitive's local data.
 #[derive(Debug)]
 struct Primitive {
@@ -123,6 +150,8 @@ pub(crate) struct MeshBuilder<'r, 'a> {
     acc: &'r Accessors<'r, 'a>,
     needs: Needs,
     mesh: Mesh,
+    /// Triangles dropped as degenerate.
+    dropped: usize,
     cache: HashMap<usize, Rc<Vec<Primitive>>>,
 }
 
@@ -139,12 +168,14 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             acc,
             needs,
             mesh,
+            dropped: 0,
             cache: HashMap::new(),
         }
     }
 
-    pub fn finish(self) -> Mesh {
-        self.mesh
+    /// The triangles, and how many were dropped as degenerate.
+    pub fn finish(self) -> (Mesh, usize) {
+        (self.mesh, self.dropped)
     }
 
     /// Adds every triangle primitive of mesh `mesh` under the world transform `world`.
@@ -170,10 +201,11 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             }
         };
         for p in prims.iter() {
-            let total = self.mesh.len().saturating_add(p.triangles.len());
+            // Dropped triangles count too: reading them is the cost this limit bounds.
+            let total = (self.mesh.len() + self.dropped).saturating_add(p.triangles.len());
             if total > MAX_TRIANGLES {
                 return Err(GltfError::Limit(format!(
-                    "the scene has more than {MAX_TRIANGLES} triangles"
+                    "the scene has more than {MAX_TRIANGLES} triangles (counting degenerate ones)"
                 )));
             }
             let m = material(p.info.material);
@@ -323,6 +355,10 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             let [a, b, c] = if flip { [t[0], t[2], t[1]] } else { *t };
             let [a, b, c] = [a as usize, b as usize, c as usize];
             let pos = [wp[a], wp[b], wp[c]];
+            if !renderable(&pos) {
+                self.dropped += 1;
+                continue;
+            }
             self.mesh.positions.push(pos);
             self.mesh.material.push(mat.index);
             let flat = (pos[1] - pos[0]).cross(pos[2] - pos[0]).normalize_or_zero();

@@ -25,7 +25,7 @@
 //!   KHR_texture_transform on every texture reference. Primitives without a material get
 //!   `Material::default()`, added once after the file's (used) materials.
 //! - Textures: PNG and JPEG, decoded once per image with limits ([`MAX_IMAGE_SIZE`],
-//!   [`MAX_IMAGE_ALLOC`]); sampler wrap modes and NEAREST magnification.
+//!   [`MAX_IMAGE_BYTES`], [`MAX_SCENE_TEXTURE_BYTES`]); sampler wrap modes and NEAREST magnification.
 //! - KHR_lights_punctual point, spot and directional lights.
 //! - The camera: the first camera node in traversal order, or the one named by [`LoadOptions::camera`];
 //!   its node's scale is stripped.
@@ -38,6 +38,8 @@
 //!
 //! # What is refused or ignored
 //! - `extensionsRequired` naming anything outside [`SUPPORTED_EXTENSIONS`] is an error.
+//! - Triangles reaching beyond ±[`MAX_COORDINATE`] in world space are an error (the BVH's `f32`
+//!   surface-area arithmetic would overflow).
 //! - Ignored with one warning each (in `SceneParts::warnings` and through `tracing::warn!`):
 //!   unsupported `extensionsUsed` (e.g. KHR_materials_clearcoat, _sheen, _unlit, KHR_draco as
 //!   optional), skins (bind pose), morph targets (base geometry), animations (rest pose), COLOR_0,
@@ -51,6 +53,7 @@
 //! returned as [`GltfError::Internal`].
 
 mod accessors;
+mod bounds;
 mod camera;
 mod document;
 mod error;
@@ -62,11 +65,12 @@ mod nodes;
 mod resources;
 mod textures;
 
+pub use bounds::MAX_COORDINATE;
 pub use document::SUPPORTED_EXTENSIONS;
 pub use error::GltfError;
 pub use materials::texture_transform_matrix;
 pub use mesh::MAX_TRIANGLES;
-pub use textures::{MAX_IMAGE_ALLOC, MAX_IMAGE_SIZE};
+pub use textures::{MAX_IMAGE_BYTES, MAX_IMAGE_SIZE, MAX_SCENE_TEXTURE_BYTES};
 
 use crate::material::Material;
 use crate::scene::{Scene, SceneParts};
@@ -100,11 +104,25 @@ impl ResourceResolver for NoExternalResources {
 }
 
 /// Choices made while loading.
-#[derive(Default, Clone, Debug)]
+#[derive(Clone, Debug)]
 pub struct LoadOptions {
     /// Camera name (a camera's name, else the name of a node carrying a camera); default: the first
     /// camera of the scene's nodes in traversal order.
     pub camera: Option<String>,
+    /// Most triangles the scene may declare, counting every instance and degenerate triangles,
+    /// checked from the JSON before any geometry is read (default and ceiling: [`MAX_TRIANGLES`]).
+    /// The server lowers it for submissions (`--max-scene-triangles`), since the triangles a scene
+    /// holds are the memory loading it takes.
+    pub max_triangles: u64,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions {
+            camera: None,
+            max_triangles: MAX_TRIANGLES as u64,
+        }
+    }
 }
 
 /// Loads a glTF or GLB file into the parts of a scene (not yet built).
@@ -158,6 +176,26 @@ fn load_parts_unguarded(
     let instances = nodes::traverse(root, &roots)?;
     document::feature_warnings(root, &instances, &mut warnings);
     let mesh_of = |node: usize| root.nodes.get(node).and_then(|n| n.mesh).map(|m| m.value());
+
+    // What the geometry will cost, before any of it is read: a few bytes of JSON can instance a
+    // mesh ten thousand times.
+    let limit = options.max_triangles.min(MAX_TRIANGLES as u64);
+    let mut per_mesh = HashMap::new();
+    let declared = instances
+        .iter()
+        .filter_map(|inst| mesh_of(inst.node))
+        .map(|m| {
+            *per_mesh
+                .entry(m)
+                .or_insert_with(|| mesh::declared_triangles(root, m))
+        })
+        .fold(0u64, u64::saturating_add);
+    if declared > limit {
+        return Err(GltfError::Limit(format!(
+            "the scene declares {declared} triangles ({} mesh instances), over the limit of {limit}",
+            instances.iter().filter(|i| mesh_of(i.node).is_some()).count()
+        )));
+    }
 
     // What the scene's primitives use, from the JSON alone.
     let mut used_materials = BTreeSet::new();
@@ -243,7 +281,8 @@ fn load_parts_unguarded(
             punctual_lights.push(light);
         }
     }
-    let mesh = builder.finish();
+    let (mesh, degenerate_dropped) = builder.finish();
+    bounds::check(root, &acc, &instances, &mesh)?;
     let camera = camera::choose(root, &instances, options.camera.as_deref())?;
     Ok(SceneParts {
         mesh,
@@ -252,5 +291,6 @@ fn load_parts_unguarded(
         punctual_lights,
         camera,
         warnings: warnings.into_vec(),
+        degenerate_dropped,
     })
 }

@@ -14,8 +14,14 @@ use std::rc::Rc;
 
 /// Largest accepted image width and height.
 pub const MAX_IMAGE_SIZE: u32 = 16384;
-/// Most memory one image decode may allocate.
-pub const MAX_IMAGE_ALLOC: u64 = 1 << 30;
+/// Most bytes one image may take decoded, as RGBA8 (256 MiB: e.g. 8192 × 8192). Checked against
+/// the size in the file's header before anything is decoded, so a small file that claims a huge
+/// image (a decompression bomb) costs nothing.
+pub const MAX_IMAGE_BYTES: u64 = 1 << 28;
+/// Most bytes a scene's decoded images and textures may take together while it loads (1 GiB), so
+/// that many images, or one image under many samplers (each distinct pair is one texture with its
+/// own texels), cannot add up past it either.
+pub const MAX_SCENE_TEXTURE_BYTES: u64 = 1 << 30;
 
 type Texels = Rc<(u32, u32, Vec<[u8; 4]>)>;
 
@@ -26,6 +32,10 @@ pub(crate) struct TextureCache<'r, 'a> {
     images: HashMap<usize, Texels>,
     by_key: HashMap<(usize, Option<usize>), u32>,
     textures: Vec<Texture>,
+    /// Bytes of texels held by `images` and `textures`, against `budget`.
+    bytes: u64,
+    /// [`MAX_SCENE_TEXTURE_BYTES`] (smaller in unit tests).
+    budget: u64,
 }
 
 pub(crate) fn texture_label(root: &json::Root, index: usize) -> String {
@@ -44,6 +54,8 @@ impl<'r, 'a> TextureCache<'r, 'a> {
             images: HashMap::new(),
             by_key: HashMap::new(),
             textures: Vec::new(),
+            bytes: 0,
+            budget: MAX_SCENE_TEXTURE_BYTES,
         }
     }
 
@@ -79,11 +91,20 @@ impl<'r, 'a> TextureCache<'r, 'a> {
             Some(t) => t.clone(),
             None => {
                 let bytes = self.res.image_bytes(image)?;
-                let decoded = Rc::new(decode_image(&bytes, &image_label(self.root, image))?);
+                let object = image_label(self.root, image);
+                let (w, h) = image_dimensions(&bytes, &object)?;
+                self.charge(rgba8_bytes(w, h), &object)?;
+                let decoded = Rc::new(decode_image(&bytes, &object)?);
                 self.images.insert(image, decoded.clone());
                 decoded
             }
         };
+        // Each texture holds its own copy of the texels, beside the decoded image kept for
+        // further textures of the same image during the load: both count.
+        self.charge(
+            rgba8_bytes(texels.0, texels.1),
+            &texture_label(self.root, index),
+        )?;
         let sampler_state = self.sampler(sampler);
         let name = tex
             .name
@@ -109,6 +130,18 @@ impl<'r, 'a> TextureCache<'r, 'a> {
         Ok(scene_index)
     }
 
+    /// Counts `bytes` more texels against the scene's budget.
+    fn charge(&mut self, bytes: u64, object: &str) -> Result<(), GltfError> {
+        self.bytes = self.bytes.saturating_add(bytes);
+        if self.bytes > self.budget {
+            return Err(GltfError::Limit(format!(
+                "{object}: the scene's textures take more than {} MiB decoded (each image, and each texture's copy)",
+                self.budget >> 20
+            )));
+        }
+        Ok(())
+    }
+
     fn sampler(&self, index: Option<usize>) -> TextureSampler {
         let Some(s) = index.and_then(|i| self.root.samplers.get(i)) else {
             return TextureSampler::default();
@@ -126,11 +159,15 @@ impl<'r, 'a> TextureCache<'r, 'a> {
     }
 }
 
-/// Decodes PNG or JPEG bytes to RGBA8 (first row at the top) under the decode limits.
-pub(crate) fn decode_image(
-    bytes: &[u8],
+fn rgba8_bytes(w: u32, h: u32) -> u64 {
+    u64::from(w) * u64::from(h) * 4
+}
+
+/// A PNG or JPEG reader with the decode limits, or why the bytes are not one.
+fn image_reader<'b>(
+    bytes: &'b [u8],
     object: &str,
-) -> Result<(u32, u32, Vec<[u8; 4]>), GltfError> {
+) -> Result<image::ImageReader<std::io::Cursor<&'b [u8]>>, GltfError> {
     let err = |reason: String| GltfError::Image {
         object: object.to_string(),
         reason,
@@ -150,18 +187,117 @@ pub(crate) fn decode_image(
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_IMAGE_SIZE);
     limits.max_image_height = Some(MAX_IMAGE_SIZE);
-    limits.max_alloc = Some(MAX_IMAGE_ALLOC);
+    limits.max_alloc = Some(MAX_IMAGE_BYTES);
     reader.limits(limits);
-    let decoded = reader.decode().map_err(|e| err(e.to_string()))?;
-    let rgba = decoded.into_rgba8();
-    let (w, h) = rgba.dimensions();
-    let texels: Vec<[u8; 4]> = rgba
-        .as_raw()
-        .chunks_exact(4)
-        .map(|c| [c[0], c[1], c[2], c[3]])
-        .collect();
+    Ok(reader)
+}
+
+/// The image's size from its header alone; an error if it is empty, or if decoding it to RGBA8
+/// would take more than [`MAX_IMAGE_BYTES`].
+pub(crate) fn image_dimensions(bytes: &[u8], object: &str) -> Result<(u32, u32), GltfError> {
+    let err = |reason: String| GltfError::Image {
+        object: object.to_string(),
+        reason,
+    };
+    let (w, h) = image_reader(bytes, object)?
+        .into_dimensions()
+        .map_err(|e| err(e.to_string()))?;
     if w == 0 || h == 0 {
         return Err(err("image is empty".into()));
     }
+    if rgba8_bytes(w, h) > MAX_IMAGE_BYTES {
+        return Err(err(format!(
+            "{w}×{h} decodes to {} MiB of RGBA8 texels, over the limit of {} MiB",
+            rgba8_bytes(w, h) >> 20,
+            MAX_IMAGE_BYTES >> 20
+        )));
+    }
+    Ok((w, h))
+}
+
+/// Decodes PNG or JPEG bytes to RGBA8 (first row at the top) under the decode limits.
+pub(crate) fn decode_image(
+    bytes: &[u8],
+    object: &str,
+) -> Result<(u32, u32, Vec<[u8; 4]>), GltfError> {
+    let err = |reason: String| GltfError::Image {
+        object: object.to_string(),
+        reason,
+    };
+    image_dimensions(bytes, object)?;
+    let decoded = image_reader(bytes, object)?
+        .decode()
+        .map_err(|e| err(e.to_string()))?;
+    let rgba = decoded.into_rgba8();
+    let (w, h) = rgba.dimensions();
+    if w == 0 || h == 0 {
+        return Err(err("image is empty".into()));
+    }
+    // RGBA8 bytes to texels without a second copy when the allocation allows it.
+    let texels: Vec<[u8; 4]> =
+        bytemuck::allocation::try_cast_vec(rgba.into_raw()).unwrap_or_else(|(_, raw)| {
+            raw.chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]])
+                .collect()
+        });
     Ok((w, h, texels))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gltf::resources::Resources;
+    use crate::gltf::NoExternalResources;
+    use base64::Engine;
+
+    fn png(w: u32, h: u32) -> Vec<u8> {
+        let mut out = Vec::new();
+        image::RgbaImage::from_pixel(w, h, image::Rgba([9, 8, 7, 255]))
+            .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)
+            .expect("encode png");
+        out
+    }
+
+    /// One 256×256 image (256 KiB of RGBA8) used by three textures with different samplers.
+    fn root() -> json::Root {
+        let uri = format!(
+            "data:image/png;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(png(256, 256))
+        );
+        let doc = format!(
+            r#"{{"asset":{{"version":"2.0"}},"images":[{{"uri":"{uri}"}}],
+            "samplers":[{{"wrapS":33071}},{{"wrapS":33648}},{{"magFilter":9728}}],
+            "textures":[{{"source":0,"sampler":0}},{{"source":0,"sampler":1}},{{"source":0,"sampler":2}}]}}"#
+        );
+        json::Root::from_slice(doc.as_bytes()).expect("valid glTF JSON")
+    }
+
+    #[test]
+    fn every_texture_copy_counts_against_the_scene_budget() {
+        let root = root();
+        let res = Resources::new(&root, None, &NoExternalResources);
+        let mut w = Warnings::default();
+        let mut cache = TextureCache::new(&root, &res);
+        // The image (256 KiB) and three copies: 1 MiB in all.
+        cache.budget = 1 << 20;
+        for t in 0..3 {
+            assert_eq!(cache.texture(t, &mut w).expect("within budget"), t as u32);
+        }
+        assert_eq!(cache.bytes, 1 << 20);
+        // The same texture again is no new copy.
+        assert_eq!(cache.texture(2, &mut w).expect("cached"), 2);
+
+        let mut cache = TextureCache::new(&root, &res);
+        cache.budget = (1 << 20) - 1;
+        cache.texture(0, &mut w).expect("first copy fits");
+        cache.texture(1, &mut w).expect("second copy fits");
+        let e = cache
+            .texture(2, &mut w)
+            .expect_err("third copy is over")
+            .to_string();
+        assert!(
+            e.contains("texture 2: the scene's textures take more than"),
+            "{e}"
+        );
+    }
 }

@@ -130,11 +130,12 @@ impl Texture {
         }
         let (x0, y0) = (x.floor(), y.floor());
         let (fx, fy) = (x - x0, y - y0);
+        // `as` saturates a huge coordinate to i64::MAX; the neighbour must not overflow past it.
         let (x0, y0) = (x0 as i64, y0 as i64);
         let xa = wrap(x0, self.width, self.sampler.wrap_s);
-        let xb = wrap(x0 + 1, self.width, self.sampler.wrap_s);
+        let xb = wrap(x0.saturating_add(1), self.width, self.sampler.wrap_s);
         let ya = wrap(y0, self.height, self.sampler.wrap_t);
-        let yb = wrap(y0 + 1, self.height, self.sampler.wrap_t);
+        let yb = wrap(y0.saturating_add(1), self.height, self.sampler.wrap_t);
         let top = self.texel(xa, ya, cs) * (1.0 - fx) + self.texel(xb, ya, cs) * fx;
         let bottom = self.texel(xa, yb, cs) * (1.0 - fx) + self.texel(xb, yb, cs) * fx;
         top * (1.0 - fy) + bottom * fy

@@ -23,13 +23,15 @@ pub struct SceneParts {
     pub camera: Option<Camera>,
     /// Things the loader ignored or worked around, reported once each.
     pub warnings: Vec<String>,
+    /// Degenerate triangles the loader already dropped (they are not in `mesh`).
+    pub degenerate_dropped: usize,
 }
 
 /// Facts about a built scene, for logs and reports.
 #[derive(Clone, Debug, Default)]
 pub struct SceneInfo {
     pub triangles: usize,
-    /// Zero-area (or non-finite) triangles dropped at build time.
+    /// Zero-area (or non-finite) triangles dropped, by the loader or at build time.
     pub degenerate_dropped: usize,
     pub emissive_triangles: usize,
     pub punctual_lights: usize,
@@ -46,6 +48,10 @@ pub struct SceneInfo {
 pub enum SceneError {
     #[error(transparent)]
     Mesh(#[from] MeshError),
+    /// Every triangle of the scene was degenerate: a scene made only of unrenderable geometry is
+    /// broken input, not an empty scene (which has no triangles at all).
+    #[error("all {dropped} triangles of the scene are degenerate (zero area or non-finite corners); nothing can be rendered")]
+    AllDegenerate { dropped: usize },
     #[error(
         "triangle {triangle} refers to material {material}, but the scene has {count} materials"
     )]
@@ -82,6 +88,7 @@ impl Scene {
             punctual_lights,
             camera,
             warnings,
+            degenerate_dropped: dropped_by_loader,
         } = parts;
         mesh.validate()?;
         if let Some((triangle, &material)) = mesh
@@ -98,15 +105,19 @@ impl Scene {
         }
         // Drop zero-area and non-finite triangles: they cannot be hit, sampled or shaded.
         let keep: Vec<u32> = (0..mesh.len())
-            .filter(|&i| {
-                let a = mesh.area(i);
-                a > 0.0 && a.is_finite() && mesh.positions[i].iter().all(|v| v.is_finite())
-            })
+            .filter(|&i| mesh.is_renderable(i))
             .map(|i| i as u32)
             .collect();
-        let degenerate_dropped = mesh.len() - keep.len();
-        if degenerate_dropped > 0 {
+        let degenerate_dropped = dropped_by_loader + (mesh.len() - keep.len());
+        if keep.len() < mesh.len() {
             mesh.reorder(&keep);
+        }
+        if degenerate_dropped > 0 {
+            if keep.is_empty() {
+                return Err(SceneError::AllDegenerate {
+                    dropped: degenerate_dropped,
+                });
+            }
             tracing::info!(degenerate_dropped, "dropped zero-area triangles");
         }
         let (bvh, order) = Bvh::build(&mesh);

@@ -1,0 +1,35 @@
+//! The checks behind the cargo-fuzz targets in `fuzz/` (see `docs/fuzzing.md`), here so that the
+//! fuzz targets and the stable replay test (`tests/fuzz_corpus.rs`) run exactly the same code. Not
+//! part of the tracer's API: hidden from the docs and free to change.
+
+use crate::gltf::{self, GltfError, LoadOptions, NoExternalResources};
+use crate::{render_sample, PixelAccum, RenderSettings};
+
+/// Fuzz target `gltf_load`: `bytes` as a submitted `.gltf`/`.glb`, loaded exactly as the server
+/// validates a submission (no external resources, the default camera). Errors are fine; a panic is a
+/// finding, and so is [`GltfError::Internal`]: it is a panic the loader caught, still a bug.
+///
+/// A scene that loads is then rendered the way a worker would, on a tiny image (4 × 4 pixels, one
+/// sample each, at most 4 bounces so that a closed mirror box cannot keep a path going for long): a
+/// scene the server accepts must not crash the workers that render it. The samples are rendered
+/// with [`render_sample`] (what `render_tile` calls per sample) on the calling thread rather than
+/// through `render_tile`'s rayon pool, so that a panic is deterministic and libFuzzer saves the input.
+pub fn gltf_load(bytes: &[u8]) {
+    let options = LoadOptions::default();
+    let scene = match gltf::load(bytes, &NoExternalResources, &options) {
+        Ok(scene) => scene,
+        Err(GltfError::Internal(message)) => {
+            panic!("the glTF loader panicked (caught as GltfError::Internal): {message}")
+        }
+        Err(_) => return,
+    };
+    let mut settings = RenderSettings::new(4, 4);
+    settings.max_depth = Some(4);
+    for y in 0..settings.height {
+        for x in 0..settings.width {
+            // Invalid radiance (NaN, negative, huge) is legal: the accumulation counts it apart.
+            let mut pixel = PixelAccum::default();
+            pixel.add_sample(render_sample(&scene, &settings, x, y, 0).radiance);
+        }
+    }
+}

@@ -1,0 +1,52 @@
+//! Replays the fuzz target `slice_decode` (fuzz/, see docs/fuzzing.md) on stable: every committed
+//! input of `fuzz/corpus/slice_decode/` and every fixed crash of `fuzz/regressions/slice_decode/`
+//! goes through the very check the fuzz target runs (`pathfarm_wire::fuzzing::slice_decode`), so a
+//! regression shows up in `cargo test --workspace` without nightly or cargo-fuzz.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::{Path, PathBuf};
+
+/// The files of `fuzz/<kind>/<target>/`, sorted. Panics if the directory is missing or empty: a
+/// replay that finds nothing must not pass silently.
+fn inputs(kind: &str, target: &str) -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../fuzz")
+        .join(kind)
+        .join(target);
+    let entries =
+        std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("cannot read {}: {e}", dir.display()));
+    let mut files: Vec<PathBuf> = entries
+        .map(|e| e.expect("directory entry").path())
+        .filter(|p| p.is_file())
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "{} holds no inputs", dir.display());
+    files
+}
+
+/// Runs `check` on every file, naming each one that fails, and returns how many ran.
+fn replay(files: &[PathBuf], check: fn(&[u8])) -> usize {
+    let mut failed = Vec::new();
+    for path in files {
+        let bytes =
+            std::fs::read(path).unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+        if catch_unwind(AssertUnwindSafe(|| check(&bytes))).is_err() {
+            failed.push(path.display().to_string());
+        }
+    }
+    assert!(failed.is_empty(), "fuzz check failed on: {failed:#?}");
+    files.len()
+}
+
+#[test]
+fn slice_decode_corpus_and_regressions() {
+    let corpus = replay(
+        &inputs("corpus", "slice_decode"),
+        pathfarm_wire::fuzzing::slice_decode,
+    );
+    let regressions = replay(
+        &inputs("regressions", "slice_decode"),
+        pathfarm_wire::fuzzing::slice_decode,
+    );
+    eprintln!("slice_decode: replayed {corpus} corpus inputs and {regressions} regressions");
+}
