@@ -14,58 +14,6 @@ use std::process::Command;
 use std::time::Duration;
 use support::*;
 
-/// A database of its own on the test server, dropped when done.
-struct Database {
-    admin_url: String,
-    name: String,
-}
-
-impl Database {
-    fn psql(url: &str, sql: &str) -> Result<(), String> {
-        let out = Command::new("psql")
-            .args([url, "-v", "ON_ERROR_STOP=1", "-q", "-c", sql])
-            .output()
-            .map_err(|e| format!("psql: {e}"))?;
-        if out.status.success() {
-            Ok(())
-        } else {
-            Err(format!(
-                "psql {sql:?}: {}",
-                String::from_utf8_lossy(&out.stderr).trim()
-            ))
-        }
-    }
-
-    fn create(admin_url: &str) -> Database {
-        let name = format!("pathfarm_pg_restart_{}", std::process::id());
-        let _ = Database::psql(admin_url, &format!("DROP DATABASE IF EXISTS {name}"));
-        Database::psql(admin_url, &format!("CREATE DATABASE {name}"))
-            .unwrap_or_else(|e| panic!("cannot create the test database: {e}"));
-        Database {
-            admin_url: admin_url.to_string(),
-            name,
-        }
-    }
-
-    /// The URL of this database: the admin URL with its database name replaced.
-    fn url(&self) -> String {
-        let base = self
-            .admin_url
-            .rsplit_once('/')
-            .map_or(self.admin_url.as_str(), |(b, _)| b);
-        format!("{base}/{}", self.name)
-    }
-}
-
-impl Drop for Database {
-    fn drop(&mut self) {
-        let _ = Database::psql(
-            &self.admin_url,
-            &format!("DROP DATABASE IF EXISTS {} WITH (FORCE)", self.name),
-        );
-    }
-}
-
 fn settings_or_skip() -> Option<(String, String)> {
     let url = std::env::var("PATHFARM_TEST_POSTGRES_URL").ok();
     let restart = std::env::var("PATHFARM_TEST_POSTGRES_RESTART").ok();
@@ -86,7 +34,7 @@ async fn postgres_restart_mid_job_loses_nothing() {
     let Some((admin_url, restart)) = settings_or_skip() else {
         return;
     };
-    let db = Database::create(&admin_url);
+    let db = PgTestDatabase::create(&admin_url, "pg_restart");
     let dir = TestDir::new("pg-restart");
     let port = free_port();
     let listen = format!("127.0.0.1:{port}");
