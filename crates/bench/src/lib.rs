@@ -14,6 +14,7 @@ pub mod reference;
 pub mod render;
 pub mod report;
 pub mod scenes;
+pub mod speed;
 pub mod study;
 
 pub use error::BenchError;

@@ -17,7 +17,7 @@ fn f(v: f64, digits: usize) -> String {
 }
 
 /// Engineering-style: 3 significant digits with k/M/G.
-fn si(v: f64) -> String {
+pub(crate) fn si(v: f64) -> String {
     if !v.is_finite() {
         return "∞".into();
     }
@@ -55,7 +55,7 @@ fn rel_err(rmse: f64, rel_rmse: f64) -> String {
     }
 }
 
-fn pct(v: f64) -> String {
+pub(crate) fn pct(v: f64) -> String {
     format!("{:.2}%", v * 100.0)
 }
 

@@ -2,12 +2,16 @@
 
 use crate::error::BenchError;
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
+use pathfarm_tracer::scene::SceneParts;
 use pathfarm_tracer::Scene;
 use std::path::Path;
 use std::time::Instant;
 
 #[path = "../../tracer/examples/scene_gen/mod.rs"]
 mod scene_gen;
+
+/// Geodesic frequencies of the generated sphere: 327,680 and 1,003,520 triangles.
+pub use scene_gen::{FREQ_1M, FREQ_330K};
 
 /// Where a bench scene comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -152,22 +156,10 @@ pub fn load(scene: &BenchScene, scenes_dir: &Path) -> Result<LoadedScene, BenchE
             (built, fnv1a(&bytes, FNV_OFFSET))
         }
         Source::MillionTriangles => {
-            let path = scenes_dir.join("cornell.gltf");
-            let bytes = read(&path)?;
-            let mut parts = gltf::load_parts(&bytes, &NoExternalResources, &LoadOptions::default())
-                .map_err(|e| err(format!("{}: {e}", path.display())))?;
-            let sphere = scene_gen::bench_sphere(scene_gen::FREQ_1M);
-            let material = parts.materials.len() as u32;
-            parts.materials.push(scene_gen::white_material());
-            let triangles = sphere.triangles();
-            parts
-                .mesh
-                .material
-                .extend(std::iter::repeat_n(material, triangles.len()));
-            parts.mesh.positions.extend(triangles);
+            let (parts, box_hash) = cornell_with_sphere(scene.name, scenes_dir, FREQ_1M)?;
             let built = Scene::build(parts).map_err(|e| err(e.to_string()))?;
             // The generator is deterministic: the box's bytes and the generator's version name it.
-            (built, fnv1a(b"million-v1", fnv1a(&bytes, FNV_OFFSET)))
+            (built, fnv1a(b"million-v1", box_hash))
         }
     };
     Ok(LoadedScene {
@@ -176,6 +168,44 @@ pub fn load(scene: &BenchScene, scenes_dir: &Path) -> Result<LoadedScene, BenchE
         content_hash,
         build_seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// The shipped Cornell box (`scenes_dir/cornell.gltf`) plus the generator's displaced sphere of
+/// frequency `freq` (20·freq² triangles), not yet built, and the FNV-1a hash of the box's bytes.
+/// What `scene_gen::cornell_with` makes for the tracer's criterion benches, but read from the
+/// scenes directory given and with errors (named after `name`) where that one panics.
+pub fn cornell_with_sphere(
+    name: &str,
+    scenes_dir: &Path,
+    freq: u32,
+) -> Result<(SceneParts, u64), BenchError> {
+    let err = |message: String| BenchError::Scene {
+        name: name.to_string(),
+        message,
+    };
+    let path = scenes_dir.join("cornell.gltf");
+    let bytes = read(&path)?;
+    let mut parts = gltf::load_parts(&bytes, &NoExternalResources, &LoadOptions::default())
+        .map_err(|e| err(format!("{}: {e}", path.display())))?;
+    // The sphere's triangles carry positions only; appended to a mesh with per-triangle normals,
+    // UVs or tangents they would leave those arrays short.
+    let m = &parts.mesh;
+    if m.normals.is_some() || m.uv0.is_some() || m.uv1.is_some() || m.tangents.is_some() {
+        return Err(err(format!(
+            "{}: the Cornell box is expected to have positions only",
+            path.display()
+        )));
+    }
+    let sphere = scene_gen::bench_sphere(freq);
+    let material = parts.materials.len() as u32;
+    parts.materials.push(scene_gen::white_material());
+    let triangles = sphere.triangles();
+    parts
+        .mesh
+        .material
+        .extend(std::iter::repeat_n(material, triangles.len()));
+    parts.mesh.positions.extend(triangles);
+    Ok((parts, fnv1a(&bytes, FNV_OFFSET)))
 }
 
 #[cfg(test)]

@@ -18,6 +18,11 @@ pub enum Suite {
     /// a churn of jobs for --seconds on SQLite (and PostgreSQL with --postgres); latencies, the
     /// server's memory, exactness. Writes soak-{store}.md and .json; fails if anything failed.
     Soak,
+    /// The tracer's speed targets: the million-triangle scene's build, throughput and peak memory;
+    /// the 330k-triangle scene's BVH build and throughput; the Cornell box's throughput and its
+    /// error against time versus ../shared/refs/cornell.exr. Writes speed.md and speed.json.
+    /// Not part of `all`.
+    Speed,
 }
 
 #[derive(Args, Debug)]
@@ -35,7 +40,7 @@ pub struct BenchArgs {
     /// Small images, fixed sample counts and short farm runs: a smoke run of a minute or two.
     #[arg(long)]
     pub quick: bool,
-    /// Render threads (default: every core).
+    /// Render threads (default: every core; 2 for `speed`, the threads its targets are set for).
     #[arg(long)]
     pub threads: Option<usize>,
     #[arg(long, default_value_t = 1)]
@@ -52,7 +57,8 @@ pub struct BenchArgs {
     /// The soak's window per store, in seconds (`soak` only).
     #[arg(long, default_value_t = 120.0)]
     pub seconds: f64,
-    /// Output directory: report.md, results.json, charts/, images/.
+    /// Output directory: report.md, results.json, charts/, images/ (speed.md and speed.json for
+    /// `speed`).
     #[arg(long)]
     pub out: PathBuf,
 }
@@ -90,9 +96,30 @@ fn soak(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn speed(args: BenchArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.scenes_dir.join("cornell.gltf").is_file(),
+        "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
+        args.scenes_dir.display()
+    );
+    let mut opts = pathfarm_bench::speed::SpeedOptions::new(args.out.clone(), args.scenes_dir);
+    if let Some(t) = args.threads {
+        anyhow::ensure!(t > 0, "--threads must be at least 1");
+        opts.threads = t;
+    }
+    opts.seed = args.seed;
+    opts.command_line = std::env::args().collect::<Vec<_>>().join(" ");
+    let (_, markdown) = pathfarm_bench::speed::run(&opts).context("speed benchmark failed")?;
+    println!("{markdown}");
+    eprintln!("speed report in {}", args.out.join("speed.md").display());
+    Ok(())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    if args.suite == Suite::Soak {
-        return soak(args);
+    match args.suite {
+        Suite::Soak => return soak(args),
+        Suite::Speed => return speed(args),
+        Suite::All | Suite::Tracer | Suite::Farm => {}
     }
     for s in &args.scenes {
         scenes::find(s)?;

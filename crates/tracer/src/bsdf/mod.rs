@@ -238,6 +238,11 @@ impl Bsdf {
         &self.params
     }
 
+    /// True if [`Bsdf::sample`] ignores its lobe choice (`u_lobe`): the pure Lambertian.
+    pub fn single_lobe(&self) -> bool {
+        self.lambert
+    }
+
     /// True if some lobe is not a delta (light sampling can contribute).
     pub fn has_non_delta(&self) -> bool {
         self.diffuse_on

@@ -3,17 +3,18 @@
 //! never by neither, so light cannot leak through the seams of a closed mesh.
 
 use super::Ray;
-use glam::{Mat3A, Vec3, Vec3A};
+use glam::Vec3;
 
-/// Per-ray constants of the watertight test: the axis permutation that makes `d.z` the largest
-/// component and the shear that maps the ray onto +z, folded into one matrix `m` so that
-/// `m · (v − o)` gives a vertex's sheared coordinates (x', y', z'·S_z) with SIMD products. The zero
-/// entries of `m` contribute exact zeros, so the values are bit-identical to the scalar formulas of
-/// the paper, and so is the watertightness.
+/// Per-ray constants of the watertight test: the axis permutation (kx, ky, kz) that makes `d.z`
+/// the largest component, and the shear (sx, sy, sz) that maps the ray onto +z. A vertex's sheared
+/// coordinates are x' = (v−o)[kx] − sx·(v−o)[kz], y' = (v−o)[ky] − sy·(v−o)[kz],
+/// z' = sz·(v−o)[kz], exactly as in the paper; the 4-wide packet test of the BVH performs the same
+/// operations lane by lane, so both give the same bits.
 #[derive(Clone, Copy, Debug)]
 pub struct RayPrecomp {
-    pub o: Vec3A,
-    m: Mat3A,
+    pub o: Vec3,
+    pub(crate) k: [usize; 3],
+    pub(crate) s: [f32; 3],
 }
 
 impl RayPrecomp {
@@ -37,19 +38,20 @@ impl RayPrecomp {
         if d[kz] < 0.0 {
             std::mem::swap(&mut kx, &mut ky);
         }
-        let (sx, sy, sz) = (d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]);
-        // Rows of the matrix: x' = v[kx] − sx·v[kz], y' = v[ky] − sy·v[kz], z' = sz·v[kz].
-        let mut rows = [[0.0f32; 3]; 3];
-        rows[0][kx] = 1.0;
-        rows[0][kz] = -sx;
-        rows[1][ky] = 1.0;
-        rows[1][kz] = -sy;
-        rows[2][kz] = sz;
-        let m = Mat3A::from_cols_array_2d(&rows).transpose();
         RayPrecomp {
-            o: Vec3A::from(ray.o),
-            m,
+            o: ray.o,
+            k: [kx, ky, kz],
+            s: [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]],
         }
+    }
+
+    /// A vertex's sheared coordinates.
+    #[inline(always)]
+    fn shear(&self, v: Vec3) -> Vec3 {
+        let d = v - self.o;
+        let [kx, ky, kz] = self.k;
+        let [sx, sy, sz] = self.s;
+        Vec3::new(d[kx] - sx * d[kz], d[ky] - sy * d[kz], sz * d[kz])
     }
 }
 
@@ -64,9 +66,9 @@ pub struct TriangleHit {
 /// Intersects the ray with triangle `v` for t in (0, t_max). Both faces are hit.
 #[inline(always)]
 pub fn intersect_watertight(r: &RayPrecomp, v: &[Vec3; 3], t_max: f32) -> Option<TriangleHit> {
-    let a = r.m * (Vec3A::from(v[0]) - r.o);
-    let b = r.m * (Vec3A::from(v[1]) - r.o);
-    let c = r.m * (Vec3A::from(v[2]) - r.o);
+    let a = r.shear(v[0]);
+    let b = r.shear(v[1]);
+    let c = r.shear(v[2]);
     let (ax, ay, bx, by, cx, cy) = (a.x, a.y, b.x, b.y, c.x, c.y);
     let mut u = cx * by - cy * bx;
     let mut vv = ax * cy - ay * cx;

@@ -122,7 +122,12 @@ pub fn trace_path(
         }
 
         // 3. Continue the path.
-        let u_lobe = sampler.bounce1(depth, dims::BSDF_LOBE);
+        // A pure Lambertian has one lobe: its dimension is not drawn at all.
+        let u_lobe = if bsdf.single_lobe() {
+            0.0
+        } else {
+            sampler.bounce1(depth, dims::BSDF_LOBE)
+        };
         let Some(bs) = bsdf.sample(wo, u_lobe, sampler.bounce2(depth, dims::BSDF_DIR)) else {
             break;
         };

@@ -1,6 +1,6 @@
 /// A 32-bit integer hash with good avalanche (the "lowbias32" finaliser by Chris Wellons).
 #[inline]
-pub fn hash_u32(mut x: u32) -> u32 {
+pub const fn hash_u32(mut x: u32) -> u32 {
     x ^= x >> 16;
     x = x.wrapping_mul(0x21f0_aaad);
     x ^= x >> 15;

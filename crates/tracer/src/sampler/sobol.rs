@@ -122,8 +122,30 @@ fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
 
 #[inline]
 fn group_seed(pixel_key: u32, dim: u32) -> u32 {
-    hash_u32(pixel_key ^ hash_u32((dim >> 2).wrapping_add(0x68bc_21eb)))
+    let group = dim >> 2;
+    let group_key = match GROUP_KEYS.get(group as usize) {
+        Some(&k) => k,
+        None => group_key(group),
+    };
+    hash_u32(pixel_key ^ group_key)
 }
+
+/// The hash of a dimension group's number, mixed into every pixel's key.
+const fn group_key(group: u32) -> u32 {
+    hash_u32(group.wrapping_add(0x68bc_21eb))
+}
+
+/// [`group_key`] of the first groups (21 bounces), computed at compile time: one hash fewer per
+/// sample value.
+static GROUP_KEYS: [u32; 256] = {
+    let mut t = [0u32; 256];
+    let mut g = 0;
+    while g < 256 {
+        t[g] = group_key(g as u32);
+        g += 1;
+    }
+    t
+};
 
 #[inline]
 /// Component `component` of the group whose shuffled index, bit-reversed, is `shuffled_rev`:

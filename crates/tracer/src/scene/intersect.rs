@@ -2,7 +2,7 @@
 //! interaction at a hit.
 
 use super::Scene;
-use crate::geometry::{intersect_watertight, Ray, RayPrecomp};
+use crate::geometry::{Ray, RayPrecomp};
 use crate::sampler::hash_u32;
 use glam::{Vec2, Vec3, Vec4};
 
@@ -55,53 +55,32 @@ impl Scene {
     #[inline]
     pub fn intersect(&self, ray: &Ray, t_max: f32, alpha_u: f32) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
-        let positions = &self.mesh.positions;
-        let mut best = Hit {
-            t: t_max,
-            triangle: u32::MAX,
-            b1: 0.0,
-            b2: 0.0,
+        let found = if self.any_alpha {
+            self.bvh.closest(&pre, ray.d, t_max, |id, h| {
+                !self.passes_through(id as usize, h.b1, h.b2, alpha_u)
+            })
+        } else {
+            self.bvh.closest(&pre, ray.d, t_max, |_, _| true)
         };
-        let any_alpha = self.any_alpha;
-        self.bvh.closest(ray.o, ray.d, t_max, |id, _| {
-            // Accept ties (t equal to the best so far) and break them by triangle index, so the
-            // result never depends on traversal order.
-            let limit = if best.triangle == u32::MAX {
-                best.t
-            } else {
-                next_up(best.t)
-            };
-            match intersect_watertight(&pre, &positions[id], limit) {
-                Some(h) if h.t < best.t || (h.t == best.t && (id as u32) < best.triangle) => {
-                    if any_alpha && self.passes_through(id, h.b1, h.b2, alpha_u) {
-                        return f32::INFINITY;
-                    }
-                    best = Hit {
-                        t: h.t,
-                        triangle: id as u32,
-                        b1: h.b1,
-                        b2: h.b2,
-                    };
-                    h.t
-                }
-                _ => f32::INFINITY,
-            }
-        });
-        (best.triangle != u32::MAX).then_some(best)
+        found.map(|(triangle, h)| Hit {
+            t: h.t,
+            triangle,
+            b1: h.b1,
+            b2: h.b2,
+        })
     }
 
     /// True if nothing blocks the segment from `ray.o` along `ray.d` up to distance `t_max`.
     #[inline]
     pub fn visible(&self, ray: &Ray, t_max: f32, alpha_u: f32) -> bool {
         let pre = RayPrecomp::new(ray);
-        let positions = &self.mesh.positions;
-        let any_alpha = self.any_alpha;
-        !self.bvh.any(ray.o, ray.d, t_max, |id, tm| {
-            match intersect_watertight(&pre, &positions[id], tm) {
-                Some(h) if !(any_alpha && self.passes_through(id, h.b1, h.b2, alpha_u)) => h.t,
-                _ => f32::INFINITY,
-            }
-        })
+        if self.any_alpha {
+            !self.bvh.any(&pre, ray.d, t_max, |id, h| {
+                !self.passes_through(id as usize, h.b1, h.b2, alpha_u)
+            })
+        } else {
+            !self.bvh.any(&pre, ray.d, t_max, |_, _| true)
+        }
     }
 
     #[inline]
@@ -159,14 +138,5 @@ impl Scene {
             triangle: hit.triangle,
             front: ray.d.dot(ng) < 0.0,
         }
-    }
-}
-
-#[inline]
-fn next_up(x: f32) -> f32 {
-    if x.is_finite() && x >= 0.0 {
-        f32::from_bits(x.to_bits() + 1)
-    } else {
-        x
     }
 }

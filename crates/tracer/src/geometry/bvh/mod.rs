@@ -1,0 +1,425 @@
+//! The acceleration structure: a 4-wide BVH whose nodes test their four children's boxes in one
+//! SIMD slab test and whose leaves test four triangles at once (`packet.rs`), built from obvhs'
+//! binary PLOC BVH (`build.rs`).
+//!
+//! Contract: [`Bvh::closest`] reports the hit with the smallest (t, triangle index) among all
+//! triangles hit in (0, t_max) that the filter accepts — ties broken by index, so the answer never
+//! depends on traversal order; [`Bvh::any`] reports whether such a hit exists. The box tests are
+//! conservative (padded boxes, a widened far distance), so they never cull a triangle that the
+//! watertight test would hit.
+
+mod build;
+mod node;
+mod packet;
+
+use super::{Mesh, RayPrecomp, TriangleHit};
+use glam::{Vec3, Vec4};
+use node::{Node4, NodeRef, TriPacket};
+use packet::{intersect_packet, PacketRay};
+
+/// Entries of the traversal stack kept on the machine stack; a deeper tree (which the build never
+/// produced in practice) continues in a recursive call rather than failing.
+const STACK: usize = 96;
+
+/// The slab test widens the far distance by this factor (Ize, "Robust BVH Ray Traversal", 2013:
+/// 1 + 2γ₃ covers the rounding of the subtraction and the product).
+const FAR_WIDEN: f32 = 1.0 + 4.0 * f32::EPSILON;
+
+/// A BVH over a [`Mesh`]. After [`Bvh::build`] the mesh must be reordered with the returned order, so
+/// that BVH triangle `i` is mesh triangle `i` (no indirection on the hot path).
+#[derive(Clone, Debug, Default)]
+pub struct Bvh {
+    nodes: Vec<Node4>,
+    packets: Vec<TriPacket>,
+    root: Option<NodeRef>,
+    depth: usize,
+}
+
+/// The per-ray constants of the box tests.
+struct BoxRay {
+    o: [Vec4; 3],
+    inv_d: [Vec4; 3],
+    /// Per axis, which side of the box (0: lower, 1: upper bound) the ray enters by.
+    near_side: [usize; 3],
+}
+
+impl BoxRay {
+    #[inline(always)]
+    fn new(o: Vec3, d: Vec3) -> BoxRay {
+        // A direction component of exactly zero would make 0 · ∞ = NaN at a slab through the
+        // origin; nudged to a tiny value, the slab is crossed at a huge but finite distance, and the
+        // padded boxes cover the nudge's displacement. Only the box tests see it.
+        let inv = |c: f32| {
+            let c = if c.abs() < 1e-9 {
+                1e-9f32.copysign(c)
+            } else {
+                c
+            };
+            1.0 / c
+        };
+        let inv_d = [inv(d.x), inv(d.y), inv(d.z)];
+        BoxRay {
+            o: [Vec4::splat(o.x), Vec4::splat(o.y), Vec4::splat(o.z)],
+            inv_d: inv_d.map(Vec4::splat),
+            near_side: inv_d.map(|i| usize::from(i < 0.0)),
+        }
+    }
+
+    /// Lane k: whether the ray meets child k's box within [0, t_max], and where it enters it.
+    #[inline(always)]
+    fn test(&self, n: &Node4, t_max: f32) -> (u32, Vec4) {
+        let slab =
+            |axis: usize, side: usize| (n.bounds[side][axis] - self.o[axis]) * self.inv_d[axis];
+        let [sx, sy, sz] = self.near_side;
+        let near = slab(0, sx)
+            .max(slab(1, sy))
+            .max(slab(2, sz).max(Vec4::ZERO));
+        let far = slab(0, 1 - sx)
+            .min(slab(1, 1 - sy))
+            .min(slab(2, 1 - sz).min(Vec4::splat(t_max)))
+            * FAR_WIDEN;
+        (near.cmple(far).bitmask() & n.valid, near)
+    }
+}
+
+impl Bvh {
+    /// Builds the BVH; returns it and the triangle order (`order[k]` = old index of new triangle k).
+    pub fn build(mesh: &Mesh) -> (Bvh, Vec<u32>) {
+        if mesh.is_empty() {
+            return (Bvh::default(), Vec::new());
+        }
+        let built = build::build(mesh);
+        let bvh = Bvh {
+            nodes: built.nodes,
+            packets: built.packets,
+            root: Some(built.root),
+            depth: built.depth,
+        };
+        (bvh, built.order)
+    }
+
+    /// Number of BVH nodes (for memory reports).
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Depth of the 4-wide tree (the root is depth 1).
+    pub fn depth(&self) -> usize {
+        self.depth
+    }
+
+    /// Approximate memory in bytes.
+    pub fn bytes(&self) -> usize {
+        self.nodes.len() * std::mem::size_of::<Node4>()
+            + self.packets.len() * std::mem::size_of::<TriPacket>()
+    }
+
+    /// The closest hit in (0, t_max) among the triangles `accept(index, hit)` lets through (it
+    /// decides alpha cutouts), with ties in t broken towards the smaller triangle index.
+    #[inline]
+    pub fn closest(
+        &self,
+        pre: &RayPrecomp,
+        d: Vec3,
+        t_max: f32,
+        mut accept: impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> Option<(u32, TriangleHit)> {
+        let root = self.root?;
+        let ray = PacketRay::new(pre);
+        let boxes = BoxRay::new(pre.o, d);
+        let mut best = Closest {
+            t: t_max,
+            id: u32::MAX,
+            hit: TriangleHit {
+                t: t_max,
+                b1: 0.0,
+                b2: 0.0,
+            },
+        };
+        self.closest_from(root, &ray, &boxes, &mut best, &mut accept);
+        (best.id != u32::MAX).then_some((best.id, best.hit))
+    }
+
+    fn closest_from(
+        &self,
+        root: NodeRef,
+        ray: &PacketRay,
+        boxes: &BoxRay,
+        best: &mut Closest,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) {
+        let mut stack = [(NodeRef::NONE, 0.0f32); STACK];
+        let mut sp = 0usize;
+        let mut node = root;
+        loop {
+            if node.is_leaf() {
+                for p in &self.packets[node.packets()] {
+                    // Accept ties (t equal to the best so far) so they can be broken by index.
+                    let limit = if best.id == u32::MAX {
+                        best.t
+                    } else {
+                        next_up(best.t)
+                    };
+                    let hits = intersect_packet(ray, p, limit);
+                    let mut m = hits.mask;
+                    while m != 0 {
+                        let k = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        let h = hits.get(k);
+                        let id = p.first_id + k as u32;
+                        if (h.t < best.t || (h.t == best.t && id < best.id)) && accept(id, &h) {
+                            *best = Closest { t: h.t, id, hit: h };
+                        }
+                    }
+                }
+            } else {
+                let n = &self.nodes[node.index()];
+                let (mask, near) = boxes.test(n, best.t);
+                if mask != 0 {
+                    let near = near.to_array();
+                    // Visit the nearest child next; push the others far to near.
+                    let mut order = [(0.0f32, NodeRef::NONE); 4];
+                    let mut count = 0;
+                    let mut m = mask;
+                    while m != 0 {
+                        let k = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        let entry = (near[k], n.child[k]);
+                        // Insertion sort, farthest first.
+                        let mut j = count;
+                        while j > 0 && order[j - 1].0 < entry.0 {
+                            order[j] = order[j - 1];
+                            j -= 1;
+                        }
+                        order[j] = entry;
+                        count += 1;
+                    }
+                    for &(t, child) in &order[..count - 1] {
+                        if sp == STACK {
+                            // Deeper than the fixed stack: finish this subtree recursively.
+                            self.closest_from(child, ray, boxes, best, accept);
+                        } else {
+                            stack[sp] = (child, t);
+                            sp += 1;
+                        }
+                    }
+                    node = order[count - 1].1;
+                    continue;
+                }
+            }
+            // Pop the next subtree that can still hold a closer (or tying) hit.
+            loop {
+                if sp == 0 {
+                    return;
+                }
+                sp -= 1;
+                let (next, near) = stack[sp];
+                if near <= best.t {
+                    node = next;
+                    break;
+                }
+            }
+        }
+    }
+
+    /// True if some triangle that `accept(index, hit)` lets through is hit in (0, t_max).
+    #[inline]
+    pub fn any(
+        &self,
+        pre: &RayPrecomp,
+        d: Vec3,
+        t_max: f32,
+        mut accept: impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
+        let Some(root) = self.root else { return false };
+        let ray = PacketRay::new(pre);
+        let boxes = BoxRay::new(pre.o, d);
+        self.any_from(root, &ray, &boxes, t_max, &mut accept)
+    }
+
+    fn any_from(
+        &self,
+        root: NodeRef,
+        ray: &PacketRay,
+        boxes: &BoxRay,
+        t_max: f32,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
+        let mut stack = [NodeRef::NONE; STACK];
+        let mut sp = 0usize;
+        let mut node = root;
+        loop {
+            if node.is_leaf() {
+                for p in &self.packets[node.packets()] {
+                    let hits = intersect_packet(ray, p, t_max);
+                    let mut m = hits.mask;
+                    while m != 0 {
+                        let k = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        if accept(p.first_id + k as u32, &hits.get(k)) {
+                            return true;
+                        }
+                    }
+                }
+            } else {
+                let n = &self.nodes[node.index()];
+                let (mut m, _) = boxes.test(n, t_max);
+                while m != 0 {
+                    let k = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    if sp == STACK {
+                        if self.any_from(n.child[k], ray, boxes, t_max, accept) {
+                            return true;
+                        }
+                    } else {
+                        stack[sp] = n.child[k];
+                        sp += 1;
+                    }
+                }
+            }
+            if sp == 0 {
+                return false;
+            }
+            sp -= 1;
+            node = stack[sp];
+        }
+    }
+}
+
+struct Closest {
+    /// The best distance so far (t_max until a hit is found).
+    t: f32,
+    id: u32,
+    hit: TriangleHit,
+}
+
+#[inline]
+fn next_up(x: f32) -> f32 {
+    if x.is_finite() && x >= 0.0 {
+        f32::from_bits(x.to_bits() + 1)
+    } else {
+        x
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{intersect_watertight, Ray};
+
+    #[test]
+    fn tiny_meshes_are_hit() {
+        for n in 1..=9 {
+            let mut mesh = Mesh::default();
+            for k in 0..n {
+                let z = -(k as f32) - 1.0;
+                let (a, b, c) = (
+                    Vec3::new(-1., -1., z),
+                    Vec3::new(1., -1., z),
+                    Vec3::new(0., 1., z),
+                );
+                mesh.positions.push([a, b, c]);
+                mesh.material.push(0);
+            }
+            let (bvh, order) = Bvh::build(&mesh);
+            mesh.reorder(&order);
+            for (o, d, t) in [
+                (
+                    Vec3::new(0.01, 0.02, 0.5),
+                    Vec3::new(0.001, 0.002, -1.0).normalize(),
+                    1.5,
+                ),
+                // Axis-parallel rays (every ray of an orthographic camera).
+                (Vec3::new(0.1, 0.2, 0.0), -Vec3::Z, 1.0),
+                (Vec3::ZERO, -Vec3::Z, 1.0),
+            ] {
+                let pre = RayPrecomp::new(&Ray::new(o, d));
+                let (id, hit) = bvh
+                    .closest(&pre, d, f32::INFINITY, |_, _| true)
+                    .unwrap_or_else(|| panic!("{n} triangles: missed {d}"));
+                assert!((hit.t - t).abs() < 1e-4, "{n} triangles, {d}: {}", hit.t);
+                let direct = intersect_watertight(&pre, &mesh.positions[id as usize], 10.0);
+                assert_eq!(direct, Some(hit), "the reported hit is triangle {id}'s");
+                assert!(bvh.any(&pre, d, 10.0, |_, _| true));
+                assert!(
+                    !bvh.any(&pre, d, t * 0.99, |_, _| true),
+                    "{n}: hit before t"
+                );
+                assert!(
+                    !bvh.any(&pre, d, 10.0, |_, _| false),
+                    "the filter is obeyed"
+                );
+            }
+        }
+    }
+
+    /// Against brute force over every triangle, on a random soup with shared vertices and ties:
+    /// the same (t, index) for every ray, and the same visibility.
+    #[test]
+    fn matches_brute_force_on_a_random_soup() {
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        let mut rng = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut mesh = Mesh::default();
+        let mut verts: Vec<Vec3> = Vec::new();
+        for _ in 0..600 {
+            verts.push(Vec3::new(rng(), rng(), rng()) * 10.0 - 5.0);
+        }
+        for k in 0..3000 {
+            let i = |r: f32| ((r * verts.len() as f32) as usize).min(verts.len() - 1);
+            let a = verts[i(rng())];
+            // Small triangles around shared vertices, plus exact duplicates (ties).
+            let b = a + Vec3::new(rng(), rng(), rng()) - 0.5;
+            let c = a + Vec3::new(rng(), rng(), rng()) - 0.5;
+            mesh.positions.push([a, b, c]);
+            mesh.material.push(0);
+            if k % 50 == 0 {
+                mesh.positions.push([a, b, c]);
+                mesh.material.push(0);
+            }
+        }
+        let (bvh, order) = Bvh::build(&mesh);
+        mesh.reorder(&order);
+        assert!(bvh.depth() >= 3, "depth {}", bvh.depth());
+        let mut hits = 0;
+        for _ in 0..4000 {
+            let o = Vec3::new(rng(), rng(), rng()) * 12.0 - 6.0;
+            let d = (Vec3::new(rng(), rng(), rng()) * 2.0 - 1.0).normalize_or(Vec3::Y);
+            let pre = RayPrecomp::new(&Ray::new(o, d));
+            let t_max = if rng() < 0.5 { 3.0 } else { f32::INFINITY };
+            let mut want: Option<(u32, TriangleHit)> = None;
+            for (id, tri) in mesh.positions.iter().enumerate() {
+                if let Some(h) = intersect_watertight(&pre, tri, t_max) {
+                    if want.is_none_or(|(_, b)| h.t < b.t) {
+                        want = Some((id as u32, h));
+                    }
+                }
+            }
+            let got = bvh.closest(&pre, d, t_max, |_, _| true);
+            assert_eq!(got, want, "ray {o} {d}");
+            assert_eq!(bvh.any(&pre, d, t_max, |_, _| true), want.is_some());
+            hits += want.is_some() as u32;
+            // A filter that rejects the nearest triangle finds the next one.
+            if let Some((first, _)) = want {
+                let next = bvh.closest(&pre, d, t_max, |id, _| id != first);
+                let mut brute: Option<(u32, TriangleHit)> = None;
+                for (id, tri) in mesh.positions.iter().enumerate() {
+                    if id as u32 == first {
+                        continue;
+                    }
+                    if let Some(h) = intersect_watertight(&pre, tri, t_max) {
+                        if brute.is_none_or(|(_, b)| h.t < b.t) {
+                            brute = Some((id as u32, h));
+                        }
+                    }
+                }
+                assert_eq!(next, brute);
+            }
+        }
+        assert!(hits > 500, "{hits}: the rays do not exercise the BVH");
+    }
+}
