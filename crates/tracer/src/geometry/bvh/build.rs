@@ -37,7 +37,7 @@ pub(super) struct Built {
 
 /// The largest triangle count of a binary leaf: two packets. obvhs' collapse decides by SAH how
 /// many triangles a leaf gets up to this bound.
-const MAX_PRIMS_PER_LEAF: u32 = 8;
+const MAX_PRIMS_PER_LEAF: u32 = 4;
 
 pub(super) fn build(mesh: &Mesh) -> Built {
     // Every triangle's box is padded by a small fraction of the scene's size and a few ulps of its
