@@ -3,7 +3,7 @@
 //! a transaction on the shared store, so any number of servers can run it side by side.
 
 use crate::states::JobEvent;
-use crate::store::{now_ms, Estimate};
+use crate::store::{now_ms, Estimate, JobRow};
 use crate::AppState;
 use pathfarm_wire::api::JobState;
 
@@ -38,25 +38,7 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
             Ok(j) => j,
             Err(_) => continue, // deleted meanwhile
         };
-        let img = state
-            .images
-            .get(store, &id, job.settings.width, job.settings.height)
-            .await?;
-        let err = if img.min_samples >= 2 {
-            img.acc.relative_error()
-        } else {
-            None
-        };
-        let samples = img.acc.total_samples();
-        let target_reached =
-            matches!((job.settings.noise_target, err), (Some(t), Some(e)) if e <= t);
-        let estimate = Estimate {
-            version: img.version,
-            relative_error: err,
-            samples,
-            last: target_reached || samples >= job.samples_planned || job.state.is_final(),
-        };
-        store.record_estimate(&id, &estimate).await?;
+        let err = refresh_estimate(state, &job).await?;
         if job.state == JobState::Running {
             if let (Some(target), Some(err)) = (job.settings.noise_target, err) {
                 if err <= target {
@@ -86,4 +68,34 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
         }
     }
     Ok(())
+}
+
+/// Estimates the relative error of the job's current image and records it (with a convergence
+/// point when one is due). The monitor calls it for every job whose image changed; `GET
+/// /jobs/{id}` calls it for a finished job whose last image the monitor has not seen yet, so the
+/// final answer carries the final image's error at once rather than one monitor tick later.
+pub async fn refresh_estimate(
+    state: &AppState,
+    job: &JobRow,
+) -> Result<Option<f64>, crate::error::ApiError> {
+    let store = &state.store;
+    let img = state
+        .images
+        .get(store, &job.id, job.settings.width, job.settings.height)
+        .await?;
+    let err = if img.min_samples >= 2 {
+        img.acc.relative_error()
+    } else {
+        None
+    };
+    let samples = img.acc.total_samples();
+    let target_reached = matches!((job.settings.noise_target, err), (Some(t), Some(e)) if e <= t);
+    let estimate = Estimate {
+        version: img.version,
+        relative_error: err,
+        samples,
+        last: target_reached || samples >= job.samples_planned || job.state.is_final(),
+    };
+    store.record_estimate(&job.id, &estimate).await?;
+    Ok(err)
 }

@@ -319,7 +319,12 @@ pub async fn show(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<JobView>> {
-    let job = state.store.job(&id).await?;
+    let mut job = state.store.job(&id).await?;
+    if job.state.is_final() && job.rel_error_version < job.version {
+        // The last merges finished the job before the monitor estimated their image: estimate it
+        // now, so a client that waited for the end reads the final error, not a stale one.
+        job.rel_error = crate::monitor::refresh_estimate(&state, &job).await?;
+    }
     let tiles = state
         .store
         .tiles(&id)

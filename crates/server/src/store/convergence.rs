@@ -23,16 +23,27 @@ pub struct Estimate {
     pub last: bool,
 }
 
+/// An optional error as a bindable number: −1 (which no relative error is) for none, turned back
+/// into NULL by the SQL (`NULLIF(…, -1.0)`).
+///
+/// Why not bind the `Option<f64>`: sqlx 0.9's `Any` driver sends a `None` of `f64` to PostgreSQL
+/// as a NULL *float4* (`AnyArguments::convert_into` maps `Null(Double)` to `Option::<f32>`). The
+/// connection caches the statement with that parameter type, and every later estimate bound on
+/// that connection as a float8 then fails with "incorrect binary data format in bind parameter 1".
+fn bindable_error(e: Option<f64>) -> f64 {
+    e.unwrap_or(-1.0)
+}
+
 impl Store {
     /// Stores the job's current error estimate (unless a newer one is already stored, as another
     /// server may have made it) and adds a point to its history when enough time has passed.
     pub async fn record_estimate(&self, id: &str, e: &Estimate) -> ApiResult<()> {
         let mut w = self.write().await?;
         let row = sqlx::query(
-            "UPDATE jobs SET rel_error = $1, rel_error_version = $2 \
+            "UPDATE jobs SET rel_error = NULLIF($1, -1.0), rel_error_version = $2 \
              WHERE id = $3 AND rel_error_version < $2 RETURNING started_ms, finished_ms",
         )
-        .bind(e.relative_error)
+        .bind(bindable_error(e.relative_error))
         .bind(e.version)
         .bind(id)
         .fetch_optional(&mut *w.tx)
@@ -57,12 +68,12 @@ impl Store {
             if (due || e.last) && last.is_none_or(|last| elapsed > last) {
                 sqlx::query(
                     "INSERT INTO job_progress (job_id, elapsed_ms, samples_done, rel_error) \
-                     VALUES ($1, $2, $3, $4) ON CONFLICT (job_id, elapsed_ms) DO NOTHING",
+                     VALUES ($1, $2, $3, NULLIF($4, -1.0)) ON CONFLICT (job_id, elapsed_ms) DO NOTHING",
                 )
                 .bind(id)
                 .bind(elapsed)
                 .bind(e.samples as i64)
-                .bind(e.relative_error)
+                .bind(bindable_error(e.relative_error))
                 .execute(&mut *w.tx)
                 .await?;
             }

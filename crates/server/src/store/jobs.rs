@@ -10,8 +10,8 @@ use sqlx::any::AnyRow;
 use sqlx::Row;
 
 const JOB_COLUMNS: &str = "id, name, scene_hash, settings, priority, state, samples_planned, \
-    samples_done, queued_tasks, leased_tasks, version, rel_error, created_ms, started_ms, \
-    finished_ms, message";
+    samples_done, queued_tasks, leased_tasks, version, rel_error, rel_error_version, created_ms, \
+    started_ms, finished_ms, message";
 
 /// A job as stored.
 #[derive(Clone, Debug)]
@@ -29,6 +29,8 @@ pub struct JobRow {
     /// Incremented by every merged slice: the image changes exactly when this does.
     pub version: i64,
     pub rel_error: Option<f64>,
+    /// The version `rel_error` was estimated at (behind `version` until the monitor catches up).
+    pub rel_error_version: i64,
     pub created_ms: i64,
     pub started_ms: Option<i64>,
     pub finished_ms: Option<i64>,
@@ -53,6 +55,7 @@ impl JobRow {
             leased_tasks: row.try_get::<i64, _>("leased_tasks")? as u64,
             version: row.try_get("version")?,
             rel_error: row.try_get("rel_error")?,
+            rel_error_version: row.try_get("rel_error_version")?,
             created_ms: row.try_get("created_ms")?,
             started_ms: row.try_get("started_ms")?,
             finished_ms: row.try_get("finished_ms")?,
