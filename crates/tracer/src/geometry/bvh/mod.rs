@@ -17,9 +17,10 @@ use glam::{Vec3, Vec4};
 use node::{Node4, NodeRef, TriPacket};
 use packet::{intersect_packet, PacketRay};
 
-/// Entries of the traversal stack kept on the machine stack; a deeper tree (which the build never
-/// produced in practice) continues in a recursive call rather than failing.
-const STACK: usize = 96;
+/// Entries of the traversal stack kept on the machine stack. Small on purpose: the array is filled
+/// on every ray, and a million-triangle tree needs about three entries per level of its ~12; a
+/// deeper traversal continues in a recursive call rather than failing.
+const STACK: usize = 32;
 
 /// The slab test widens the far distance by this factor (Ize, "Robust BVH Ray Traversal", 2013:
 /// 1 + 2γ₃ covers the rounding of the subtraction and the product).
