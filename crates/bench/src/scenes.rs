@@ -187,24 +187,8 @@ pub fn cornell_with_sphere(
     let bytes = read(&path)?;
     let mut parts = gltf::load_parts(&bytes, &NoExternalResources, &LoadOptions::default())
         .map_err(|e| err(format!("{}: {e}", path.display())))?;
-    // The sphere's triangles carry positions only; appended to a mesh with per-triangle normals,
-    // UVs or tangents they would leave those arrays short.
-    let m = &parts.mesh;
-    if m.normals.is_some() || m.uv0.is_some() || m.uv1.is_some() || m.tangents.is_some() {
-        return Err(err(format!(
-            "{}: the Cornell box is expected to have positions only",
-            path.display()
-        )));
-    }
-    let sphere = scene_gen::bench_sphere(freq);
-    let material = parts.materials.len() as u32;
-    parts.materials.push(scene_gen::white_material());
-    let triangles = sphere.triangles();
-    parts
-        .mesh
-        .material
-        .extend(std::iter::repeat_n(material, triangles.len()));
-    parts.mesh.positions.extend(triangles);
+    scene_gen::add_white_mesh(&mut parts, &scene_gen::bench_sphere(freq))
+        .map_err(|e| err(format!("{}: {e}", path.display())))?;
     Ok((parts, fnv1a(&bytes, FNV_OFFSET)))
 }
 

@@ -242,20 +242,25 @@ pub fn cornell_parts() -> SceneParts {
 /// as `cornell_sphere.glb` when `sphere` is `bench_sphere(FREQ_330K)`.
 pub fn cornell_with(sphere: &IndexedMesh) -> SceneParts {
     let mut parts = cornell_parts();
-    assert!(
-        parts.mesh.normals.is_none()
-            && parts.mesh.uv0.is_none()
-            && parts.mesh.uv1.is_none()
-            && parts.mesh.tangents.is_none(),
-        "the Cornell box is expected to have positions only"
-    );
+    add_white_mesh(&mut parts, sphere).unwrap_or_else(|e| panic!("{e}"));
+    parts
+}
+
+/// Appends `mesh` to `parts` with a new [`white_material`]. The mesh carries positions only, so the
+/// scene must too: appended to a mesh with per-triangle normals, UVs or tangents it would leave
+/// those arrays short.
+pub fn add_white_mesh(parts: &mut SceneParts, mesh: &IndexedMesh) -> Result<(), &'static str> {
+    let m = &parts.mesh;
+    if m.normals.is_some() || m.uv0.is_some() || m.uv1.is_some() || m.tangents.is_some() {
+        return Err("the scene to extend is expected to have positions only");
+    }
     let material = parts.materials.len() as u32;
     parts.materials.push(white_material());
-    let tris = sphere.triangles();
+    let tris = mesh.triangles();
     parts
         .mesh
         .material
         .extend(std::iter::repeat_n(material, tris.len()));
     parts.mesh.positions.extend(tris);
-    parts
+    Ok(())
 }
