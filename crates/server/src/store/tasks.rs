@@ -5,11 +5,12 @@
 
 use super::group_commit::{Done, Op};
 use super::jobs::job_state;
+use super::statements::Statements;
 use super::{now_ms, Dialect, Store};
 use crate::error::{ApiError, ApiResult};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState};
 use pathfarm_tracer::Accumulation;
-use pathfarm_wire::api::{JobSettings, JobState, Lease, SliceAck, TileRect};
+use pathfarm_wire::api::{JobState, SliceAck};
 use pathfarm_wire::{decode_slice, encode_slice, Slice, SliceLimits};
 use sqlx::Row;
 
@@ -21,157 +22,15 @@ pub struct MergeOutcome {
     pub job_completed: bool,
 }
 
-fn task_state(s: &str) -> Result<TaskState, sqlx::Error> {
+pub(super) fn task_state(s: &str) -> Result<TaskState, sqlx::Error> {
     TaskState::parse(s).ok_or_else(|| sqlx::Error::Protocol(format!("unknown task state {s:?}")))
 }
 
-fn new_token() -> String {
+pub(super) fn new_token() -> String {
     uuid::Uuid::new_v4().simple().to_string()
 }
 
 impl Store {
-    /// Leases the next task for `worker_id`, or `None` when there is no work. Jobs are taken by
-    /// priority (highest first), then fair share (the job with the fewest leased tasks), then age;
-    /// within a job, by pass, so every tile gets its first samples before any gets more.
-    /// On SQLite leases share transactions with merges (group commit).
-    pub async fn lease(&self, worker_id: &str, lease_ms: u64) -> ApiResult<Option<Lease>> {
-        if self.write_queue.is_some() {
-            let op = Op::Lease {
-                worker_id: worker_id.to_string(),
-                lease_ms,
-            };
-            return match self.grouped(op).await? {
-                Done::Leased(lease) => Ok(lease.map(|l| *l)),
-                Done::Merged(_) => Err(ApiError::internal("a lease answered as a merge")),
-            };
-        }
-        let mut w = self.write().await?;
-        let lease = self.lease_in(&mut w.tx, worker_id, lease_ms).await?;
-        w.commit().await?;
-        Ok(lease)
-    }
-
-    /// The lease itself, inside the caller's transaction; client errors come before any write.
-    pub(super) async fn lease_in(
-        &self,
-        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
-        worker_id: &str,
-        lease_ms: u64,
-    ) -> ApiResult<Option<Lease>> {
-        let worker = sqlx::query("SELECT id FROM workers WHERE id = $1")
-            .bind(worker_id)
-            .fetch_optional(&mut **tx)
-            .await?;
-        if worker.is_none() {
-            return Err(ApiError::not_found("worker", worker_id));
-        }
-        let candidates = sqlx::query(
-            "SELECT id FROM jobs WHERE state IN ('queued', 'running') AND queued_tasks > 0 \
-             ORDER BY priority DESC, leased_tasks ASC, created_ms ASC, id ASC LIMIT 8",
-        )
-        .fetch_all(&mut **tx)
-        .await?;
-        for cand in candidates {
-            let job_id: String = cand.try_get("id")?;
-            let task = sqlx::query(sql!(
-                "SELECT id, tile_index, done_end, sample_end, state FROM tasks \
-                 WHERE job_id = $1 AND state = 'queued' ORDER BY pass, id LIMIT 1{}",
-                self.dialect().skip_locked()
-            ))
-            .bind(&job_id)
-            .fetch_optional(&mut **tx)
-            .await?;
-            let Some(task) = task else { continue };
-            let task_id: i64 = task.try_get("id")?;
-            let tile_index: i64 = task.try_get("tile_index")?;
-            let begin: i64 = task.try_get("done_end")?;
-            let end: i64 = task.try_get("sample_end")?;
-            let to = task_transition(
-                task_state(&task.try_get::<String, _>("state")?)?,
-                TaskEvent::Lease,
-            )
-            .map_err(ApiError::internal)?;
-            let token = new_token();
-            let now = now_ms();
-            let expires = now + lease_ms as i64;
-            sqlx::query(
-                "UPDATE tasks SET state = $1, lease_token = $2, worker_id = $3, \
-                 lease_expires_ms = $4, leases = leases + 1 WHERE id = $5",
-            )
-            .bind(to.as_str())
-            .bind(&token)
-            .bind(worker_id)
-            .bind(expires)
-            .bind(task_id)
-            .execute(&mut **tx)
-            .await?;
-            // The tile's rectangle and the job's row in one statement; only the job row is locked
-            // (tiles are not written here), so the lock order holds.
-            let job = sqlx::query(sql!(
-                "SELECT ti.x0, ti.y0, ti.width, ti.height, j.state, j.settings, j.scene_hash, \
-                 j.priority FROM tiles ti JOIN jobs j ON j.id = ti.job_id \
-                 WHERE ti.job_id = $1 AND ti.tile_index = $2{}",
-                match self.dialect() {
-                    Dialect::Sqlite => "",
-                    Dialect::Postgres => " FOR UPDATE OF j",
-                }
-            ))
-            .bind(&job_id)
-            .bind(tile_index)
-            .fetch_one(&mut **tx)
-            .await?;
-            let tile = &job;
-            let state = job_state(&job.try_get::<String, _>("state")?)?;
-            let job_to = job_transition(state, JobEvent::Leased).map_err(ApiError::internal)?;
-            sqlx::query(
-                "UPDATE jobs SET state = $1, started_ms = COALESCE(started_ms, $2), \
-                 queued_tasks = queued_tasks - 1, leased_tasks = leased_tasks + 1 WHERE id = $3",
-            )
-            .bind(job_to.as_str())
-            .bind(now)
-            .bind(&job_id)
-            .execute(&mut **tx)
-            .await?;
-            sqlx::query(
-                "UPDATE workers SET state = 'busy', current_task = $1, current_job = $2, \
-                 last_seen_ms = $3 WHERE id = $4",
-            )
-            .bind(task_id)
-            .bind(&job_id)
-            .bind(now)
-            .bind(worker_id)
-            .execute(&mut **tx)
-            .await?;
-            let settings: String = job.try_get("settings")?;
-            let settings: JobSettings = serde_json::from_str(&settings)
-                .map_err(|e| ApiError::internal(format!("stored settings: {e}")))?;
-            let g = |c: &str| tile.try_get::<i64, _>(c).map(|v| v as u32);
-            let lease = Lease {
-                task_id,
-                job_id: job_id.clone(),
-                lease_token: token,
-                lease_expires_in_ms: lease_ms,
-                scene_hash: job.try_get("scene_hash")?,
-                settings,
-                tile: TileRect {
-                    x0: g("x0")?,
-                    y0: g("y0")?,
-                    width: g("width")?,
-                    height: g("height")?,
-                },
-                sample_begin: begin as u32,
-                sample_end: end as u32,
-            };
-            return Ok(Some(lease));
-        }
-        sqlx::query("UPDATE workers SET state = 'idle', current_task = NULL, current_job = NULL, last_seen_ms = $1 WHERE id = $2")
-            .bind(now_ms())
-            .bind(worker_id)
-            .execute(&mut **tx)
-            .await?;
-        Ok(None)
-    }
-
     /// Merges one uploaded slice of a task, exactly once.
     ///
     /// A task's slices are merged in order: an upload must start where the merged part ends
@@ -352,42 +211,61 @@ impl Store {
             sample_end: u32::MAX,
             acc: merged,
         });
-        sqlx::query(
-            "UPDATE tiles SET samples = $1, accum = $2 WHERE job_id = $3 AND tile_index = $4",
-        )
-        .bind(new_samples as i64)
-        .bind(&encoded)
-        .bind(&job_id)
-        .bind(tile_index)
-        .execute(&mut **tx)
-        .await?;
         let complete = s_end == t_end;
         let to =
             task_transition(state, TaskEvent::Merged { complete }).map_err(ApiError::internal)?;
-        sqlx::query("UPDATE tasks SET done_end = $1, state = $2 WHERE id = $3")
-            .bind(s_end as i64)
-            .bind(to.as_str())
-            .bind(task_id)
-            .execute(&mut **tx)
-            .await?;
-        // One statement counts the samples and returns what decides completion; the state
-        // changes (a second statement) only on the job's last merge.
         let samples = n as u64 * a.pixels.len() as u64;
-        let job = sqlx::query(
-            "UPDATE jobs SET samples_done = samples_done + $1, version = version + 1, \
-             leased_tasks = leased_tasks - $2 WHERE id = $3 \
-             RETURNING state, samples_done, samples_planned",
-        )
-        .bind(samples as i64)
-        .bind(complete as i64)
-        .bind(&job_id)
-        .fetch_one(&mut **tx)
-        .await?;
+        let now = now_ms();
+        // The writes in lock order (tiles, tasks, jobs, workers), in one round trip on SQLite. The
+        // job's update returns what decides completion; its state changes (one more statement)
+        // only on the job's last merge.
+        let mut writes = Statements::new(self.dialect());
+        writes
+            .push(
+                "UPDATE tiles SET samples = $1, accum = $2 WHERE job_id = $3 AND tile_index = $4",
+                vec![
+                    (new_samples as i64).into(),
+                    encoded.into(),
+                    job_id.as_str().into(),
+                    tile_index.into(),
+                ],
+            )
+            .push(
+                "UPDATE tasks SET done_end = $1, state = $2 WHERE id = $3",
+                vec![(s_end as i64).into(), to.as_str().into(), task_id.into()],
+            )
+            .push(
+                "UPDATE jobs SET samples_done = samples_done + $1, version = version + 1, \
+                 leased_tasks = leased_tasks - $2 WHERE id = $3 \
+                 RETURNING state, samples_done, samples_planned",
+                vec![
+                    (samples as i64).into(),
+                    (complete as i64).into(),
+                    job_id.as_str().into(),
+                ],
+            );
+        if let Some(worker) = &worker_id {
+            writes.push(
+                "UPDATE workers SET samples_done = samples_done + $1, last_seen_ms = $2, \
+                 state = CASE WHEN $3 = 1 THEN 'idle' ELSE 'busy' END, \
+                 current_task = CASE WHEN $3 = 1 THEN NULL ELSE current_task END, \
+                 current_job = CASE WHEN $3 = 1 THEN NULL ELSE current_job END WHERE id = $4",
+                vec![
+                    (samples as i64).into(),
+                    now.into(),
+                    (complete as i64).into(),
+                    worker.as_str().into(),
+                ],
+            );
+        }
+        let rows = writes.run(tx).await?;
+        let job = rows
+            .first()
+            .ok_or_else(|| ApiError::internal(format!("job {job_id} vanished during a merge")))?;
         let current = job_state(&job.try_get::<String, _>("state")?)?;
         let done = job.try_get::<i64, _>("samples_done")? as u64;
         let planned = job.try_get::<i64, _>("samples_planned")? as u64;
         let job_completed = done >= planned;
-        let now = now_ms();
         let new_state = if job_completed {
             let to = job_transition(current, JobEvent::Complete).map_err(ApiError::internal)?;
             sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3")
@@ -400,20 +278,6 @@ impl Store {
         } else {
             current
         };
-        if let Some(worker) = &worker_id {
-            sqlx::query(
-                "UPDATE workers SET samples_done = samples_done + $1, last_seen_ms = $2, \
-                 state = CASE WHEN $3 = 1 THEN 'idle' ELSE 'busy' END, \
-                 current_task = CASE WHEN $3 = 1 THEN NULL ELSE current_task END, \
-                 current_job = CASE WHEN $3 = 1 THEN NULL ELSE current_job END WHERE id = $4",
-            )
-            .bind(samples as i64)
-            .bind(now)
-            .bind(complete as i64)
-            .bind(worker)
-            .execute(&mut **tx)
-            .await?;
-        }
         Ok(MergeOutcome {
             ack: SliceAck {
                 duplicate: false,
