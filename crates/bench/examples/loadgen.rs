@@ -1,6 +1,8 @@
 //! The simulated-worker load generator alone, for profiling the server's upload path:
 //! `cargo run --release -p pathfarm-bench --example loadgen -- [WORKERS] [SECONDS] [SCENE]`
-//! (defaults: 64 workers, 5 s, `scenes/cornell.gltf`), on a fresh SQLite file in the temp dir.
+//! (defaults: 64 workers, 5 s, `scenes/cornell.gltf`), on a fresh SQLite file in the temp dir, or on
+//! the database `PATHFARM_LOADGEN_DB` names (an empty PostgreSQL database: the run leaves its job
+//! there).
 
 use pathfarm_bench::farm::loadgen::{run, LoadgenConfig};
 
@@ -11,11 +13,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scene_path = args.get(2).map_or("scenes/cornell.gltf", String::as_str);
     let scene = std::fs::read(scene_path)?;
     let db = std::env::temp_dir().join(format!("pathfarm-loadgen-{}.db", std::process::id()));
-    let url = format!("sqlite://{}", db.display());
+    let (url, store) = match std::env::var("PATHFARM_LOADGEN_DB") {
+        Ok(url) => (url, "postgres"),
+        Err(_) => (format!("sqlite://{}", db.display()), "sqlite"),
+    };
     let rt = tokio::runtime::Runtime::new()?;
     let result = rt.block_on(run(
         &url,
-        "sqlite",
+        store,
         &scene,
         &LoadgenConfig::new(workers, seconds),
     ));
