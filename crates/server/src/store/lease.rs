@@ -25,11 +25,12 @@ macro_rules! candidate_jobs {
 }
 
 /// The chosen task: its row (`id`, `tile_index`, `done_end`, `sample_end`, `state`) and its
-/// tile's rectangle with its job's row (`x0`…`height`, `job_state`, `settings`, `scene_hash`).
+/// tile's rectangle with its job's row (`x0`…`height`, `job_state`, `settings`, `scene_hash`),
+/// a second row where the dialect read them apart (`None`: the task's row holds them too).
 struct Picked {
     job_id: String,
     task: AnyRow,
-    job: AnyRow,
+    job: Option<AnyRow>,
 }
 
 impl Store {
@@ -82,6 +83,7 @@ impl Store {
             TaskEvent::Lease,
         )
         .map_err(ApiError::internal)?;
+        let job = job.as_ref().unwrap_or(&task);
         let state = job_state(&job.try_get::<String, _>("job_state")?)?;
         let job_to = job_transition(state, JobEvent::Leased).map_err(ApiError::internal)?;
         let settings: String = job.try_get("settings")?;
@@ -171,8 +173,8 @@ async fn pick_sqlite(
     };
     Ok(Some(Picked {
         job_id,
-        task: row.clone(),
-        job: row,
+        task: row,
+        job: None,
     }))
 }
 
@@ -217,7 +219,11 @@ async fn pick_postgres(
         .bind(task.try_get::<i64, _>("tile_index")?)
         .fetch_one(&mut **tx)
         .await?;
-        return Ok(Some(Picked { job_id, task, job }));
+        return Ok(Some(Picked {
+            job_id,
+            task,
+            job: Some(job),
+        }));
     }
     Ok(None)
 }
