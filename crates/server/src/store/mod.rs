@@ -140,9 +140,10 @@ impl Store {
                     if dialect == Dialect::Sqlite {
                         // WAL: readers never block the writer; NORMAL sync is durable across a
                         // process crash (only an OS crash can lose the last transactions).
-                        // A 64 MiB page cache and memory-mapped reads: with SQLite's default
-                        // 2 MB cache a farm's task and tile pages were read back with a system
-                        // call each.
+                        // A page cache of up to 64 MiB per connection (8 at most, so the
+                        // server's memory stays bounded): with SQLite's default 2 MB a farm's
+                        // task and tile pages were read back with a system call each.
+                        // (Memory-mapped reads were tried as well and were slower.)
                         conn.execute(
                             "PRAGMA journal_mode = WAL; PRAGMA synchronous = NORMAL; \
                              PRAGMA busy_timeout = 10000; PRAGMA foreign_keys = ON; \
