@@ -91,9 +91,19 @@ pub fn is_valid_sample(l: Vec3) -> bool {
         && l.z < MAX_SAMPLE_VALUE
 }
 
+/// `(v · 2³²).round()` as an integer, for v ≥ 0. Below 2⁵² the rounding is done with integer
+/// conversions (exact there: the fraction x − ⌊x⌋ is representable), because on baseline x86-64
+/// `f64::round` is a call into libm and the u128 conversion another; both ran on every sample.
 #[inline]
 fn to_fixed(v: f64) -> u128 {
-    (v * FIXED_SCALE).round() as u128
+    let x = v * FIXED_SCALE;
+    if x < 4_503_599_627_370_496.0 {
+        let floor = x as u64;
+        // Half away from zero, as `f64::round`, for x ≥ 0.
+        (floor + u64::from(x - floor as f64 >= 0.5)) as u128
+    } else {
+        x.round() as u128
+    }
 }
 
 /// A sample that produced NaN, an infinity, a negative value or an absurdly large one. It was not
@@ -247,6 +257,34 @@ impl Accumulation {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn to_fixed_rounds_as_f64_round() {
+        let mut s = 0x853c_49e6_748f_ea9bu64;
+        let mut cases = vec![
+            0.0,
+            0.5 / super::FIXED_SCALE,
+            1.5 / super::FIXED_SCALE,
+            1.0,
+            1e6,
+        ];
+        for _ in 0..100_000 {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            // Random magnitudes from 2⁻⁴⁰ to 2⁴⁰, and exact halves of the fixed-point unit.
+            let e = (s % 80) as i32 - 40;
+            cases.push((s >> 11) as f64 / (1u64 << 53) as f64 * 2f64.powi(e));
+            cases.push(((s >> 40) as f64 + 0.5) / super::FIXED_SCALE);
+        }
+        for v in cases {
+            assert_eq!(
+                super::to_fixed(v),
+                (v * super::FIXED_SCALE).round() as u128,
+                "{v}"
+            );
+        }
+    }
+
     use super::*;
 
     #[test]

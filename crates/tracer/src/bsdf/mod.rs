@@ -403,7 +403,7 @@ impl Bsdf {
         }
         let i = Vec3::new(li.x, li.y, li.z * s);
         let (f, pdf) = self.eval_pdf_local::<true, true>(o, i, eta, &t);
-        if pdf.is_nan() || pdf <= 0.0 || f == Vec3::ZERO {
+        if pdf.is_nan() || pdf <= 0.0 || crate::math::is_black(f) {
             return None;
         }
         Some(BsdfSample {

@@ -20,24 +20,19 @@ pub struct RayPrecomp {
 impl RayPrecomp {
     #[inline]
     pub fn new(ray: &Ray) -> Self {
-        let d = ray.d;
-        let a = d.abs();
-        let kz = if a.x > a.y {
-            if a.x > a.z {
-                0
-            } else {
-                2
-            }
-        } else if a.y > a.z {
-            1
-        } else {
-            2
-        };
-        let mut kx = (kz + 1) % 3;
-        let mut ky = (kx + 1) % 3;
-        if d[kz] < 0.0 {
-            std::mem::swap(&mut kx, &mut ky);
-        }
+        // Arrays rather than glam's `Vec3[i]`, which is a `match` on i: the axes depend on the
+        // direction, which is random, so every such branch would be mispredicted half the time.
+        // For the same reason the axis choice is written as selects.
+        let d = ray.d.to_array();
+        let a = ray.d.abs();
+        // kz: the largest |d| component (x, then y, then z on ties, as in the paper's code).
+        let x_over_y = a.x > a.y;
+        let (larger, larger_axis) = if x_over_y { (a.x, 0) } else { (a.y, 1) };
+        let kz = if larger > a.z { larger_axis } else { 2 };
+        // (kx, ky) = the two axes after kz in cyclic order, swapped for a negative d[kz] (which
+        // keeps the winding of the sheared triangle). A table, so no switch on kz is generated.
+        const AXES: [[[usize; 2]; 2]; 3] = [[[1, 2], [2, 1]], [[2, 0], [0, 2]], [[0, 1], [1, 0]]];
+        let [kx, ky] = AXES[kz][usize::from(d[kz] < 0.0)];
         RayPrecomp {
             o: ray.o,
             k: [kx, ky, kz],
@@ -48,7 +43,7 @@ impl RayPrecomp {
     /// A vertex's sheared coordinates.
     #[inline(always)]
     fn shear(&self, v: Vec3) -> Vec3 {
-        let d = v - self.o;
+        let d = (v - self.o).to_array();
         let [kx, ky, kz] = self.k;
         let [sx, sy, sz] = self.s;
         Vec3::new(d[kx] - sx * d[kz], d[ky] - sy * d[kz], sz * d[kz])

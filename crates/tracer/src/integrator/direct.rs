@@ -3,7 +3,7 @@
 
 use crate::bsdf::Bsdf;
 use crate::geometry::Ray;
-use crate::math::{offset_ray_origin, Frame};
+use crate::math::{is_black, offset_ray_origin, Frame};
 use crate::sampler::{dims, PixelSampler};
 use crate::sampling::{
     cosine_hemisphere_pdf, power_heuristic, sample_cosine_hemisphere, sample_uniform_hemisphere,
@@ -67,7 +67,7 @@ pub(crate) fn direct_punctual(
         return Vec3::ZERO;
     };
     let f = v.bsdf.eval(v.wo, ls.wi);
-    if f == Vec3::ZERO {
+    if is_black(f) {
         return Vec3::ZERO;
     }
     let ray = v.spawn(ls.wi);
@@ -94,11 +94,10 @@ pub(crate) fn direct_area_light(
     rays: &mut u32,
 ) -> Vec3 {
     let u_sel = s.bounce1(depth, dims::LIGHT_SELECT);
-    let Some(ls) =
-        scene
-            .lights
-            .area
-            .sample(&scene.mesh, u_sel, s.bounce2(depth, dims::LIGHT_POINT))
+    let Some(ls) = scene
+        .lights
+        .area
+        .sample(u_sel, s.bounce2(depth, dims::LIGHT_POINT))
     else {
         return Vec3::ZERO;
     };
@@ -117,7 +116,7 @@ pub(crate) fn direct_area_light(
     let material = &scene.materials[scene.mesh.material[tri] as usize];
     let uv = light_uv(scene, tri, ls.barycentrics);
     let le = material.emission(&scene.textures, &uv, cos_l > 0.0);
-    if le == Vec3::ZERO {
+    if is_black(le) {
         return Vec3::ZERO;
     }
     // With MIS the BSDF's pdf is needed too: evaluate both in one pass over the lobes.
@@ -126,7 +125,7 @@ pub(crate) fn direct_area_light(
     } else {
         (v.bsdf.eval(v.wo, wi), 0.0)
     };
-    if f == Vec3::ZERO {
+    if is_black(f) {
         return Vec3::ZERO;
     }
     let pdf = ls.pdf_area * dist2 / cos_l.abs();
@@ -199,7 +198,7 @@ pub(crate) fn direct_by_direction(
     }
     let wi = Frame::from_z(n).to_world(local);
     let f = v.bsdf.eval(v.wo, wi);
-    if f == Vec3::ZERO {
+    if is_black(f) {
         return Vec3::ZERO;
     }
     let ray = v.spawn(wi);

@@ -2,7 +2,7 @@ use super::direct::{direct_area_light, direct_by_direction, direct_punctual, Ver
 use super::EmissionWeight;
 use crate::bsdf::Bsdf;
 use crate::geometry::Ray;
-use crate::math::offset_ray_origin;
+use crate::math::{is_black, offset_ray_origin};
 use crate::sampler::{dims, PixelSampler};
 use crate::sampling::power_heuristic;
 use crate::scene::Scene;
@@ -61,7 +61,7 @@ pub fn trace_path(
         // 1. Emission seen by this ray.
         if material.is_emissive() {
             let le = material.emission(&scene.textures, &si.uv, si.front);
-            if le != Vec3::ZERO {
+            if !is_black(le) {
                 let w = match emission {
                     EmissionWeight::Full => 1.0,
                     EmissionWeight::Skip => 0.0,
@@ -131,11 +131,11 @@ pub fn trace_path(
         let Some(bs) = bsdf.sample(wo, u_lobe, sampler.bounce2(depth, dims::BSDF_DIR)) else {
             break;
         };
-        if bs.weight == Vec3::ZERO {
+        if is_black(bs.weight) {
             break;
         }
         beta *= bs.weight;
-        if beta == Vec3::ZERO {
+        if is_black(beta) {
             // The throughput underflowed (a long path without roulette, or full absorption):
             // nothing further can contribute, and without this test the path would run on to
             // the safety cap of 65,536 bounces.

@@ -21,11 +21,22 @@ pub struct AreaLightSample {
     pub pdf_area: f32,
 }
 
+/// One emissive triangle as light sampling sees it: corners, unit normal and the area-measure pdf
+/// of its points, P(triangle) / area, all fixed by the scene.
+#[derive(Clone, Copy, Debug)]
+struct LightTriangle {
+    corners: [Vec3; 3],
+    normal: Vec3,
+    pdf_area: f32,
+}
+
 /// Every emissive triangle of the scene.
 #[derive(Clone, Debug, Default)]
 pub struct AreaLights {
     /// Mesh triangle indices of the emissive triangles.
     pub triangles: Vec<u32>,
+    /// Per emissive triangle, what sampling a point on it needs, copied out of the mesh once.
+    sampled: Vec<LightTriangle>,
     distribution: Distribution1D,
     /// Per material: P(triangle) / area(triangle) for its triangles, which is the same for every
     /// triangle of a material because power ∝ average radiance × area. Lets a BSDF ray that hits an
@@ -56,6 +67,20 @@ impl AreaLights {
         }
         let distribution = Distribution1D::new(&powers);
         let total = distribution.total();
+        let sampled = triangles
+            .iter()
+            .enumerate()
+            .map(|(k, &tri)| {
+                let [a, b, c] = mesh.positions[tri as usize];
+                let cross = (b - a).cross(c - a);
+                let len = cross.length();
+                LightTriangle {
+                    corners: [a, b, c],
+                    normal: cross / len,
+                    pdf_area: distribution.pmf(k) / (0.5 * len),
+                }
+            })
+            .collect();
         let material_area_density = radiance
             .iter()
             .map(|&le| {
@@ -68,6 +93,7 @@ impl AreaLights {
             .collect();
         AreaLights {
             triangles,
+            sampled,
             distribution,
             material_area_density,
         }
@@ -84,26 +110,20 @@ impl AreaLights {
 
     /// Chooses a triangle by power (`u_select`) and a uniform point on it (`u`).
     #[inline]
-    pub fn sample(&self, mesh: &Mesh, u_select: f32, u: Vec2) -> Option<AreaLightSample> {
+    pub fn sample(&self, u_select: f32, u: Vec2) -> Option<AreaLightSample> {
         if self.is_empty() {
             return None;
         }
-        let (k, pmf, _) = self.distribution.sample(u_select);
-        let tri = self.triangles[k];
-        let [a, b, c] = mesh.positions[tri as usize];
+        let (k, _) = self.distribution.sample_discrete(u_select);
+        let t = &self.sampled[k];
+        let [a, b, c] = t.corners;
         let bary = sample_uniform_triangle(u);
-        let point = a * bary.x + b * bary.y + c * bary.z;
-        let cross = (b - a).cross(c - a);
-        let len = cross.length();
-        if len <= 0.0 {
-            return None;
-        }
         Some(AreaLightSample {
-            point,
-            normal: cross / len,
-            triangle: tri,
+            point: a * bary.x + b * bary.y + c * bary.z,
+            normal: t.normal,
+            triangle: self.triangles[k],
             barycentrics: bary,
-            pdf_area: pmf / (0.5 * len),
+            pdf_area: t.pdf_area,
         })
     }
 

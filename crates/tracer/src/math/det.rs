@@ -32,14 +32,23 @@ fn sin_cos_reduced(r: f32) -> (f32, f32) {
 }
 
 /// Rotates (sin r, cos r) by k quarter turns.
+///
+/// k mod 4 = 0, 1, 2, 3 gives (s, c), (c, −s), (−s, −c), (−c, s): a swap when k is odd, then sign
+/// flips, done on the bits (flipping the sign bit is exactly negation). k comes from a random
+/// angle, so a branch on it would be mispredicted on most calls.
 #[inline(always)]
 fn quarter_turns((s, c): (f32, f32), k: i64) -> (f32, f32) {
-    match k.rem_euclid(4) {
-        0 => (s, c),
-        1 => (c, -s),
-        2 => (-s, -c),
-        _ => (-c, s),
-    }
+    let k = k as u32; // two's complement: the low two bits are k mod 4 for a negative k too
+    let swap = 0u32.wrapping_sub(k & 1);
+    let (sb, cb) = (s.to_bits(), c.to_bits());
+    let first = (sb & !swap) | (cb & swap);
+    let second = (cb & !swap) | (sb & swap);
+    let sign_first = (k & 2) << 30;
+    let sign_second = (k.wrapping_add(1) & 2) << 30;
+    (
+        f32::from_bits(first ^ sign_first),
+        f32::from_bits(second ^ sign_second),
+    )
 }
 
 /// (sin x, cos x) for |x| up to a few thousand radians.
@@ -156,6 +165,26 @@ pub fn ln(x: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn quarter_turns_are_the_rotations() {
+        for (s, c) in [(0.25f32, -0.0f32), (-0.75, 0.5), (0.0, 1.0)] {
+            for k in -9i64..9 {
+                let want = match k.rem_euclid(4) {
+                    0 => (s, c),
+                    1 => (c, -s),
+                    2 => (-s, -c),
+                    _ => (-c, s),
+                };
+                let got = quarter_turns((s, c), k);
+                assert_eq!(
+                    (got.0.to_bits(), got.1.to_bits()),
+                    (want.0.to_bits(), want.1.to_bits()),
+                    "k = {k}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn sin_cos_matches_libm() {

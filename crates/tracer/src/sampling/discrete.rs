@@ -5,6 +5,8 @@ pub struct Distribution1D {
     /// cdf[i] = Σ_{j<i} w_j / W, with cdf[0] = 0 and cdf[n] = 1.
     cdf: Vec<f32>,
     weights: Vec<f32>,
+    /// pmf[i] = w_i / W rounded to f32, computed once (it is asked for on every light sample).
+    pmf: Vec<f32>,
     total: f64,
 }
 
@@ -33,9 +35,20 @@ impl Distribution1D {
                 *last = 1.0;
             }
         }
+        let pmf = weights
+            .iter()
+            .map(|&w| {
+                if total > 0.0 {
+                    (w as f64 / total) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         Distribution1D {
             cdf,
             weights,
+            pmf,
             total,
         }
     }
@@ -58,28 +71,14 @@ impl Distribution1D {
     /// Probability of outcome `i`.
     #[inline]
     pub fn pmf(&self, i: usize) -> f32 {
-        if self.total <= 0.0 {
-            return 0.0;
-        }
-        (self.weights[i] as f64 / self.total) as f32
+        self.pmf[i]
     }
 
     /// Draws an outcome from u ∈ [0,1). Returns (index, probability, u remapped to [0,1) within the
     /// chosen outcome's CDF interval, so one random number can be reused).
     #[inline]
     pub fn sample(&self, u: f32) -> (usize, f32, f32) {
-        // First index whose CDF interval [cdf[i], cdf[i+1]) contains u, skipping zero-width ones.
-        let n = self.weights.len();
-        let i = self.cdf[1..].partition_point(|&c| c <= u).min(n - 1);
-        // Never return a zero-weight outcome (u at an interval's exact upper end after rounding).
-        let i = if self.weights[i] > 0.0 {
-            i
-        } else {
-            (0..n)
-                .rev()
-                .find(|&j| self.weights[j] > 0.0 && self.cdf[j] <= u)
-                .unwrap_or(i)
-        };
+        let i = self.sample_index(u);
         let lo = self.cdf[i];
         let width = self.cdf[i + 1] - lo;
         let remapped = if width > 0.0 {
@@ -87,6 +86,30 @@ impl Distribution1D {
         } else {
             0.0
         };
-        (i, self.pmf(i), remapped)
+        (i, self.pmf[i], remapped)
+    }
+
+    /// The outcome [`Distribution1D::sample`] draws from `u`, and its probability, without the
+    /// remapped value (for callers that do not reuse `u`).
+    #[inline]
+    pub fn sample_discrete(&self, u: f32) -> (usize, f32) {
+        let i = self.sample_index(u);
+        (i, self.pmf[i])
+    }
+
+    #[inline]
+    fn sample_index(&self, u: f32) -> usize {
+        // First index whose CDF interval [cdf[i], cdf[i+1]) contains u, skipping zero-width ones.
+        let n = self.weights.len();
+        let i = self.cdf[1..].partition_point(|&c| c <= u).min(n - 1);
+        // Never return a zero-weight outcome (u at an interval's exact upper end after rounding).
+        if self.weights[i] > 0.0 {
+            i
+        } else {
+            (0..n)
+                .rev()
+                .find(|&j| self.weights[j] > 0.0 && self.cdf[j] <= u)
+                .unwrap_or(i)
+        }
     }
 }

@@ -149,7 +149,8 @@ impl Bvh {
         best: &mut Closest,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) {
-        let mut stack = [(NodeRef::NONE, 0.0f32); STACK];
+        // Sorted keys (see `sort_far_to_near`): child and entry distance.
+        let mut stack = [0u64; STACK];
         let mut sp = 0usize;
         let mut node = root;
         loop {
@@ -177,34 +178,23 @@ impl Bvh {
                 let n = &self.nodes[node.index()];
                 let (mask, near) = boxes.test(n, best.t);
                 if mask != 0 {
-                    let near = near.to_array();
-                    // Visit the nearest child next; push the others far to near.
-                    let mut order = [(0.0f32, NodeRef::NONE); 4];
-                    let mut count = 0;
-                    let mut m = mask;
-                    while m != 0 {
-                        let k = m.trailing_zeros() as usize;
-                        m &= m - 1;
-                        let entry = (near[k], n.child[k]);
-                        // Insertion sort, farthest first.
-                        let mut j = count;
-                        while j > 0 && order[j - 1].0 < entry.0 {
-                            order[j] = order[j - 1];
-                            j -= 1;
-                        }
-                        order[j] = entry;
-                        count += 1;
-                    }
-                    for &(t, child) in &order[..count - 1] {
-                        if sp == STACK {
-                            // Deeper than the fixed stack: finish this subtree recursively.
-                            self.closest_from(child, ray, boxes, best, accept);
-                        } else {
-                            stack[sp] = (child, t);
-                            sp += 1;
+                    let count = LANES_SET[mask as usize];
+                    let by_far = sort_far_to_near(mask, near, n);
+                    if sp + 3 <= STACK {
+                        // All but the nearest are pushed, farthest deepest. Three entries are
+                        // written whatever the count and the stack pointer moves by count − 1:
+                        // no branch on how many children were hit, which is random per ray.
+                        stack[sp] = by_far[0];
+                        stack[sp + 1] = by_far[1];
+                        stack[sp + 2] = by_far[2];
+                        sp += count - 1;
+                    } else {
+                        // Deeper than the fixed stack: finish these subtrees recursively.
+                        for &key in &by_far[..count - 1] {
+                            self.closest_from(key_child(key), ray, boxes, best, accept);
                         }
                     }
-                    node = order[count - 1].1;
+                    node = key_child(by_far[count - 1]);
                     continue;
                 }
             }
@@ -214,9 +204,9 @@ impl Bvh {
                     return;
                 }
                 sp -= 1;
-                let (next, near) = stack[sp];
-                if near <= best.t {
-                    node = next;
+                let key = stack[sp];
+                if key_near(key) <= best.t {
+                    node = key_child(key);
                     break;
                 }
             }
@@ -264,17 +254,24 @@ impl Bvh {
                 }
             } else {
                 let n = &self.nodes[node.index()];
-                let (mut m, _) = boxes.test(n, t_max);
-                while m != 0 {
-                    let k = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    if sp == STACK {
+                let (mask, _) = boxes.test(n, t_max);
+                if sp + 4 <= STACK {
+                    // Every child that was hit is pushed, in any order (any hit will do). Four
+                    // entries are written whatever the count, hit lanes first, and the stack
+                    // pointer moves by the count: no branch per child.
+                    let lanes = HIT_LANES_FIRST[mask as usize];
+                    for (slot, &k) in stack[sp..sp + 4].iter_mut().zip(&lanes) {
+                        *slot = n.child[k as usize];
+                    }
+                    sp += LANES_SET[mask as usize];
+                } else {
+                    let mut m = mask;
+                    while m != 0 {
+                        let k = m.trailing_zeros() as usize;
+                        m &= m - 1;
                         if self.any_from(n.child[k], ray, boxes, t_max, accept) {
                             return true;
                         }
-                    } else {
-                        stack[sp] = n.child[k];
-                        sp += 1;
                     }
                 }
             }
@@ -285,6 +282,71 @@ impl Bvh {
             node = stack[sp];
         }
     }
+}
+
+/// For a 4-bit mask, the lanes whose bits are set, then the others.
+const HIT_LANES_FIRST: [[u8; 4]; 16] = {
+    let mut t = [[0u8; 4]; 16];
+    let mut m = 0;
+    while m < 16 {
+        let mut n = 0;
+        let mut pass = 0;
+        while pass < 2 {
+            let mut k = 0;
+            while k < 4 {
+                if ((m >> k) & 1 == 1) == (pass == 0) {
+                    t[m][n] = k as u8;
+                    n += 1;
+                }
+                k += 1;
+            }
+            pass += 1;
+        }
+        m += 1;
+    }
+    t
+};
+
+/// Number of set bits of a 4-bit mask (baseline x86-64 has no `popcnt` instruction).
+const LANES_SET: [usize; 16] = [0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4];
+
+/// The children of `n` whose lanes are set in `mask`, ordered by entry distance from farthest to
+/// nearest, followed by the others. Which child is nearer is a coin flip the branch predictor
+/// loses, so this is a sorting network of integer `max`/`min` (conditional moves, no branches) on
+/// keys that pack the entry distance above the child reference: a distance is ≥ 0 (the slab test
+/// clamps it), and the bit patterns of non-negative floats are ordered as the floats are. A hit
+/// lane's key is its distance's bits + 1, a missed lane's 0, so misses sort last.
+#[inline(always)]
+fn sort_far_to_near(mask: u32, near: Vec4, n: &Node4) -> [u64; 4] {
+    let near = near.to_array();
+    let key = |k: usize| {
+        let hit = 0u64.wrapping_sub(u64::from(mask >> k & 1));
+        ((u64::from(near[k].to_bits()) + 1) << 32 | u64::from(n.child[k].0)) & hit
+    };
+    let mut e = [key(0), key(1), key(2), key(3)];
+    let mut exchange = |i: usize, j: usize| {
+        let (a, b) = (e[i], e[j]);
+        e[i] = a.max(b);
+        e[j] = a.min(b);
+    };
+    exchange(0, 1);
+    exchange(2, 3);
+    exchange(0, 2);
+    exchange(1, 3);
+    exchange(1, 2);
+    e
+}
+
+/// The child reference of a sorted key.
+#[inline(always)]
+fn key_child(key: u64) -> NodeRef {
+    NodeRef(key as u32)
+}
+
+/// The entry distance of a sorted key (only meaningful for a hit lane's key).
+#[inline(always)]
+fn key_near(key: u64) -> f32 {
+    f32::from_bits(((key >> 32) as u32).wrapping_sub(1))
 }
 
 struct Closest {
@@ -352,6 +414,59 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A tree deeper than the fixed traversal stack (triangles at geometrically growing distances
+    /// make a chain-like tree): the recursive fallbacks of both traversals give the brute-force
+    /// answers.
+    #[test]
+    fn trees_deeper_than_the_stack_are_traversed() {
+        let mut mesh = Mesh::default();
+        for k in 0..160 {
+            let x = 1.25f32.powi(k);
+            for (dy, dz) in [(0.0, 0.0), (0.5, 0.3), (-0.4, 0.7)] {
+                let c = Vec3::new(x, dy, dz);
+                let s = x * 0.05;
+                mesh.positions.push([
+                    c + Vec3::new(0.0, -s, -s),
+                    c + Vec3::new(0.0, s, -s),
+                    c + Vec3::new(0.0, 0.0, s),
+                ]);
+                mesh.material.push(0);
+            }
+        }
+        let (bvh, order) = Bvh::build(&mesh);
+        mesh.reorder(&order);
+        assert!(
+            bvh.depth() * 3 > STACK,
+            "depth {}: not deeper than the stack",
+            bvh.depth()
+        );
+        let mut checked = 0;
+        for k in 0..160 {
+            for (dy, dz) in [(0.0, 0.0), (0.5, 0.3), (-0.4, 0.7), (0.2, 0.1)] {
+                let target = Vec3::new(1.25f32.powi(k), dy, dz);
+                for o in [Vec3::new(-1.0, 0.01, 0.02), Vec3::new(1e16, 0.3, -0.2)] {
+                    let d = (target - o).normalize();
+                    let pre = RayPrecomp::new(&Ray::new(o, d));
+                    let mut want: Option<(u32, TriangleHit)> = None;
+                    for (id, tri) in mesh.positions.iter().enumerate() {
+                        if let Some(h) = intersect_watertight(&pre, tri, f32::INFINITY) {
+                            if want.is_none_or(|(_, b)| h.t < b.t) {
+                                want = Some((id as u32, h));
+                            }
+                        }
+                    }
+                    assert_eq!(bvh.closest(&pre, d, f32::INFINITY, |_, _| true), want);
+                    assert_eq!(bvh.any(&pre, d, f32::INFINITY, |_, _| true), want.is_some());
+                    checked += want.is_some() as u32;
+                }
+            }
+        }
+        assert!(
+            checked > 300,
+            "{checked} rays hit: the test does not exercise the tree"
+        );
     }
 
     /// Against brute force over every triangle, on a random soup with shared vertices and ties:

@@ -24,13 +24,10 @@ impl PacketRay {
     #[inline]
     pub fn new(pre: &RayPrecomp) -> PacketRay {
         let [kx, ky, kz] = pre.k;
+        let o = pre.o.to_array(); // indexed loads, not `Vec3[i]`'s match on a random axis
         PacketRay {
             scalar: *pre,
-            o: [
-                Vec4::splat(pre.o[kx]),
-                Vec4::splat(pre.o[ky]),
-                Vec4::splat(pre.o[kz]),
-            ],
+            o: [Vec4::splat(o[kx]), Vec4::splat(o[ky]), Vec4::splat(o[kz])],
             s: pre.s.map(Vec4::splat),
         }
     }
@@ -87,18 +84,15 @@ pub(super) fn intersect_packet(r: &PacketRay, p: &TriPacket, t_max: f32) -> Pack
     let in_range_neg = det.cmplt(zero) & t_scaled.cmplt(zero) & t_scaled.cmpgt(limit);
     let hit = !outside & (in_range_pos | in_range_neg);
     let mut mask = hit.bitmask() & p.valid & !on_edge;
+    // Computed whether or not a lane was hit: a branch on it would be mispredicted often, and
+    // the division of the lanes that were not hit is harmless.
+    let inv = Vec4::ONE / det;
     let mut out = PacketHits {
         mask: 0,
-        t: [0.0; 4],
-        b1: [0.0; 4],
-        b2: [0.0; 4],
+        t: (t_scaled * inv).to_array(),
+        b1: (v * inv).to_array(),
+        b2: (w * inv).to_array(),
     };
-    if mask != 0 {
-        let inv = Vec4::ONE / det;
-        out.t = (t_scaled * inv).to_array();
-        out.b1 = (v * inv).to_array();
-        out.b2 = (w * inv).to_array();
-    }
     // Lanes with an edge function exactly zero: the scalar test decides them in double precision.
     let mut rest = on_edge;
     while rest != 0 {

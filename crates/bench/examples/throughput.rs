@@ -1,0 +1,52 @@
+//! The tracer's throughput on one bench scene, for profiling and for checking that an optimisation
+//! keeps every bit: `cargo run --release -p pathfarm-bench --example throughput -- [SCENE] [THREADS]
+//! [SPP]` with SCENE `cornell` (the shipped box, default) or `sphere330k` (the box plus the
+//! 327,680-triangle displaced sphere of `pathfarm bench speed`). Prints samples and rays per second
+//! and a hash of the accumulation: the hash must not change unless the image is meant to.
+
+use pathfarm_bench::render::render_range;
+use pathfarm_bench::scenes;
+use pathfarm_tracer::{DirectStrategy, RenderSettings, RussianRoulette, SamplerKind, Scene};
+use std::path::Path;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let name = args.first().map_or("cornell", String::as_str);
+    let threads: usize = args.get(1).map_or(Ok(2), |s| s.parse())?;
+    let spp: u32 = args.get(2).map_or(Ok(64), |s| s.parse())?;
+    let dir = Path::new("scenes");
+    let scene = match name {
+        "sphere330k" => {
+            let (parts, _) = scenes::cornell_with_sphere(name, dir, scenes::FREQ_330K)?;
+            Scene::build(parts)?
+        }
+        _ => scenes::load(&scenes::find(name)?, dir)?.scene,
+    };
+    let settings = RenderSettings {
+        width: 256,
+        height: 256,
+        seed: 1,
+        direct: DirectStrategy::Mis,
+        rr: RussianRoulette::Auto,
+        max_depth: None,
+        sampler: SamplerKind::Sobol,
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    let r = pool.install(|| render_range(&scene, &settings, 0..spp));
+    let samples = 256.0 * 256.0 * spp as f64;
+    let hash = r.acc.pixels.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, p| {
+        let words = [p.sum[0], p.sum[1], p.sum[2], p.sum_sq_lum, p.count as u128];
+        words
+            .iter()
+            .fold(h, |h, w| scenes::fnv1a(&w.to_le_bytes(), h))
+    });
+    println!(
+        "{name}: {threads} threads, {spp} spp: {:.3} s, {:.3} M samples/s, {:.2} M rays/s, hash {hash:016x}",
+        r.seconds,
+        samples / r.seconds / 1e6,
+        r.acc.rays as f64 / r.seconds / 1e6,
+    );
+    Ok(())
+}
