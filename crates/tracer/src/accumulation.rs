@@ -257,16 +257,12 @@ impl Accumulation {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     #[test]
     fn to_fixed_rounds_as_f64_round() {
         let mut s = 0x853c_49e6_748f_ea9bu64;
-        let mut cases = vec![
-            0.0,
-            0.5 / super::FIXED_SCALE,
-            1.5 / super::FIXED_SCALE,
-            1.0,
-            1e6,
-        ];
+        let mut cases = vec![0.0, 0.5 / FIXED_SCALE, 1.5 / FIXED_SCALE, 1.0, 1e6];
         for _ in 0..100_000 {
             s ^= s << 13;
             s ^= s >> 7;
@@ -274,18 +270,12 @@ mod tests {
             // Random magnitudes from 2⁻⁴⁰ to 2⁴⁰, and exact halves of the fixed-point unit.
             let e = (s % 80) as i32 - 40;
             cases.push((s >> 11) as f64 / (1u64 << 53) as f64 * 2f64.powi(e));
-            cases.push(((s >> 40) as f64 + 0.5) / super::FIXED_SCALE);
+            cases.push(((s >> 40) as f64 + 0.5) / FIXED_SCALE);
         }
         for v in cases {
-            assert_eq!(
-                super::to_fixed(v),
-                (v * super::FIXED_SCALE).round() as u128,
-                "{v}"
-            );
+            assert_eq!(to_fixed(v), (v * FIXED_SCALE).round() as u128, "{v}");
         }
     }
-
-    use super::*;
 
     #[test]
     fn invalid_samples_are_not_added() {

@@ -84,7 +84,7 @@ impl Lights {
         if self.punctual_distribution.is_empty() {
             return None;
         }
-        let (i, pmf, _) = self.punctual_distribution.sample(u);
+        let (i, pmf) = self.punctual_distribution.sample_discrete(u);
         Some((&self.punctual[i], pmf))
     }
 }
