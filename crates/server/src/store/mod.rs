@@ -144,9 +144,12 @@ impl Store {
                         // server's memory stays bounded): with SQLite's default 2 MB a farm's
                         // task and tile pages were read back with a system call each.
                         // (Memory-mapped reads were tried as well and were slower.)
+                        // The busy timeout comes first: a connection opened while the farm is
+                        // busy may have to wait for a lock in the pragmas after it (a soak run
+                        // once answered two leases "database is locked" from a new connection).
                         conn.execute(
-                            "PRAGMA journal_mode = WAL; PRAGMA synchronous = NORMAL; \
-                             PRAGMA busy_timeout = 10000; PRAGMA foreign_keys = ON; \
+                            "PRAGMA busy_timeout = 10000; PRAGMA journal_mode = WAL; \
+                             PRAGMA synchronous = NORMAL; PRAGMA foreign_keys = ON; \
                              PRAGMA cache_size = -65536;",
                         )
                         .await?;
