@@ -147,6 +147,15 @@ struct WoTerms {
     p: [f32; 3],
 }
 
+/// The local frame of the lobes: the shading normal, oriented by the tangent where there is one.
+#[inline]
+fn shading_frame(ns: Vec3, tangent: Option<Vec3>) -> Frame {
+    match tangent {
+        Some(t) => Frame::from_zx(ns, t),
+        None => Frame::from_z(ns),
+    }
+}
+
 #[inline]
 fn mean(v: Vec3) -> f32 {
     v.element_sum() * (1.0 / 3.0)
@@ -164,10 +173,7 @@ impl Bsdf {
     /// Parameters are sanitised: factors clamped to [0, 1], base colour to ≥ 0, a non-finite ior
     /// becomes 1.5 and an ior below 1 becomes 1. [`Bsdf::params`] returns the sanitised values.
     pub fn new(params: PbrParams, ns: Vec3, ng: Vec3, tangent: Option<Vec3>) -> Self {
-        let frame = match tangent {
-            Some(t) => Frame::from_zx(ns, t),
-            None => Frame::from_z(ns),
-        };
+        let frame = shading_frame(ns, tangent);
         let clamp01 = |x: f32| if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
         let p = PbrParams {
             base_color: params.base_color.max(Vec3::ZERO),
@@ -231,6 +237,18 @@ impl Bsdf {
             spec_on: w_metal > 0.0 || (w_base > 0.0 && p.specular > 0.0),
             trans_on: w_trans > 0.0
                 && (base_max > 0.0 || p.specular * interface.tint.max_element() > 0.0),
+        }
+    }
+
+    /// The same BSDF at another surface point: exactly `Bsdf::new(params, ns, ng, tangent)` for the
+    /// `params` this one was made from, without redoing the work that depends on them alone. A
+    /// material whose parameters are not textured makes its BSDF once and moves it to each hit.
+    #[inline]
+    pub fn at(&self, ns: Vec3, ng: Vec3, tangent: Option<Vec3>) -> Self {
+        Bsdf {
+            frame: shading_frame(ns, tangent),
+            ng,
+            ..*self
         }
     }
 

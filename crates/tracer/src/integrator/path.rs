@@ -1,6 +1,5 @@
 use super::direct::{direct_area_light, direct_by_direction, direct_punctual, Vertex};
 use super::EmissionWeight;
-use crate::bsdf::Bsdf;
 use crate::geometry::Ray;
 use crate::math::{is_black, offset_ray_origin};
 use crate::sampler::{dims, PixelSampler};
@@ -79,13 +78,7 @@ pub fn trace_path(
             break;
         }
 
-        let shading = material.shade(&scene.textures, &si.uv, si.ns, si.tangent);
-        let bsdf = Bsdf::new(
-            shading.params,
-            shading.normal,
-            si.ng,
-            si.tangent.map(|t| t.truncate()),
-        );
+        let bsdf = scene.bsdf_at(&si);
         let wo = -ray.d;
         let vertex = Vertex {
             p: si.p,

@@ -179,6 +179,18 @@ impl Material {
         }
     }
 
+    /// The BSDF parameters when no texture varies them or the shading normal over the surface:
+    /// what [`Material::shade`] returns everywhere (the emissive texture plays no part in them).
+    pub fn constant_params(&self) -> Option<PbrParams> {
+        let textured = self.base_color_texture.is_some()
+            || self.metallic_roughness_texture.is_some()
+            || self.specular_texture.is_some()
+            || self.specular_color_texture.is_some()
+            || self.transmission_texture.is_some()
+            || self.normal_texture.is_some();
+        (!textured).then(|| self.shade(&[], &[Vec2::ZERO; 2], Vec3::Z, None).params)
+    }
+
     /// Evaluates textures into BSDF parameters and the shading normal. `normal` is the interpolated
     /// unit shading normal facing the same side as the geometric normal's front; `tangent` the
     /// interpolated tangent with its bitangent sign (needed only with a normal map).

@@ -67,8 +67,9 @@ fn render_row(
     let mut invalid = Vec::new();
     for x in xs {
         let mut p = PixelAccum::default();
+        let pixel = PixelSampler::new(settings.sampler, settings.seed, x, y, 0);
         for index in samples.clone() {
-            let r = render_sample(scene, settings, x, y, index);
+            let r = render_with(scene, settings, &pixel.with_index(index), x, y);
             rays += r.rays as u64;
             if !p.add_sample(r.radiance) {
                 invalid_count += 1;
@@ -94,6 +95,18 @@ pub fn render_sample(
     index: u32,
 ) -> PathResult {
     let sampler = PixelSampler::new(settings.sampler, settings.seed, x, y, index);
+    render_with(scene, settings, &sampler, x, y)
+}
+
+/// One sample of pixel (x, y), drawn from `sampler`.
+#[inline]
+fn render_with(
+    scene: &Scene,
+    settings: &RenderSettings,
+    sampler: &PixelSampler,
+    x: u32,
+    y: u32,
+) -> PathResult {
     let jitter = sampler.get2(dims::PIXEL);
     let film = Vec2::new(x as f32, y as f32) + jitter;
     let ray = scene
@@ -106,7 +119,7 @@ pub fn render_sample(
             vertices: 0,
         };
     }
-    trace_path(scene, settings, &sampler, ray)
+    trace_path(scene, settings, sampler, ray)
 }
 
 /// Renders samples `samples` of the whole image, `tile_size` pixels square at a time, in parallel.

@@ -60,6 +60,16 @@ impl PixelSampler {
         }
     }
 
+    /// The sampler of sample `index` of the same pixel (the pixel's hash is not recomputed).
+    #[inline]
+    pub fn with_index(&self, index: u32) -> Self {
+        PixelSampler {
+            index,
+            index_rev: index.reverse_bits(),
+            ..*self
+        }
+    }
+
     /// The value of dimension `dim`, in [0, 1).
     #[inline]
     pub fn get1(&self, dim: u32) -> f32 {
@@ -103,4 +113,28 @@ fn bounce_dim(bounce: u32, offset: u32) -> u32 {
 #[inline]
 pub fn bits_to_unit(x: u32) -> f32 {
     (x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pixels_sampler_moved_to_another_index_is_that_index_sampler() {
+        for kind in [SamplerKind::Sobol, SamplerKind::Independent] {
+            let pixel = PixelSampler::new(kind, 0x1234_5678_9abc, 17, 3, 0);
+            for index in [0u32, 1, 7, 1000, u32::MAX] {
+                let fresh = PixelSampler::new(kind, 0x1234_5678_9abc, 17, 3, index);
+                let moved = pixel.with_index(index);
+                for dim in 0..64 {
+                    assert_eq!(moved.get1(dim).to_bits(), fresh.get1(dim).to_bits());
+                }
+                assert_ne!(
+                    moved.get2(4),
+                    pixel.with_index(index ^ 1).get2(4),
+                    "the index matters"
+                );
+            }
+        }
+    }
 }

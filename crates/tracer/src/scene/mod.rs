@@ -6,6 +6,7 @@ mod intersect;
 
 pub use intersect::{Hit, SurfaceInteraction};
 
+use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::geometry::{Bvh, Mesh, MeshError};
 use crate::light::{AreaLights, Lights, PunctualLight};
@@ -76,6 +77,9 @@ pub struct Scene {
     any_alpha: bool,
     /// Some material has a volume: paths track whether they are inside one.
     pub(crate) any_volume: bool,
+    /// Per material, its BSDF when no texture varies it (at a placeholder frame; see
+    /// [`Scene::bsdf_at`]). Derived from `materials` at build time.
+    bsdf_templates: Vec<Option<Bsdf>>,
 }
 
 impl Scene {
@@ -153,7 +157,15 @@ impl Scene {
         let any_volume = materials
             .iter()
             .any(|m| m.volume.is_some() && m.transmission > 0.0);
+        let bsdf_templates = materials
+            .iter()
+            .map(|m| {
+                m.constant_params()
+                    .map(|p| Bsdf::new(p, Vec3::Z, Vec3::Z, None))
+            })
+            .collect();
         Ok(Scene {
+            bsdf_templates,
             mesh,
             bvh,
             materials,
@@ -172,9 +184,142 @@ impl Scene {
         self.any_alpha
     }
 
+    /// The BSDF at a surface point: the material's textures evaluated there, or, for a material
+    /// without them, its BSDF made once at build time and moved to the point (the same value).
+    #[inline]
+    pub fn bsdf_at(&self, si: &SurfaceInteraction) -> Bsdf {
+        let tangent = si.tangent.map(|t| t.truncate());
+        if let Some(Some(template)) = self.bsdf_templates.get(si.material as usize) {
+            return template.at(si.ns, si.ng, tangent);
+        }
+        let material = &self.materials[si.material as usize];
+        let shading = material.shade(&self.textures, &si.uv, si.ns, si.tangent);
+        Bsdf::new(shading.params, shading.normal, si.ng, tangent)
+    }
+
     /// Replaces the camera (e.g. one chosen by name).
     pub fn with_camera(mut self, camera: Camera) -> Self {
         self.camera = camera;
         self
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bsdf::Bsdf;
+    use crate::material::{TextureRef, TextureSampler};
+    use glam::{Vec2, Vec4};
+
+    /// A material's BSDF made once and moved to each hit is the BSDF made at the hit, for every kind
+    /// of material; textured ones are shaded at the hit.
+    #[test]
+    fn bsdf_templates_equal_the_bsdf_made_at_the_hit() {
+        let tex = |texture: u32| {
+            Some(TextureRef {
+                texture,
+                texcoord: 0,
+                transform: None,
+            })
+        };
+        let materials = vec![
+            Material {
+                metallic: 0.0,
+                specular: 0.0,
+                base_color: Vec4::new(0.7, 0.2, 0.1, 1.0),
+                ..Material::default()
+            },
+            Material {
+                roughness: 0.3,
+                ..Material::default()
+            },
+            Material {
+                metallic: 0.0,
+                roughness: 0.0,
+                transmission: 1.0,
+                ior: 1.33,
+                ..Material::default()
+            },
+            Material {
+                metallic: 0.2,
+                roughness: 1.7, // out of range: sanitised the same way on both paths
+                specular_color: Vec3::new(0.5, 1.0, 2.0),
+                ..Material::default()
+            },
+            Material {
+                metallic: 0.0,
+                base_color_texture: tex(0),
+                ..Material::default()
+            },
+        ];
+        let mut mesh = Mesh::default();
+        for m in 0..materials.len() as u32 {
+            let x = m as f32 * 2.0;
+            mesh.positions.push([
+                Vec3::new(x, 0.0, 0.0),
+                Vec3::new(x + 1.0, 0.0, 0.0),
+                Vec3::new(x, 1.0, 0.0),
+            ]);
+            mesh.material.push(m);
+        }
+        let texels = vec![[10, 200, 30, 255], [250, 0, 128, 255]];
+        let texture = Texture::new(None, 2, 1, texels, TextureSampler::default()).unwrap();
+        let scene = Scene::build(SceneParts {
+            mesh,
+            materials,
+            textures: vec![texture],
+            ..SceneParts::default()
+        })
+        .unwrap();
+        assert!(scene.bsdf_templates[..4].iter().all(Option::is_some));
+        assert!(scene.bsdf_templates[4].is_none(), "a textured material");
+
+        let ns = Vec3::new(0.3, -0.2, 0.9).normalize();
+        let ng = Vec3::new(0.1, 0.0, 1.0).normalize();
+        for material in 0..5u32 {
+            for tangent in [None, Some(Vec4::new(1.0, 0.2, 0.0, 1.0))] {
+                for u in [0.1f32, 0.9] {
+                    let si = SurfaceInteraction {
+                        p: Vec3::ZERO,
+                        ng,
+                        ns,
+                        uv: [Vec2::new(u, 0.5), Vec2::ZERO],
+                        tangent,
+                        material,
+                        triangle: material,
+                        front: true,
+                    };
+                    let m = &scene.materials[material as usize];
+                    let shading = m.shade(&scene.textures, &si.uv, ns, tangent);
+                    let made_here = Bsdf::new(
+                        shading.params,
+                        shading.normal,
+                        ng,
+                        tangent.map(|t| t.truncate()),
+                    );
+                    // Debug prints every field, floats to the last bit.
+                    assert_eq!(
+                        format!("{:?}", scene.bsdf_at(&si)),
+                        format!("{made_here:?}"),
+                        "material {material}, tangent {tangent:?}, u {u}"
+                    );
+                }
+            }
+        }
+        // The texture is really read: its two texels give two different BSDFs.
+        let at = |u: f32| SurfaceInteraction {
+            p: Vec3::ZERO,
+            ng,
+            ns,
+            uv: [Vec2::new(u, 0.5), Vec2::ZERO],
+            tangent: None,
+            material: 4,
+            triangle: 4,
+            front: true,
+        };
+        assert_ne!(
+            scene.bsdf_at(&at(0.1)).params().base_color,
+            scene.bsdf_at(&at(0.9)).params().base_color
+        );
     }
 }

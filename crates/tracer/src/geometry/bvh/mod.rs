@@ -13,7 +13,7 @@ mod node;
 mod packet;
 
 use super::{Mesh, RayPrecomp, TriangleHit};
-use glam::{Vec3, Vec4};
+use glam::{Vec3, Vec3A, Vec4};
 use node::{Node4, NodeRef, TriPacket};
 use packet::{intersect_packet, PacketRay};
 
@@ -50,15 +50,11 @@ impl BoxRay {
         // A direction component of exactly zero would make 0 · ∞ = NaN at a slab through the
         // origin; nudged to a tiny value, the slab is crossed at a huge but finite distance, and the
         // padded boxes cover the nudge's displacement. Only the box tests see it.
-        let inv = |c: f32| {
-            let c = if c.abs() < 1e-9 {
-                1e-9f32.copysign(c)
-            } else {
-                c
-            };
-            1.0 / c
-        };
-        let inv_d = [inv(d.x), inv(d.y), inv(d.z)];
+        // All three components at once: the nudge is a select, not a branch per component.
+        let d = Vec3A::from(d);
+        let tiny = d.abs().cmplt(Vec3A::splat(1e-9));
+        let inv_d =
+            (Vec3A::ONE / Vec3A::select(tiny, Vec3A::splat(1e-9).copysign(d), d)).to_array();
         BoxRay {
             o: [Vec4::splat(o.x), Vec4::splat(o.y), Vec4::splat(o.z)],
             inv_d: inv_d.map(Vec4::splat),
