@@ -83,6 +83,15 @@ pub fn sin_cos_turns(t: f32) -> (f32, f32) {
     quarter_turns(sin_cos_reduced(f * (2.0 * PI)), q)
 }
 
+/// (sin x, cos x) for |x| ≤ π/4, the range of the reduced argument: no reduction, no quarter
+/// turns, only the two polynomials. For callers whose angle is in that range by construction
+/// (the concentric disk's wedges); outside it the error grows quickly.
+#[inline]
+pub fn sin_cos_quarter(x: f32) -> (f32, f32) {
+    debug_assert!(x.is_nan() || x.abs() <= std::f32::consts::FRAC_PI_4 * 1.000_001);
+    sin_cos_reduced(x)
+}
+
 /// tan x (via [`sin_cos`]).
 #[inline]
 pub fn tan(x: f32) -> f32 {
@@ -205,6 +214,15 @@ mod tests {
             );
         }
         assert!((tan(0.3) - 0.3f32.tan()).abs() < 1e-6);
+        for i in -10_000..=10_000 {
+            let x = i as f32 / 10_000.0 * std::f32::consts::FRAC_PI_4;
+            let (s, c) = sin_cos_quarter(x);
+            let a = x as f64;
+            assert!(
+                (s as f64 - a.sin()).abs() < 2e-7 && (c as f64 - a.cos()).abs() < 2e-7,
+                "x = {x}"
+            );
+        }
     }
 
     /// The call-free rounding is off by one only right beside the half-way points; the reductions

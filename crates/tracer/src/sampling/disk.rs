@@ -23,10 +23,12 @@ pub fn sample_concentric_disk(u: Vec2) -> Vec2 {
     // Which wedge the point is in is a coin flip for random points, which a branch would
     // mispredict half the time: the operands are selected first (cheap selects), then the one
     // division is done. The result is the same as the textbook form's, operation for operation.
+    // In the y wedge the textbook angle is π/2 − q; (cos, sin) of it are (sin q, cos q), so both
+    // wedges need only the angle q ∈ [−π/4, π/4], whose sine and cosine are two short polynomials
+    // with no argument reduction.
     let x_wedge = o.x.abs() > o.y.abs();
     let (r, other) = if x_wedge { (o.x, o.y) } else { (o.y, o.x) };
-    let q = FRAC_PI_4 * (other / r);
-    let theta = if x_wedge { q } else { 2.0 * FRAC_PI_4 - q };
-    let (s, c) = crate::math::det::sin_cos(theta);
-    Vec2::new(r * c, r * s)
+    let (s, c) = crate::math::det::sin_cos_quarter(FRAC_PI_4 * (other / r));
+    let (along_x, along_y) = if x_wedge { (c, s) } else { (s, c) };
+    Vec2::new(r * along_x, r * along_y)
 }
