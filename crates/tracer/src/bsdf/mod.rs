@@ -275,16 +275,15 @@ impl Bsdf {
 
     /// f(wo, wi) · |cos θi| of the non-delta lobes.
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        if self.lambert {
+            return match self.lambert_cos_i(wo, wi) {
+                Some(c) => self.params.base_color * lambert::eval(c),
+                None => Vec3::ZERO,
+            };
+        }
         let Some((o, i, entering)) = self.local_pair(wo, wi) else {
             return Vec3::ZERO;
         };
-        if self.lambert {
-            return if i.z > 0.0 {
-                self.params.base_color * lambert::eval(i.z)
-            } else {
-                Vec3::ZERO
-            };
-        }
         let eta = self.interface.eta(entering);
         let t = self.wo_terms(o.z, eta);
         self.eval_pdf_local::<true, false>(o, i, eta, &t).0
@@ -292,12 +291,12 @@ impl Bsdf {
 
     /// Solid-angle density of [`Bsdf::sample`] producing `wi` through a non-delta lobe.
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if self.lambert {
+            return self.lambert_cos_i(wo, wi).map_or(0.0, lambert::pdf);
+        }
         let Some((o, i, entering)) = self.local_pair(wo, wi) else {
             return 0.0;
         };
-        if self.lambert {
-            return if i.z > 0.0 { lambert::pdf(i.z) } else { 0.0 };
-        }
         let eta = self.interface.eta(entering);
         let t = self.wo_terms(o.z, eta);
         self.eval_pdf_local::<false, true>(o, i, eta, &t).1
@@ -305,19 +304,15 @@ impl Bsdf {
 
     /// [`Bsdf::eval`] and [`Bsdf::pdf`] together, sharing their work (for light sampling with MIS).
     pub fn eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        if self.lambert {
+            return match self.lambert_cos_i(wo, wi) {
+                Some(c) => (self.params.base_color * lambert::eval(c), lambert::pdf(c)),
+                None => (Vec3::ZERO, 0.0),
+            };
+        }
         let Some((o, i, entering)) = self.local_pair(wo, wi) else {
             return (Vec3::ZERO, 0.0);
         };
-        if self.lambert {
-            return if i.z > 0.0 {
-                (
-                    self.params.base_color * lambert::eval(i.z),
-                    lambert::pdf(i.z),
-                )
-            } else {
-                (Vec3::ZERO, 0.0)
-            };
-        }
         let eta = self.interface.eta(entering);
         let t = self.wo_terms(o.z, eta);
         self.eval_pdf_local::<true, true>(o, i, eta, &t)
@@ -326,26 +321,32 @@ impl Bsdf {
     /// Samples wi. `u_lobe` chooses the lobe (and, remapped, reflection against refraction); `u`
     /// samples the direction within it.
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
-        let lo = self.frame.to_local(wo);
-        if lo.z == 0.0 || lo.z.is_nan() {
-            return None;
-        }
-        let s = if lo.z > 0.0 { 1.0 } else { -1.0 };
-        let o = Vec3::new(lo.x, lo.y, lo.z.abs());
         if self.lambert {
+            // Only cos θo (its sign) matters to the Lambertian lobe: one dot product, not three.
+            let lo_z = wo.dot(self.frame.z);
+            if lo_z == 0.0 || lo_z.is_nan() {
+                return None;
+            }
+            let s = if lo_z > 0.0 { 1.0 } else { -1.0 };
             let i = lambert::sample(u);
             if i.z <= 0.0 {
                 return None;
             }
             return self.finish(
                 wo,
-                lo.z,
+                lo_z,
                 i * Vec3::new(1.0, 1.0, s),
                 self.params.base_color,
                 lambert::pdf(i.z),
                 false,
             );
         }
+        let lo = self.frame.to_local(wo);
+        if lo.z == 0.0 || lo.z.is_nan() {
+            return None;
+        }
+        let s = if lo.z > 0.0 { 1.0 } else { -1.0 };
+        let o = Vec3::new(lo.x, lo.y, lo.z.abs());
         let eta = self.interface.eta(lo.z > 0.0);
         let t = self.wo_terms(o.z, eta);
         let [p_d, p_s, p_t] = t.p;
@@ -466,6 +467,25 @@ impl Bsdf {
     fn guard(&self, wo: Vec3, wi: Vec3, lo_z: f32, li_z: f32) -> bool {
         let (go, gi) = (wo.dot(self.ng), wi.dot(self.ng));
         go != 0.0 && gi != 0.0 && ((go > 0.0) == (gi > 0.0)) == ((lo_z > 0.0) == (li_z > 0.0))
+    }
+
+    /// What [`Bsdf::local_pair`] gives the Lambertian lobe: cos θi on wo's side of the shading
+    /// surface, when it is positive and the pair passes the same tests. The lobe needs only the
+    /// two z components, so the other four dot products are not computed (the values are the same
+    /// bits: `to_local`'s z is the same dot product).
+    #[inline]
+    fn lambert_cos_i(&self, wo: Vec3, wi: Vec3) -> Option<f32> {
+        let (lo_z, li_z) = (wo.dot(self.frame.z), wi.dot(self.frame.z));
+        if lo_z == 0.0
+            || li_z == 0.0
+            || lo_z.is_nan()
+            || li_z.is_nan()
+            || !self.guard(wo, wi, lo_z, li_z)
+        {
+            return None;
+        }
+        let cos_i = if lo_z > 0.0 { li_z } else { -li_z };
+        (cos_i > 0.0).then_some(cos_i)
     }
 
     /// Local directions with wo mirrored into the upper hemisphere (the lobes are isotropic, so the
