@@ -28,6 +28,8 @@ pub mod sampling;
 pub mod scene;
 pub mod settings;
 pub mod stats;
+#[cfg(test)]
+mod testing;
 
 pub use accumulation::{Accumulation, PixelAccum};
 pub use render::{render_image, render_sample, render_tile, Tile};

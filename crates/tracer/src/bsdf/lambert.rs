@@ -33,13 +33,7 @@ mod tests {
     /// grazing and opposite-side pairs), and eval/pdf/sample built on it agree with each other.
     #[test]
     fn the_lambertian_shortcut_is_the_general_local_pair() {
-        let mut s = 0x2545_f491_4f6c_dd1du64;
-        let mut u = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut u = crate::testing::uniform_stream(0x2545_f491_4f6c_dd1du64);
         let albedo = Vec3::new(0.8, 0.5, 0.2);
         let mut agreed = 0;
         for case in 0..100_000 {

@@ -110,13 +110,7 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn simd_offset_matches_the_scalar_method_bit_for_bit() {
-        let mut s = 0x853c_49e6_748f_ea9bu64;
-        let mut rng = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rng = crate::testing::uniform_stream(0x853c_49e6_748f_ea9bu64);
         let special = [
             0.0f32,
             -0.0,

@@ -469,13 +469,7 @@ mod tests {
     /// the same (t, index) for every ray, and the same visibility.
     #[test]
     fn matches_brute_force_on_a_random_soup() {
-        let mut s = 0x2545_f491_4f6c_dd1du64;
-        let mut rng = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut rng = crate::testing::uniform_stream(0x2545_f491_4f6c_dd1du64);
         let mut mesh = Mesh::default();
         let mut verts: Vec<Vec3> = Vec::new();
         for _ in 0..600 {
