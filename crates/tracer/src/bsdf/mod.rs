@@ -50,7 +50,10 @@ mod dielectric;
 mod fresnel;
 mod lambert;
 pub mod microfacet;
+mod params;
 mod specular_layer;
+
+pub use params::PbrParams;
 
 use crate::math::Frame;
 use albedo::AlbedoRow;
@@ -58,44 +61,6 @@ use dielectric::{refraction_half_vector, Interface, INDEX_MATCHED};
 use glam::{Vec2, Vec3};
 use microfacet::Ggx;
 use specular_layer::SpecularLayer;
-
-/// The glTF material at one surface point, after texturing.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PbrParams {
-    /// Linear base color (albedo of the diffuse lobe, F0 of metals, tint of transmission).
-    pub base_color: Vec3,
-    pub metallic: f32,
-    /// Perceptual roughness; the GGX α is roughness². Exactly 0 gives delta lobes.
-    pub roughness: f32,
-    /// KHR_materials_specular specularFactor: weight of the dielectric specular layer (0 removes it,
-    /// leaving a pure Lambertian for non-metals).
-    pub specular: f32,
-    /// KHR_materials_specular specularColorFactor (tints the dielectric F0).
-    pub specular_color: Vec3,
-    /// Index of refraction of the dielectric (KHR_materials_ior, default 1.5).
-    pub ior: f32,
-    /// KHR_materials_transmission transmissionFactor.
-    pub transmission: f32,
-    /// Thin-walled transmission (no KHR_materials_volume): light passes straight through without
-    /// bending. Otherwise the surface bounds a refracting volume.
-    pub thin_walled: bool,
-}
-
-impl PbrParams {
-    /// A Lambertian surface of albedo `c`.
-    pub fn diffuse(c: Vec3) -> Self {
-        PbrParams {
-            base_color: c,
-            metallic: 0.0,
-            roughness: 1.0,
-            specular: 0.0,
-            specular_color: Vec3::ONE,
-            ior: 1.5,
-            transmission: 0.0,
-            thin_walled: true,
-        }
-    }
-}
 
 /// One sampled scattering direction.
 #[derive(Clone, Copy, Debug)]
