@@ -85,7 +85,11 @@ impl Store {
                 q.drain(..n).collect()
             };
             if !batch.is_empty() {
-                let tx = self.pool().begin().await?;
+                // IMMEDIATE: take SQLite's write lock at BEGIN, where the busy timeout waits for
+                // it. A deferred transaction that reads first and then writes cannot wait: when
+                // another connection wrote since its read began, the upgrade fails at once with
+                // "database is locked" (the soak's rare 503s on lease).
+                let tx = self.pool().begin_with("BEGIN IMMEDIATE").await?;
                 let w = WriteTx {
                     tx,
                     _writer: Some(guard),

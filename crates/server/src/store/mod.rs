@@ -189,7 +189,14 @@ impl Store {
             Some(m) => Some(m.lock().await),
             None => None,
         };
-        let tx = self.pool.begin().await?;
+        // On SQLite the write lock is taken at BEGIN (see `group_commit`): a deferred
+        // transaction's read-then-write upgrade fails at once, without the busy timeout, when
+        // another connection wrote in between.
+        let tx = if guard.is_some() {
+            self.pool.begin_with("BEGIN IMMEDIATE").await?
+        } else {
+            self.pool.begin().await?
+        };
         Ok(WriteTx { tx, _writer: guard })
     }
 
