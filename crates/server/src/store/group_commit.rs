@@ -89,7 +89,7 @@ impl Store {
                 // it. A deferred transaction that reads first and then writes cannot wait: when
                 // another connection wrote since its read began, the upgrade fails at once with
                 // "database is locked" (the soak's rare 503s on lease).
-                let tx = self.pool().begin_with("BEGIN IMMEDIATE").await?;
+                let tx = self.pool().begin_with(super::SQLITE_BEGIN_WRITE).await?;
                 let w = WriteTx {
                     tx,
                     _writer: Some(guard),

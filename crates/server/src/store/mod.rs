@@ -13,6 +13,10 @@ macro_rules! sql {
     };
 }
 
+/// How SQLite write transactions begin: with the write lock, where the busy timeout waits for it
+/// (a deferred read-then-write upgrade fails at once when another connection wrote in between).
+const SQLITE_BEGIN_WRITE: &str = "BEGIN IMMEDIATE";
+
 mod convergence;
 mod gauges;
 mod group_commit;
@@ -193,7 +197,7 @@ impl Store {
         // transaction's read-then-write upgrade fails at once, without the busy timeout, when
         // another connection wrote in between.
         let tx = if guard.is_some() {
-            self.pool.begin_with("BEGIN IMMEDIATE").await?
+            self.pool.begin_with(SQLITE_BEGIN_WRITE).await?
         } else {
             self.pool.begin().await?
         };
