@@ -1,6 +1,6 @@
 //! The tracer's throughput on one bench scene, for profiling and for checking that an optimisation
 //! keeps every bit: `cargo run --release -p pathfarm-bench --example throughput -- [SCENE] [THREADS]
-//! [SPP] [narrow]` with SCENE `cornell` (the shipped box, default) or `sphere330k` (the box plus the
+//! [SPP]` with SCENE `cornell` (the shipped box, default) or `sphere330k` (the box plus the
 //! 327,680-triangle displaced sphere of `pathfarm bench speed`). Prints samples and rays per second
 //! and a hash of the accumulation: the hash must not change unless the image is meant to.
 
@@ -14,10 +14,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let name = args.first().map_or("cornell", String::as_str);
     let threads: usize = args.get(1).map_or(Ok(2), |s| s.parse())?;
     let spp: u32 = args.get(2).map_or(Ok(64), |s| s.parse())?;
-    // A fourth argument `narrow` keeps the BVH to its 4-lane (SSE2) leaf test, for A/B runs.
-    if args.get(3).is_some_and(|a| a == "narrow") {
-        pathfarm_tracer::geometry::simd::set_wide(false);
-    }
     let dir = Path::new("scenes");
     let scene = match name {
         "sphere330k" => {

@@ -1,6 +1,6 @@
 //! Building the 4-wide BVH: `obvhs` builds a binary BVH (PLOC with reinsertion, leaves collapsed by
 //! its SAH), which is then collapsed into 4-wide nodes, and each leaf's triangles are packed into
-//! SIMD packets of four (a leaf holds up to two: one 8-lane test with AVX2).
+//! SIMD packets of four (a leaf holds up to two).
 //!
 //! Why not obvhs' own 8-wide CWBVH: its quantized nodes are made for GPUs and bandwidth; on a CPU
 //! the dequantization and the per-primitive callback cost more than they save, and its leaves test
@@ -35,14 +35,14 @@ pub(super) struct Built {
     pub depth: usize,
 }
 
-/// The largest triangle count of a binary leaf: two packets, which the AVX2 traversal tests in
-/// one 8-lane test. obvhs' collapse decides by SAH how many triangles a leaf gets up to this bound.
+/// The largest triangle count of a binary leaf: two packets. obvhs' collapse decides by SAH how
+/// many triangles a leaf gets up to this bound. Eight against four (with the collapse cost below):
+/// +4.8 % ± 0.6 % samples/s on the 330k scene, +1.8 % on the Cornell box (docs/benchmarks.md).
 const MAX_PRIMS_PER_LEAF: u32 = 8;
 
 /// The SAH cost of a node visit against one triangle test, for obvhs' collapse of small subtrees
 /// into leaves (its default is 3). A triangle is one lane of a 4- or 8-lane test, so a visit costs
-/// more triangles than in a one-at-a-time tracer. Measured (`throughput` example, 2 threads, same
-/// hour): 8 against 3 is +1–2 % on the 330k scene and neutral on the Cornell box; 16 is no better.
+/// more triangles than in a one-at-a-time tracer. 16 measured no better than 8.
 const COLLAPSE_TRAVERSAL_COST: f32 = 8.0;
 
 pub(super) fn build(mesh: &Mesh) -> Built {

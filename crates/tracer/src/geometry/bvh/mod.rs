@@ -11,19 +11,11 @@
 mod build;
 mod node;
 mod packet;
-#[cfg(target_arch = "x86_64")]
-mod pair_avx2;
-pub mod simd;
 
 use super::{Mesh, RayPrecomp, TriangleHit};
 use glam::{Vec3, Vec3A, Vec4};
 use node::{Node4, NodeRef, TriPacket};
 use packet::{intersect_packet, PacketRay};
-#[cfg(target_arch = "x86_64")]
-use pair_avx2::{intersect_pair, PairRay};
-/// Elsewhere there is no 8-lane test: the traversal's `pair` argument is always `None`.
-#[cfg(not(target_arch = "x86_64"))]
-struct PairRay;
 
 /// Entries of the traversal stack kept on the machine stack. Small on purpose: the array is filled
 /// on every ray, and a million-triangle tree needs about three entries per level of its ~12; a
@@ -129,21 +121,7 @@ impl Bvh {
         pre: &RayPrecomp,
         d: Vec3,
         t_max: f32,
-        accept: impl FnMut(u32, &TriangleHit) -> bool,
-    ) -> Option<(u32, TriangleHit)> {
-        self.closest_as(pre, d, t_max, accept, simd::wide())
-    }
-
-    /// [`Bvh::closest`] with the leaf test chosen by the caller: `wide` (only on a processor with
-    /// AVX2) tests a leaf's packets two at a time.
-    #[inline]
-    fn closest_as(
-        &self,
-        pre: &RayPrecomp,
-        d: Vec3,
-        t_max: f32,
         mut accept: impl FnMut(u32, &TriangleHit) -> bool,
-        wide: bool,
     ) -> Option<(u32, TriangleHit)> {
         let root = self.root?;
         let ray = PacketRay::new(pre);
@@ -157,36 +135,10 @@ impl Bvh {
                 b2: 0.0,
             },
         };
-        #[cfg(target_arch = "x86_64")]
-        if wide && simd::has_avx2() {
-            // SAFETY: the processor has AVX2 (checked just above).
-            unsafe { self.closest_from_avx2(root, &ray, &boxes, &mut best, &mut accept) };
-            return (best.id != u32::MAX).then_some((best.id, best.hit));
-        }
-        let _ = wide;
-        self.closest_from(root, &ray, &boxes, &mut best, &mut accept, None);
+        self.closest_from(root, &ray, &boxes, &mut best, &mut accept);
         (best.id != u32::MAX).then_some((best.id, best.hit))
     }
 
-    /// The traversal compiled for AVX2, with leaves tested two packets at a time.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn closest_from_avx2(
-        &self,
-        root: NodeRef,
-        ray: &PacketRay,
-        boxes: &BoxRay,
-        best: &mut Closest,
-        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-    ) {
-        // SAFETY: this function is only called on a processor that has AVX2.
-        let pair = unsafe { PairRay::new(ray) };
-        self.closest_from(root, ray, boxes, best, accept, Some(&pair));
-    }
-
-    /// The closest-hit traversal from `root`. With `pair` (only given on a processor with AVX2),
-    /// a leaf's packets are tested two at a time in one 8-lane test.
-    #[inline(always)]
     fn closest_from(
         &self,
         root: NodeRef,
@@ -194,7 +146,6 @@ impl Bvh {
         boxes: &BoxRay,
         best: &mut Closest,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-        pair: Option<&PairRay>,
     ) {
         // Sorted keys (see `sort_far_to_near`): child and entry distance.
         let mut stack = [0u64; STACK];
@@ -202,31 +153,13 @@ impl Bvh {
         let mut node = root;
         loop {
             if node.is_leaf() {
-                let mut packets = &self.packets[node.packets()];
-                #[cfg(target_arch = "x86_64")]
-                if let Some(pair) = pair {
-                    while let [p0, p1, rest @ ..] = packets {
-                        packets = rest;
-                        // SAFETY: `pair` is only given when the processor has AVX2.
-                        let hits = unsafe { intersect_pair(ray, pair, p0, p1, best.tie_limit()) };
-                        let mut m = hits.mask;
-                        while m != 0 {
-                            let k = m.trailing_zeros() as usize;
-                            m &= m - 1;
-                            let h = hits.get(k);
-                            // Only a leaf's last packet can be partial: p1 continues p0's ids.
-                            let id = p0.first_id + k as u32;
-                            if best.improved_by(h.t, id) && accept(id, &h) {
-                                *best = Closest { t: h.t, id, hit: h };
-                            }
-                        }
-                    }
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                let _ = pair;
-                for p in packets {
+                for p in &self.packets[node.packets()] {
                     // Accept ties (t equal to the best so far) so they can be broken by index.
-                    let limit = best.tie_limit();
+                    let limit = if best.id == u32::MAX {
+                        best.t
+                    } else {
+                        next_up(best.t)
+                    };
                     let hits = intersect_packet(ray, p, limit);
                     let mut m = hits.mask;
                     while m != 0 {
@@ -234,7 +167,7 @@ impl Bvh {
                         m &= m - 1;
                         let h = hits.get(k);
                         let id = p.first_id + k as u32;
-                        if best.improved_by(h.t, id) && accept(id, &h) {
+                        if (h.t < best.t || (h.t == best.t && id < best.id)) && accept(id, &h) {
                             *best = Closest { t: h.t, id, hit: h };
                         }
                     }
@@ -256,7 +189,7 @@ impl Bvh {
                     } else {
                         // Deeper than the fixed stack: finish these subtrees recursively.
                         for &key in &by_far[..count - 1] {
-                            self.closest_recursive(key_child(key), ray, boxes, best, accept);
+                            self.closest_from(key_child(key), ray, boxes, best, accept);
                         }
                     }
                     node = key_child(by_far[count - 1]);
@@ -278,84 +211,6 @@ impl Bvh {
         }
     }
 
-    /// The closest-hit traversal of a subtree deeper than the fixed stack: plain recursion,
-    /// 4-lane tests (such trees are rare; see `trees_deeper_than_the_stack_are_traversed`). Kept
-    /// apart from [`Bvh::closest_from`] so that the fast traversal is not part of a recursive
-    /// cycle, which would keep its leaf test from being inlined.
-    #[inline(never)]
-    fn closest_recursive(
-        &self,
-        node: NodeRef,
-        ray: &PacketRay,
-        boxes: &BoxRay,
-        best: &mut Closest,
-        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-    ) {
-        if node.is_leaf() {
-            for p in &self.packets[node.packets()] {
-                let hits = intersect_packet(ray, p, best.tie_limit());
-                let mut m = hits.mask;
-                while m != 0 {
-                    let k = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    let h = hits.get(k);
-                    let id = p.first_id + k as u32;
-                    if best.improved_by(h.t, id) && accept(id, &h) {
-                        *best = Closest { t: h.t, id, hit: h };
-                    }
-                }
-            }
-            return;
-        }
-        let n = &self.nodes[node.index()];
-        let (mask, near) = boxes.test(n, best.t);
-        let by_far = sort_far_to_near(mask, near, n);
-        // Nearest first, so that farther subtrees are culled by the hits found.
-        for &key in by_far[..LANES_SET[mask as usize]].iter().rev() {
-            if key_near(key) <= best.t {
-                self.closest_recursive(key_child(key), ray, boxes, best, accept);
-            }
-        }
-    }
-
-    /// The shadow-ray traversal of a subtree deeper than the fixed stack (see
-    /// [`Bvh::closest_recursive`]).
-    #[inline(never)]
-    fn any_recursive(
-        &self,
-        node: NodeRef,
-        ray: &PacketRay,
-        boxes: &BoxRay,
-        t_max: f32,
-        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-    ) -> bool {
-        if node.is_leaf() {
-            for p in &self.packets[node.packets()] {
-                let hits = intersect_packet(ray, p, t_max);
-                let mut m = hits.mask;
-                while m != 0 {
-                    let k = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    if accept(p.first_id + k as u32, &hits.get(k)) {
-                        return true;
-                    }
-                }
-            }
-            return false;
-        }
-        let n = &self.nodes[node.index()];
-        let (mask, _) = boxes.test(n, t_max);
-        let mut m = mask;
-        while m != 0 {
-            let k = m.trailing_zeros() as usize;
-            m &= m - 1;
-            if self.any_recursive(n.child[k], ray, boxes, t_max, accept) {
-                return true;
-            }
-        }
-        false
-    }
-
     /// True if some triangle that `accept(index, hit)` lets through is hit in (0, t_max).
     #[inline]
     pub fn any(
@@ -363,51 +218,14 @@ impl Bvh {
         pre: &RayPrecomp,
         d: Vec3,
         t_max: f32,
-        accept: impl FnMut(u32, &TriangleHit) -> bool,
-    ) -> bool {
-        self.any_as(pre, d, t_max, accept, simd::wide())
-    }
-
-    /// [`Bvh::any`] with the leaf test chosen by the caller, as in [`Bvh::closest_as`].
-    #[inline]
-    fn any_as(
-        &self,
-        pre: &RayPrecomp,
-        d: Vec3,
-        t_max: f32,
         mut accept: impl FnMut(u32, &TriangleHit) -> bool,
-        wide: bool,
     ) -> bool {
         let Some(root) = self.root else { return false };
         let ray = PacketRay::new(pre);
         let boxes = BoxRay::new(pre.o, d);
-        #[cfg(target_arch = "x86_64")]
-        if wide && simd::has_avx2() {
-            // SAFETY: the processor has AVX2 (checked just above).
-            return unsafe { self.any_from_avx2(root, &ray, &boxes, t_max, &mut accept) };
-        }
-        let _ = wide;
-        self.any_from(root, &ray, &boxes, t_max, &mut accept, None)
+        self.any_from(root, &ray, &boxes, t_max, &mut accept)
     }
 
-    /// The shadow-ray traversal compiled for AVX2, with leaves tested two packets at a time.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn any_from_avx2(
-        &self,
-        root: NodeRef,
-        ray: &PacketRay,
-        boxes: &BoxRay,
-        t_max: f32,
-        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-    ) -> bool {
-        // SAFETY: this function is only called on a processor that has AVX2.
-        let pair = unsafe { PairRay::new(ray) };
-        self.any_from(root, ray, boxes, t_max, accept, Some(&pair))
-    }
-
-    /// The shadow-ray traversal from `root`; `pair` as in [`Bvh::closest_from`].
-    #[inline(always)]
     fn any_from(
         &self,
         root: NodeRef,
@@ -415,33 +233,13 @@ impl Bvh {
         boxes: &BoxRay,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-        pair: Option<&PairRay>,
     ) -> bool {
         let mut stack = [NodeRef::NONE; STACK];
         let mut sp = 0usize;
         let mut node = root;
         loop {
             if node.is_leaf() {
-                let mut packets = &self.packets[node.packets()];
-                #[cfg(target_arch = "x86_64")]
-                if let Some(pair) = pair {
-                    while let [p0, p1, rest @ ..] = packets {
-                        packets = rest;
-                        // SAFETY: `pair` is only given when the processor has AVX2.
-                        let hits = unsafe { intersect_pair(ray, pair, p0, p1, t_max) };
-                        let mut m = hits.mask;
-                        while m != 0 {
-                            let k = m.trailing_zeros() as usize;
-                            m &= m - 1;
-                            if accept(p0.first_id + k as u32, &hits.get(k)) {
-                                return true;
-                            }
-                        }
-                    }
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                let _ = pair;
-                for p in packets {
+                for p in &self.packets[node.packets()] {
                     let hits = intersect_packet(ray, p, t_max);
                     let mut m = hits.mask;
                     while m != 0 {
@@ -469,7 +267,7 @@ impl Bvh {
                     while m != 0 {
                         let k = m.trailing_zeros() as usize;
                         m &= m - 1;
-                        if self.any_recursive(n.child[k], ray, boxes, t_max, accept) {
+                        if self.any_from(n.child[k], ray, boxes, t_max, accept) {
                             return true;
                         }
                     }
@@ -556,26 +354,6 @@ struct Closest {
     hit: TriangleHit,
 }
 
-impl Closest {
-    /// The distance limit for a leaf test: ties with the best hit so far are let through, so
-    /// that they can be broken by index.
-    #[inline(always)]
-    fn tie_limit(&self) -> f32 {
-        if self.id == u32::MAX {
-            self.t
-        } else {
-            next_up(self.t)
-        }
-    }
-
-    /// Whether a hit of triangle `id` at `t` is closer than the best so far, or ties with it
-    /// and has the smaller index.
-    #[inline(always)]
-    fn improved_by(&self, t: f32, id: u32) -> bool {
-        t < self.t || (t == self.t && id < self.id)
-    }
-}
-
 #[inline]
 fn next_up(x: f32) -> f32 {
     if x.is_finite() && x >= 0.0 {
@@ -589,54 +367,6 @@ fn next_up(x: f32) -> f32 {
 mod tests {
     use super::*;
     use crate::geometry::{intersect_watertight, Ray};
-
-    /// The leaf-test widths this processor runs: 4 lanes, and 8 where it has AVX2.
-    fn widths() -> &'static [bool] {
-        if simd::has_avx2() {
-            &[false, true]
-        } else {
-            eprintln!("no AVX2 here: only the 4-lane leaf test is exercised");
-            &[false]
-        }
-    }
-
-    /// [`Bvh::closest`] with every width, which must agree.
-    fn closest_all<F: FnMut(u32, &TriangleHit) -> bool + Copy>(
-        bvh: &Bvh,
-        pre: &RayPrecomp,
-        d: Vec3,
-        t_max: f32,
-        accept: F,
-    ) -> Option<(u32, TriangleHit)> {
-        let first = bvh.closest_as(pre, d, t_max, accept, false);
-        for &wide in widths() {
-            assert_eq!(
-                bvh.closest_as(pre, d, t_max, accept, wide),
-                first,
-                "wide {wide}"
-            );
-        }
-        first
-    }
-
-    /// [`Bvh::any`] with every width, which must agree.
-    fn any_all<F: FnMut(u32, &TriangleHit) -> bool + Copy>(
-        bvh: &Bvh,
-        pre: &RayPrecomp,
-        d: Vec3,
-        t_max: f32,
-        accept: F,
-    ) -> bool {
-        let first = bvh.any_as(pre, d, t_max, accept, false);
-        for &wide in widths() {
-            assert_eq!(
-                bvh.any_as(pre, d, t_max, accept, wide),
-                first,
-                "wide {wide}"
-            );
-        }
-        first
-    }
 
     #[test]
     fn tiny_meshes_are_hit() {
@@ -665,18 +395,19 @@ mod tests {
                 (Vec3::ZERO, -Vec3::Z, 1.0),
             ] {
                 let pre = RayPrecomp::new(&Ray::new(o, d));
-                let (id, hit) = closest_all(&bvh, &pre, d, f32::INFINITY, |_, _| true)
+                let (id, hit) = bvh
+                    .closest(&pre, d, f32::INFINITY, |_, _| true)
                     .unwrap_or_else(|| panic!("{n} triangles: missed {d}"));
                 assert!((hit.t - t).abs() < 1e-4, "{n} triangles, {d}: {}", hit.t);
                 let direct = intersect_watertight(&pre, &mesh.positions[id as usize], 10.0);
                 assert_eq!(direct, Some(hit), "the reported hit is triangle {id}'s");
-                assert!(any_all(&bvh, &pre, d, 10.0, |_, _| true));
+                assert!(bvh.any(&pre, d, 10.0, |_, _| true));
                 assert!(
-                    !any_all(&bvh, &pre, d, t * 0.99, |_, _| true),
+                    !bvh.any(&pre, d, t * 0.99, |_, _| true),
                     "{n}: hit before t"
                 );
                 assert!(
-                    !any_all(&bvh, &pre, d, 10.0, |_, _| false),
+                    !bvh.any(&pre, d, 10.0, |_, _| false),
                     "the filter is obeyed"
                 );
             }
@@ -724,11 +455,8 @@ mod tests {
                             }
                         }
                     }
-                    assert_eq!(closest_all(&bvh, &pre, d, f32::INFINITY, |_, _| true), want);
-                    assert_eq!(
-                        any_all(&bvh, &pre, d, f32::INFINITY, |_, _| true),
-                        want.is_some()
-                    );
+                    assert_eq!(bvh.closest(&pre, d, f32::INFINITY, |_, _| true), want);
+                    assert_eq!(bvh.any(&pre, d, f32::INFINITY, |_, _| true), want.is_some());
                     checked += want.is_some() as u32;
                 }
             }
@@ -779,13 +507,13 @@ mod tests {
                     }
                 }
             }
-            let got = closest_all(&bvh, &pre, d, t_max, |_, _| true);
+            let got = bvh.closest(&pre, d, t_max, |_, _| true);
             assert_eq!(got, want, "ray {o} {d}");
-            assert_eq!(any_all(&bvh, &pre, d, t_max, |_, _| true), want.is_some());
+            assert_eq!(bvh.any(&pre, d, t_max, |_, _| true), want.is_some());
             hits += want.is_some() as u32;
             // A filter that rejects the nearest triangle finds the next one.
             if let Some((first, _)) = want {
-                let next = closest_all(&bvh, &pre, d, t_max, |id, _| id != first);
+                let next = bvh.closest(&pre, d, t_max, |id, _| id != first);
                 let mut brute: Option<(u32, TriangleHit)> = None;
                 for (id, tri) in mesh.positions.iter().enumerate() {
                     if id as u32 == first {

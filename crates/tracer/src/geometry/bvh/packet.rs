@@ -32,12 +32,6 @@ impl PacketRay {
         }
     }
 
-    /// The origin's permuted coordinates and the shear, as scalars (for tests of other widths).
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
-    pub fn splats(&self) -> ([f32; 3], [f32; 3]) {
-        (self.o.map(|v| v.x), self.s.map(|v| v.x))
-    }
-
     /// The sheared coordinates of one vertex of the four triangles, as `RayPrecomp::shear` computes
     /// them for one.
     #[inline(always)]
