@@ -1,5 +1,6 @@
 //! The Lambertian (diffuse) lobe: f = albedo / π, sampled by cosine-weighted directions.
 
+use super::{Bsdf, BsdfSample};
 use crate::sampling::sample_cosine_hemisphere;
 use glam::{Vec2, Vec3};
 use std::f32::consts::FRAC_1_PI;
@@ -20,6 +21,61 @@ pub(super) fn pdf(cos_i: f32) -> f32 {
 #[inline]
 pub(super) fn sample(u: Vec2) -> Vec3 {
     sample_cosine_hemisphere(u)
+}
+
+/// The pure Lambertian's short paths of the [`Bsdf`] queries, inlined into the integrator: a
+/// Lambertian lobe needs only cos θo and cos θi, two dot products with the shading normal.
+impl Bsdf {
+    /// What [`Bsdf::local_pair`] gives the Lambertian lobe: cos θi on wo's side of the shading
+    /// surface, when it is positive and the pair passes the same tests. The lobe needs only the
+    /// two z components, so the other four dot products are not computed (the values are the same
+    /// bits: `to_local`'s z is the same dot product).
+    #[inline(always)]
+    pub(super) fn lambert_cos_i(&self, wo: Vec3, wi: Vec3) -> Option<f32> {
+        let (lo_z, li_z) = (wo.dot(self.frame.z), wi.dot(self.frame.z));
+        if lo_z == 0.0
+            || li_z == 0.0
+            || lo_z.is_nan()
+            || li_z.is_nan()
+            || !self.guard(wo, wi, lo_z, li_z)
+        {
+            return None;
+        }
+        let cos_i = if lo_z > 0.0 { li_z } else { -li_z };
+        (cos_i > 0.0).then_some(cos_i)
+    }
+
+    /// [`Bsdf::eval_pdf`] of the pure Lambertian.
+    #[inline(always)]
+    pub(super) fn lambert_eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        match self.lambert_cos_i(wo, wi) {
+            Some(c) => (self.params.base_color * eval(c), pdf(c)),
+            None => (Vec3::ZERO, 0.0),
+        }
+    }
+
+    /// [`Bsdf::sample`] of the pure Lambertian.
+    #[inline(always)]
+    pub(super) fn lambert_sample(&self, wo: Vec3, u: Vec2) -> Option<BsdfSample> {
+        // Only cos θo (its sign) matters to the Lambertian lobe: one dot product, not three.
+        let lo_z = wo.dot(self.frame.z);
+        if lo_z == 0.0 || lo_z.is_nan() {
+            return None;
+        }
+        let s = if lo_z > 0.0 { 1.0 } else { -1.0 };
+        let i = sample(u);
+        if i.z <= 0.0 {
+            return None;
+        }
+        self.finish(
+            wo,
+            lo_z,
+            i * Vec3::new(1.0, 1.0, s),
+            self.params.base_color,
+            pdf(i.z),
+            false,
+        )
+    }
 }
 
 #[cfg(test)]

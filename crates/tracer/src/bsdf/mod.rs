@@ -239,73 +239,61 @@ impl Bsdf {
     }
 
     /// f(wo, wi) · |cos θi| of the non-delta lobes.
+    #[inline(always)]
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
         if self.lambert {
-            return match self.lambert_cos_i(wo, wi) {
-                Some(c) => self.params.base_color * lambert::eval(c),
-                None => Vec3::ZERO,
-            };
+            return self.lambert_eval_pdf(wo, wi).0;
         }
-        let Some((o, i, entering)) = self.local_pair(wo, wi) else {
-            return Vec3::ZERO;
-        };
-        let eta = self.interface.eta(entering);
-        let t = self.wo_terms(o.z, eta);
-        self.eval_pdf_local::<true, false>(o, i, eta, &t).0
+        self.general_eval_pdf::<true, false>(wo, wi).0
     }
 
     /// Solid-angle density of [`Bsdf::sample`] producing `wi` through a non-delta lobe.
+    #[inline(always)]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
         if self.lambert {
-            return self.lambert_cos_i(wo, wi).map_or(0.0, lambert::pdf);
+            return self.lambert_eval_pdf(wo, wi).1;
         }
-        let Some((o, i, entering)) = self.local_pair(wo, wi) else {
-            return 0.0;
-        };
-        let eta = self.interface.eta(entering);
-        let t = self.wo_terms(o.z, eta);
-        self.eval_pdf_local::<false, true>(o, i, eta, &t).1
+        self.general_eval_pdf::<false, true>(wo, wi).1
     }
 
     /// [`Bsdf::eval`] and [`Bsdf::pdf`] together, sharing their work (for light sampling with MIS).
+    #[inline(always)]
     pub fn eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
         if self.lambert {
-            return match self.lambert_cos_i(wo, wi) {
-                Some(c) => (self.params.base_color * lambert::eval(c), lambert::pdf(c)),
-                None => (Vec3::ZERO, 0.0),
-            };
+            return self.lambert_eval_pdf(wo, wi);
         }
+        self.general_eval_pdf::<true, true>(wo, wi)
+    }
+
+    /// The public queries of every material but the pure Lambertian, out of line: the
+    /// Lambertian's short paths (`lambert.rs`) are inlined into the integrator, this is not.
+    #[inline(never)]
+    fn general_eval_pdf<const EVAL: bool, const PDF: bool>(
+        &self,
+        wo: Vec3,
+        wi: Vec3,
+    ) -> (Vec3, f32) {
         let Some((o, i, entering)) = self.local_pair(wo, wi) else {
             return (Vec3::ZERO, 0.0);
         };
         let eta = self.interface.eta(entering);
         let t = self.wo_terms(o.z, eta);
-        self.eval_pdf_local::<true, true>(o, i, eta, &t)
+        self.eval_pdf_local::<EVAL, PDF>(o, i, eta, &t)
     }
 
     /// Samples wi. `u_lobe` chooses the lobe (and, remapped, reflection against refraction); `u`
     /// samples the direction within it.
+    #[inline(always)]
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         if self.lambert {
-            // Only cos θo (its sign) matters to the Lambertian lobe: one dot product, not three.
-            let lo_z = wo.dot(self.frame.z);
-            if lo_z == 0.0 || lo_z.is_nan() {
-                return None;
-            }
-            let s = if lo_z > 0.0 { 1.0 } else { -1.0 };
-            let i = lambert::sample(u);
-            if i.z <= 0.0 {
-                return None;
-            }
-            return self.finish(
-                wo,
-                lo_z,
-                i * Vec3::new(1.0, 1.0, s),
-                self.params.base_color,
-                lambert::pdf(i.z),
-                false,
-            );
+            return self.lambert_sample(wo, u);
         }
+        self.general_sample(wo, u_lobe, u)
+    }
+
+    /// [`Bsdf::sample`] for every material but the pure Lambertian, out of line.
+    #[inline(never)]
+    fn general_sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         let lo = self.frame.to_local(wo);
         if lo.z == 0.0 || lo.z.is_nan() {
             return None;
@@ -432,25 +420,6 @@ impl Bsdf {
     fn guard(&self, wo: Vec3, wi: Vec3, lo_z: f32, li_z: f32) -> bool {
         let (go, gi) = (wo.dot(self.ng), wi.dot(self.ng));
         go != 0.0 && gi != 0.0 && ((go > 0.0) == (gi > 0.0)) == ((lo_z > 0.0) == (li_z > 0.0))
-    }
-
-    /// What [`Bsdf::local_pair`] gives the Lambertian lobe: cos θi on wo's side of the shading
-    /// surface, when it is positive and the pair passes the same tests. The lobe needs only the
-    /// two z components, so the other four dot products are not computed (the values are the same
-    /// bits: `to_local`'s z is the same dot product).
-    #[inline]
-    fn lambert_cos_i(&self, wo: Vec3, wi: Vec3) -> Option<f32> {
-        let (lo_z, li_z) = (wo.dot(self.frame.z), wi.dot(self.frame.z));
-        if lo_z == 0.0
-            || li_z == 0.0
-            || lo_z.is_nan()
-            || li_z.is_nan()
-            || !self.guard(wo, wi, lo_z, li_z)
-        {
-            return None;
-        }
-        let cos_i = if lo_z > 0.0 { li_z } else { -li_z };
-        (cos_i > 0.0).then_some(cos_i)
     }
 
     /// Local directions with wo mirrored into the upper hemisphere (the lobes are isotropic, so the

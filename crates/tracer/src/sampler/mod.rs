@@ -79,7 +79,7 @@ impl PixelSampler {
         }
     }
 
-    #[inline]
+    #[inline(always)]
     pub fn get2(&self, dim: u32) -> Vec2 {
         match self.kind {
             SamplerKind::Sobol => {

@@ -178,7 +178,8 @@ static REVERSED_BYTES: [u8; 256] = {
 
 /// Dimension `dim` of sample `index` for the pixel whose key is `pixel_key`, in [0, 1). Takes the
 /// sample index bit-reversed (`index.reverse_bits()`), which callers compute once per sample.
-#[inline]
+// Inlined at every use: a call per sample value cost more than the value's own arithmetic.
+#[inline(always)]
 pub fn owen_sobol_sample(pixel_key: u32, index_rev: u32, dim: u32) -> f32 {
     let seed = group_seed(pixel_key, dim);
     // The shuffled index is reverse(LK(reverse(index))); keep it reversed.
@@ -188,7 +189,7 @@ pub fn owen_sobol_sample(pixel_key: u32, index_rev: u32, dim: u32) -> f32 {
 
 /// Dimensions `dim` and `dim + 1` at once (same values as two [`owen_sobol_sample`] calls, sharing
 /// the index shuffle when both lie in one group of four).
-#[inline]
+#[inline(always)]
 pub fn owen_sobol_pair(pixel_key: u32, index_rev: u32, dim: u32) -> (f32, f32) {
     if dim & 3 == 3 {
         return (
