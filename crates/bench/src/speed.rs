@@ -281,17 +281,8 @@ fn sphere330k(opts: &SpeedOptions) -> Result<SphereResult, BenchError> {
     }
     drop(parts);
     let scene = scene.ok_or_else(|| BenchError::Invalid("no build ran".into()))?;
-    let s = settings(SIZE, SIZE, opts.seed);
-    let mut best: Option<Throughput> = None;
-    let mut render_runs = Vec::with_capacity(REPEATS);
-    for _ in 0..REPEATS {
-        let t = Throughput::of(&render_range(&scene, &s, 0..SPHERE_SPP), SPHERE_SPP);
-        render_runs.push(t.seconds);
-        if best.as_ref().is_none_or(|b| t.seconds < b.seconds) {
-            best = Some(t);
-        }
-    }
-    let render = best.ok_or_else(|| BenchError::Invalid("no throughput run".into()))?;
+    let (render, render_runs) =
+        best_throughput(&scene, &settings(SIZE, SIZE, opts.seed), SPHERE_SPP)?;
     let result = SphereResult {
         triangles: scene.info.triangles,
         build_seconds: build_runs.iter().copied().fold(f64::INFINITY, f64::min),
@@ -303,22 +294,29 @@ fn sphere330k(opts: &SpeedOptions) -> Result<SphereResult, BenchError> {
     Ok(result)
 }
 
-fn cornell(opts: &SpeedOptions) -> Result<CornellResult, BenchError> {
-    let loaded = scenes::load(&scenes::find("cornell")?, &opts.scenes_dir)?;
-    let s = settings(SIZE, SIZE, opts.seed);
+/// The fastest of [`REPEATS`] renders of `spp` samples per pixel, and every run's seconds.
+fn best_throughput(
+    scene: &Scene,
+    settings: &RenderSettings,
+    spp: u32,
+) -> Result<(Throughput, Vec<f64>), BenchError> {
     let mut best: Option<Throughput> = None;
-    let mut throughput_runs = Vec::with_capacity(REPEATS);
+    let mut runs = Vec::with_capacity(REPEATS);
     for _ in 0..REPEATS {
-        let t = Throughput::of(
-            &render_range(&loaded.scene, &s, 0..THROUGHPUT_SPP),
-            THROUGHPUT_SPP,
-        );
-        throughput_runs.push(t.seconds);
+        let t = Throughput::of(&render_range(scene, settings, 0..spp), spp);
+        runs.push(t.seconds);
         if best.as_ref().is_none_or(|b| t.seconds < b.seconds) {
             best = Some(t);
         }
     }
-    let throughput = best.ok_or_else(|| BenchError::Invalid("no throughput run".into()))?;
+    let best = best.ok_or_else(|| BenchError::Invalid("no throughput run".into()))?;
+    Ok((best, runs))
+}
+
+fn cornell(opts: &SpeedOptions) -> Result<CornellResult, BenchError> {
+    let loaded = scenes::load(&scenes::find("cornell")?, &opts.scenes_dir)?;
+    let s = settings(SIZE, SIZE, opts.seed);
+    let (throughput, throughput_runs) = best_throughput(&loaded.scene, &s, THROUGHPUT_SPP)?;
     tracing::info!(?throughput, "cornell throughput measured");
     // The reference is read only now, so the million scene's peak above is the bench's own.
     let (convergence, skipped) = match read_rgb(&opts.reference, SIZE) {

@@ -158,21 +158,7 @@ impl Bvh {
         let mut node = root;
         loop {
             if node.is_leaf() {
-                for p in &self.packets[node.packets()] {
-                    // Accept ties (t equal to the best so far) so they can be broken by index.
-                    let limit = best.tie_limit();
-                    let hits = intersect_packet(ray, p, limit);
-                    let mut m = hits.mask;
-                    while m != 0 {
-                        let k = m.trailing_zeros() as usize;
-                        m &= m - 1;
-                        let h = hits.get(k);
-                        let id = p.first_id + k as u32;
-                        if best.improved_by(h.t, id) && accept(id, &h) {
-                            *best = Closest { t: h.t, id, hit: h };
-                        }
-                    }
-                }
+                self.closest_in_leaf(node, ray, best, accept);
             } else {
                 let n = &self.nodes[node.index()];
                 let (mask, near) = boxes.test(n, best.t);
@@ -226,19 +212,7 @@ impl Bvh {
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) {
         if node.is_leaf() {
-            for p in &self.packets[node.packets()] {
-                let hits = intersect_packet(ray, p, best.tie_limit());
-                let mut m = hits.mask;
-                while m != 0 {
-                    let k = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    let h = hits.get(k);
-                    let id = p.first_id + k as u32;
-                    if best.improved_by(h.t, id) && accept(id, &h) {
-                        *best = Closest { t: h.t, id, hit: h };
-                    }
-                }
-            }
+            self.closest_in_leaf(node, ray, best, accept);
             return;
         }
         let n = &self.nodes[node.index()];
@@ -264,18 +238,7 @@ impl Bvh {
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
         if node.is_leaf() {
-            for p in &self.packets[node.packets()] {
-                let hits = intersect_packet(ray, p, t_max);
-                let mut m = hits.mask;
-                while m != 0 {
-                    let k = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    if accept(p.first_id + k as u32, &hits.get(k)) {
-                        return true;
-                    }
-                }
-            }
-            return false;
+            return self.any_in_leaf(node, ray, t_max, accept);
         }
         let n = &self.nodes[node.index()];
         let (mask, _) = boxes.test(n, t_max);
@@ -285,6 +248,55 @@ impl Bvh {
             m &= m - 1;
             if self.any_recursive(n.child[k], ray, boxes, t_max, accept) {
                 return true;
+            }
+        }
+        false
+    }
+
+    /// Tests the packets of leaf `node`, updating `best` with every closer (or tying, smaller
+    /// index) hit that `accept` lets through.
+    #[inline(always)]
+    fn closest_in_leaf(
+        &self,
+        node: NodeRef,
+        ray: &PacketRay,
+        best: &mut Closest,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) {
+        for p in &self.packets[node.packets()] {
+            // Accept ties (t equal to the best so far) so they can be broken by index.
+            let hits = intersect_packet(ray, p, best.tie_limit());
+            let mut m = hits.mask;
+            while m != 0 {
+                let k = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let h = hits.get(k);
+                let id = p.first_id + k as u32;
+                if best.improved_by(h.t, id) && accept(id, &h) {
+                    *best = Closest { t: h.t, id, hit: h };
+                }
+            }
+        }
+    }
+
+    /// True if a packet of leaf `node` has a hit in (0, t_max) that `accept` lets through.
+    #[inline(always)]
+    fn any_in_leaf(
+        &self,
+        node: NodeRef,
+        ray: &PacketRay,
+        t_max: f32,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
+        for p in &self.packets[node.packets()] {
+            let hits = intersect_packet(ray, p, t_max);
+            let mut m = hits.mask;
+            while m != 0 {
+                let k = m.trailing_zeros() as usize;
+                m &= m - 1;
+                if accept(p.first_id + k as u32, &hits.get(k)) {
+                    return true;
+                }
             }
         }
         false
@@ -321,16 +333,8 @@ impl Bvh {
         let mut node = root;
         loop {
             if node.is_leaf() {
-                for p in &self.packets[node.packets()] {
-                    let hits = intersect_packet(ray, p, t_max);
-                    let mut m = hits.mask;
-                    while m != 0 {
-                        let k = m.trailing_zeros() as usize;
-                        m &= m - 1;
-                        if accept(p.first_id + k as u32, &hits.get(k)) {
-                            return true;
-                        }
-                    }
+                if self.any_in_leaf(node, ray, t_max, accept) {
+                    return true;
                 }
             } else {
                 let n = &self.nodes[node.index()];
