@@ -5,7 +5,7 @@ mod mesh;
 mod ray;
 mod triangle;
 
-pub use bvh::Bvh;
+pub use bvh::{Bvh, RayQuery};
 pub use mesh::{renderable, Mesh, MeshError};
 pub use ray::Ray;
 pub use triangle::{intersect_watertight, RayPrecomp, TriangleHit};

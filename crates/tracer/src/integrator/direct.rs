@@ -83,41 +83,50 @@ pub(crate) fn direct_punctual(
     f * ls.li * v.transmittance(ls.dist) / pmf
 }
 
+/// A shadow ray whose answer is still to come, and what it adds to the path's radiance if the
+/// light is visible.
+pub(crate) struct ShadowQuery {
+    pub ray: Ray,
+    pub t_max: f32,
+    pub alpha_u: f32,
+    /// The contribution if unoccluded, before the path throughput is applied.
+    pub value: Vec3,
+}
+
 /// A point on an area light chosen by power, pdf P(light)/A converted to solid angle by
-/// r² / |cos θ'|, with a shadow ray. With `mis`, weighted by the power heuristic against the BSDF.
-pub(crate) fn direct_area_light(
+/// r² / |cos θ'|. With `mis`, weighted by the power heuristic against the BSDF. Returns the shadow
+/// ray that decides the contribution, untraced: the integrator traces it together with the path's
+/// continuation ray (`Scene::intersect_and_visible`). None when the sample contributes nothing.
+#[inline(always)]
+pub(crate) fn area_light_query(
     scene: &Scene,
     v: &Vertex,
     s: &PixelSampler,
     depth: u32,
     mis: bool,
-    rays: &mut u32,
-) -> Vec3 {
+) -> Option<ShadowQuery> {
     let u_sel = s.bounce1(depth, dims::LIGHT_SELECT);
-    let Some(ls) = scene
+    let ls = scene
         .lights
         .area
-        .sample(u_sel, s.bounce2(depth, dims::LIGHT_POINT))
-    else {
-        return Vec3::ZERO;
-    };
+        .sample(u_sel, s.bounce2(depth, dims::LIGHT_POINT))?;
     let d = ls.point - v.p;
     let dist2 = d.length_squared();
     if dist2 <= 0.0 {
-        return Vec3::ZERO;
+        return None;
     }
     let dist = dist2.sqrt();
     let wi = d / dist;
     let cos_l = -wi.dot(ls.normal);
     if cos_l == 0.0 {
-        return Vec3::ZERO;
+        return None;
     }
     let tri = ls.triangle as usize;
     let material = &scene.materials[scene.mesh.material[tri] as usize];
     let uv = light_uv(scene, tri, ls.barycentrics);
     let le = material.emission(&scene.textures, &uv, cos_l > 0.0);
     if is_black(le) {
-        return Vec3::ZERO;
+        return None;
     }
     // With MIS the BSDF's pdf is needed too: evaluate both in one pass over the lobes.
     let (f, bsdf_pdf) = if mis {
@@ -126,28 +135,26 @@ pub(crate) fn direct_area_light(
         (v.bsdf.eval(v.wo, wi), 0.0)
     };
     if is_black(f) {
-        return Vec3::ZERO;
+        return None;
     }
     let pdf = ls.pdf_area * dist2 / cos_l.abs();
     if !(pdf > 0.0 && pdf.is_finite()) {
-        return Vec3::ZERO;
-    }
-    *rays += 1;
-    if !scene.visible(
-        &v.spawn(wi),
-        dist * (1.0 - SHADOW_EPSILON),
-        s.bounce1(depth, dims::ALPHA),
-    ) {
-        return Vec3::ZERO;
+        return None;
     }
     let w = if mis {
         power_heuristic(pdf, bsdf_pdf)
     } else {
         1.0
     };
-    f * le * v.transmittance(dist) * (w / pdf)
+    Some(ShadowQuery {
+        ray: v.spawn(wi),
+        t_max: dist * (1.0 - SHADOW_EPSILON),
+        alpha_u: s.bounce1(depth, dims::ALPHA),
+        value: f * le * v.transmittance(dist) * (w / pdf),
+    })
 }
 
+#[inline]
 fn light_uv(scene: &Scene, tri: usize, b: Vec3) -> [Vec2; 2] {
     let interp = |t: &[Vec2; 3]| t[0] * b.x + t[1] * b.y + t[2] * b.z;
     [

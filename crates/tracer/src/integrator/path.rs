@@ -1,10 +1,10 @@
-use super::direct::{direct_area_light, direct_by_direction, direct_punctual, Vertex};
+use super::direct::{area_light_query, direct_by_direction, direct_punctual, ShadowQuery, Vertex};
 use super::EmissionWeight;
 use crate::geometry::Ray;
 use crate::math::{is_black, offset_ray_origin};
 use crate::sampler::{dims, PixelSampler};
 use crate::sampling::power_heuristic;
-use crate::scene::Scene;
+use crate::scene::{Hit, Scene};
 use crate::settings::{DirectStrategy, RenderSettings, RussianRoulette};
 use glam::Vec3;
 
@@ -40,14 +40,17 @@ pub fn trace_path(
     let has_punctual = !scene.lights.punctual.is_empty();
 
     let mut depth = 0u32;
+    // The current ray's hit when it was traced together with the previous vertex's shadow ray.
+    let mut traced: Option<Option<Hit>> = None;
     loop {
-        let alpha_u = if scene.any_alpha() {
-            sampler.bounce1(depth, dims::ALPHA)
-        } else {
-            0.0
+        let found = match traced.take() {
+            Some(found) => found,
+            None => {
+                out.rays += 1;
+                scene.intersect(&ray, f32::INFINITY, alpha_at(scene, sampler, depth))
+            }
         };
-        out.rays += 1;
-        let Some(hit) = scene.intersect(&ray, f32::INFINITY, alpha_u) else {
+        let Some(hit) = found else {
             break;
         };
         out.vertices += 1;
@@ -88,7 +91,10 @@ pub fn trace_path(
             medium,
         };
 
-        // 2. Direct lighting for the non-delta lobes.
+        // 2. Direct lighting for the non-delta lobes. The area light's shadow ray is traced later,
+        // together with the continuation ray (or alone if the path ends here); its contribution
+        // is added before anything else is, so the sum's order, and its bits, are unchanged.
+        let mut shadow: Option<ShadowQuery> = None;
         if bsdf.has_non_delta() {
             if has_punctual {
                 l += beta * direct_punctual(scene, &vertex, sampler, depth, &mut out.rays);
@@ -96,8 +102,13 @@ pub fn trace_path(
             match strategy {
                 DirectStrategy::Light | DirectStrategy::Mis if has_area => {
                     let mis = strategy == DirectStrategy::Mis;
-                    l += beta
-                        * direct_area_light(scene, &vertex, sampler, depth, mis, &mut out.rays);
+                    shadow = area_light_query(scene, &vertex, sampler, depth, mis).map(|q| {
+                        out.rays += 1;
+                        ShadowQuery {
+                            value: beta * q.value,
+                            ..q
+                        }
+                    });
                 }
                 DirectStrategy::Hemisphere | DirectStrategy::Cosine if has_area => {
                     l += beta
@@ -121,17 +132,19 @@ pub fn trace_path(
         } else {
             sampler.bounce1(depth, dims::BSDF_LOBE)
         };
-        let Some(bs) = bsdf.sample(wo, u_lobe, sampler.bounce2(depth, dims::BSDF_DIR)) else {
+        let Some(bs) = bsdf
+            .sample(wo, u_lobe, sampler.bounce2(depth, dims::BSDF_DIR))
+            .filter(|bs| !is_black(bs.weight))
+        else {
+            l += shadow_alone(scene, shadow);
             break;
         };
-        if is_black(bs.weight) {
-            break;
-        }
         beta *= bs.weight;
         if is_black(beta) {
             // The throughput underflowed (a long path without roulette, or full absorption):
             // nothing further can contribute, and without this test the path would run on to
             // the safety cap of 65,536 bounces.
+            l += shadow_alone(scene, shadow);
             break;
         }
         emission = if bs.delta {
@@ -176,6 +189,7 @@ pub fn trace_path(
         };
         if survive < 1.0 {
             if sampler.bounce1(depth, dims::ROULETTE) >= survive {
+                l += shadow_alone(scene, shadow);
                 break;
             }
             beta /= survive;
@@ -188,7 +202,36 @@ pub fn trace_path(
         };
         ray = Ray::new(offset_ray_origin(si.p, side), bs.wi);
         depth += 1;
+        if let Some(q) = shadow {
+            out.rays += 1;
+            let alpha_u = alpha_at(scene, sampler, depth);
+            let (found, visible) =
+                scene.intersect_and_visible(&ray, alpha_u, &q.ray, q.t_max, q.alpha_u);
+            if visible {
+                l += q.value;
+            }
+            traced = Some(found);
+        }
     }
     out.radiance = l;
     out
+}
+
+/// The alpha-coverage sample of the closest-hit ray of bounce `depth` (none without alpha).
+#[inline(always)]
+fn alpha_at(scene: &Scene, sampler: &PixelSampler, depth: u32) -> f32 {
+    if scene.any_alpha() {
+        sampler.bounce1(depth, dims::ALPHA)
+    } else {
+        0.0
+    }
+}
+
+/// The contribution of a pending shadow ray traced alone (the path ends at its vertex).
+#[inline(always)]
+fn shadow_alone(scene: &Scene, shadow: Option<ShadowQuery>) -> Vec3 {
+    match shadow {
+        Some(q) if scene.visible(&q.ray, q.t_max, q.alpha_u) => q.value,
+        _ => Vec3::ZERO,
+    }
 }

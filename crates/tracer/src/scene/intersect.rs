@@ -2,7 +2,7 @@
 //! interaction at a hit.
 
 use super::Scene;
-use crate::geometry::{Ray, RayPrecomp};
+use crate::geometry::{Ray, RayPrecomp, RayQuery};
 use crate::sampler::hash_u32;
 use glam::{Vec2, Vec3, Vec4};
 
@@ -84,6 +84,47 @@ impl Scene {
         } else {
             !self.bvh.any(&pre, ray.d, t_max, |_, _| true)
         }
+    }
+
+    /// [`Scene::intersect`] of `ray` and [`Scene::visible`] of `shadow`, traced together (the two
+    /// traversals interleaved, see `Bvh::closest_and_any`): the same answers as the two calls.
+    #[inline(always)]
+    pub fn intersect_and_visible(
+        &self,
+        ray: &Ray,
+        alpha_u: f32,
+        shadow: &Ray,
+        shadow_t_max: f32,
+        shadow_alpha_u: f32,
+    ) -> (Option<Hit>, bool) {
+        let (pre, shadow_pre) = (RayPrecomp::new(ray), RayPrecomp::new(shadow));
+        let a = RayQuery {
+            pre: &pre,
+            d: ray.d,
+            t_max: f32::INFINITY,
+        };
+        let b = RayQuery {
+            pre: &shadow_pre,
+            d: shadow.d,
+            t_max: shadow_t_max,
+        };
+        let (found, blocked) = if self.any_alpha {
+            self.bvh.closest_and_any(
+                a,
+                |id, h| !self.passes_through(id as usize, h.b1, h.b2, alpha_u),
+                b,
+                |id, h| !self.passes_through(id as usize, h.b1, h.b2, shadow_alpha_u),
+            )
+        } else {
+            self.bvh.closest_and_any(a, |_, _| true, b, |_, _| true)
+        };
+        let hit = found.map(|(triangle, h)| Hit {
+            t: h.t,
+            triangle,
+            b1: h.b1,
+            b2: h.b2,
+        });
+        (hit, !blocked)
     }
 
     #[inline]
