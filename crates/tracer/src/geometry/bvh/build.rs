@@ -1,6 +1,6 @@
 //! Building the 4-wide BVH: `obvhs` builds a binary BVH (PLOC with reinsertion, leaves collapsed by
 //! its SAH), which is then collapsed into 4-wide nodes, and each leaf's triangles are packed into
-//! SIMD packets of four (a leaf holds up to two).
+//! SIMD packets of four (a leaf holds one; the layout allows up to eight).
 //!
 //! Why not obvhs' own 8-wide CWBVH: its quantized nodes are made for GPUs and bandwidth; on a CPU
 //! the dequantization and the per-primitive callback cost more than they save, and its leaves test
@@ -35,15 +35,18 @@ pub(super) struct Built {
     pub depth: usize,
 }
 
-/// The largest triangle count of a binary leaf: two packets. obvhs' collapse decides by SAH how
-/// many triangles a leaf gets up to this bound. Eight against four (with the collapse cost below):
-/// +4.8 % ± 0.6 % samples/s on the 330k scene, +1.8 % on the Cornell box (docs/benchmarks.md).
-const MAX_PRIMS_PER_LEAF: u32 = 8;
+/// The largest triangle count of a binary leaf: one packet. obvhs' collapse decides by SAH how many
+/// triangles a leaf gets up to this bound. History (docs/benchmarks.md): leaves of up to eight
+/// triangles with a collapse cost of 8 measured +4.8 % on the 330k scene when each ray was traced
+/// alone; once a vertex's shadow and continuation rays were traced together, leaves of four with
+/// obvhs' default cost measured +6.0 % ± 1.5 on the Cornell box and −0.1 % ± 0.9 on the 330k scene
+/// against them (same-time A/B): fewer packet tests per ray (1.7 against 3.4 on the box) for a
+/// node test more.
+const MAX_PRIMS_PER_LEAF: u32 = 4;
 
 /// The SAH cost of a node visit against one triangle test, for obvhs' collapse of small subtrees
-/// into leaves (its default is 3). A triangle is one lane of a 4- or 8-lane test, so a visit costs
-/// more triangles than in a one-at-a-time tracer. 16 measured no better than 8.
-const COLLAPSE_TRAVERSAL_COST: f32 = 8.0;
+/// into leaves: obvhs' default.
+const COLLAPSE_TRAVERSAL_COST: f32 = 3.0;
 
 pub(super) fn build(mesh: &Mesh) -> Built {
     // Every triangle's box is padded by a small fraction of the scene's size and a few ulps of its
