@@ -181,6 +181,39 @@ fn rays(c: &mut Criterion) {
                 n
             })
         });
+        // A closest-hit ray and a shadow ray per element, as the integrator traces them at a path
+        // vertex: one after the other, and together (the two walks interleaved).
+        group.bench_function(format!("{name}/closest_then_shadow"), |b| {
+            b.iter(|| {
+                let (mut sum, mut n) = (0.0f32, 0u32);
+                for (ray, (shadow, t_max)) in batch.closest.iter().zip(&batch.shadow) {
+                    if let Some(hit) = scene.intersect(black_box(ray), f32::INFINITY, 0.5) {
+                        sum += hit.t;
+                    }
+                    n += scene.visible(black_box(shadow), *t_max, 0.5) as u32;
+                }
+                (sum, n)
+            })
+        });
+        group.bench_function(format!("{name}/closest_and_shadow"), |b| {
+            b.iter(|| {
+                let (mut sum, mut n) = (0.0f32, 0u32);
+                for (ray, (shadow, t_max)) in batch.closest.iter().zip(&batch.shadow) {
+                    let (hit, visible) = scene.intersect_and_visible(
+                        black_box(ray),
+                        0.5,
+                        black_box(shadow),
+                        *t_max,
+                        0.5,
+                    );
+                    if let Some(hit) = hit {
+                        sum += hit.t;
+                    }
+                    n += visible as u32;
+                }
+                (sum, n)
+            })
+        });
     }
     group.finish();
 }
