@@ -6,7 +6,7 @@
 
 use pathfarm_bench::render::render_range;
 use pathfarm_bench::scenes;
-use pathfarm_tracer::{DirectStrategy, RenderSettings, RussianRoulette, SamplerKind, Scene};
+use pathfarm_tracer::Scene;
 use std::path::Path;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -22,15 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         _ => scenes::load(&scenes::find(name)?, dir)?.scene,
     };
-    let settings = RenderSettings {
-        width: 256,
-        height: 256,
-        seed: 1,
-        direct: DirectStrategy::Mis,
-        rr: RussianRoulette::Auto,
-        max_depth: None,
-        sampler: SamplerKind::Sobol,
-    };
+    let settings = pathfarm_bench::speed::settings(256, 256, 1);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()?;

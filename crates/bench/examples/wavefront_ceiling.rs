@@ -22,7 +22,6 @@
 
 use pathfarm_bench::render::render_range;
 use pathfarm_bench::scenes;
-use pathfarm_tracer::{DirectStrategy, RenderSettings, RussianRoulette, SamplerKind};
 use rayon::prelude::*;
 use std::path::Path;
 use std::time::Instant;
@@ -506,15 +505,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|p| p[0] + p[1] + p[2])
         .sum::<f64>()
         / (3.0 * 256.0 * 256.0 * spp as f64);
-    let settings = RenderSettings {
-        width: 256,
-        height: 256,
-        seed: 1,
-        direct: DirectStrategy::Mis,
-        rr: RussianRoulette::Auto,
-        max_depth: None,
-        sampler: SamplerKind::Sobol,
-    };
+    let settings = pathfarm_bench::speed::settings(256, 256, 1);
     let r = pool.install(|| render_range(&scene, &settings, 0..spp));
     let img = r.acc.mean_image();
     let tracer_mean: f64 =

@@ -223,8 +223,9 @@ pub fn run(opts: &SpeedOptions) -> Result<(SpeedResults, String), BenchError> {
     Ok((results, md))
 }
 
-/// MIS, roulette `auto`, unlimited depth, Sobol: the tracer's defaults, spelled out.
-fn settings(width: u32, height: u32, seed: u64) -> RenderSettings {
+/// MIS, roulette `auto`, unlimited depth, Sobol: the tracer's defaults, spelled out (also the
+/// settings of the `throughput` and `wavefront_ceiling` examples).
+pub fn settings(width: u32, height: u32, seed: u64) -> RenderSettings {
     RenderSettings {
         width,
         height,

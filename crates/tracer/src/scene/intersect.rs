@@ -2,7 +2,7 @@
 //! interaction at a hit.
 
 use super::Scene;
-use crate::geometry::{Ray, RayPrecomp, RayQuery};
+use crate::geometry::{Ray, RayPrecomp, RayQuery, TriangleHit};
 use crate::sampler::hash_u32;
 use glam::{Vec2, Vec3, Vec4};
 
@@ -13,6 +13,19 @@ pub struct Hit {
     pub triangle: u32,
     pub b1: f32,
     pub b2: f32,
+}
+
+impl Hit {
+    /// The hit of triangle `triangle` that the BVH reports.
+    #[inline(always)]
+    fn from_bvh((triangle, h): (u32, TriangleHit)) -> Hit {
+        Hit {
+            t: h.t,
+            triangle,
+            b1: h.b1,
+            b2: h.b2,
+        }
+    }
 }
 
 /// Everything the integrator needs to know about a hit point.
@@ -65,12 +78,7 @@ impl Scene {
         } else {
             self.bvh.closest(&pre, ray.d, t_max, |_, _| true)
         };
-        found.map(|(triangle, h)| Hit {
-            t: h.t,
-            triangle,
-            b1: h.b1,
-            b2: h.b2,
-        })
+        found.map(Hit::from_bvh)
     }
 
     /// True if nothing blocks the segment from `ray.o` along `ray.d` up to distance `t_max`.
@@ -118,13 +126,7 @@ impl Scene {
         } else {
             self.bvh.closest_and_any(a, |_, _| true, b, |_, _| true)
         };
-        let hit = found.map(|(triangle, h)| Hit {
-            t: h.t,
-            triangle,
-            b1: h.b1,
-            b2: h.b2,
-        });
-        (hit, !blocked)
+        (found.map(Hit::from_bvh), !blocked)
     }
 
     #[inline]

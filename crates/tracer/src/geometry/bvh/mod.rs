@@ -132,17 +132,9 @@ impl Bvh {
         let root = self.root?;
         let ray = PacketRay::new(pre);
         let boxes = BoxRay::new(pre.o, d);
-        let mut best = Closest {
-            t: t_max,
-            id: u32::MAX,
-            hit: TriangleHit {
-                t: t_max,
-                b1: 0.0,
-                b2: 0.0,
-            },
-        };
+        let mut best = Closest::new(t_max);
         self.closest_from(root, &ray, &boxes, &mut best, &mut accept);
-        (best.id != u32::MAX).then_some((best.id, best.hit))
+        best.found()
     }
 
     /// The closest-hit traversal from `root`, one walk run to its end (`walk.rs`).
@@ -371,6 +363,26 @@ struct Closest {
 }
 
 impl Closest {
+    /// Nothing found yet, in (0, t_max).
+    #[inline(always)]
+    fn new(t_max: f32) -> Closest {
+        Closest {
+            t: t_max,
+            id: u32::MAX,
+            hit: TriangleHit {
+                t: t_max,
+                b1: 0.0,
+                b2: 0.0,
+            },
+        }
+    }
+
+    /// The closest hit, if one was found: triangle and hit.
+    #[inline(always)]
+    fn found(&self) -> Option<(u32, TriangleHit)> {
+        (self.id != u32::MAX).then_some((self.id, self.hit))
+    }
+
     /// The distance limit for a leaf test: ties with the best hit so far are let through, so
     /// that they can be broken by index.
     #[inline(always)]

@@ -40,15 +40,7 @@ impl Bvh {
         };
         let (ray_a, boxes_a) = (PacketRay::new(a.pre), BoxRay::new(a.pre.o, a.d));
         let (ray_b, boxes_b) = (PacketRay::new(b.pre), BoxRay::new(b.pre.o, b.d));
-        let mut best = Closest {
-            t: a.t_max,
-            id: u32::MAX,
-            hit: TriangleHit {
-                t: a.t_max,
-                b1: 0.0,
-                b2: 0.0,
-            },
-        };
+        let mut best = Closest::new(a.t_max);
         let (mut wa, mut wb) = (ClosestWalk::new(root), AnyWalk::new(root));
         while wa.live && wb.live {
             self.closest_step(&mut wa, &ray_a, &boxes_a, &mut best, &mut accept_a);
