@@ -3,7 +3,7 @@
 //! accumulated exactly as `pathfarm_tracer::render_tile` does, so the images are the same bits.
 
 use pathfarm_tracer::math::luminance;
-use pathfarm_tracer::{render_sample, Accumulation, PixelAccum, RenderSettings, Scene};
+use pathfarm_tracer::{render_pixel, Accumulation, PixelAccum, RenderSettings, Scene};
 use rayon::prelude::*;
 use std::ops::Range;
 use std::time::Instant;
@@ -29,15 +29,14 @@ pub fn render_range(scene: &Scene, settings: &RenderSettings, samples: Range<u32
             let (mut rays, mut max_sample, mut invalid) = (0u64, 0f64, 0u64);
             for x in 0..w {
                 let mut p = PixelAccum::default();
-                for index in samples.clone() {
-                    let r = render_sample(scene, settings, x, y, index);
+                render_pixel(scene, settings, x, y, samples.clone(), |_, r| {
                     rays += r.rays as u64;
                     if p.add_sample(r.radiance) {
                         max_sample = max_sample.max(luminance(r.radiance) as f64);
                     } else {
                         invalid += 1;
                     }
-                }
+                });
                 pixels.push(p);
             }
             (pixels, rays, max_sample, invalid)

@@ -67,9 +67,7 @@ fn render_row(
     let mut invalid = Vec::new();
     for x in xs {
         let mut p = PixelAccum::default();
-        let pixel = PixelSampler::new(settings.sampler, settings.seed, x, y, 0);
-        for index in samples.clone() {
-            let r = render_with(scene, settings, &pixel.with_index(index), x, y);
+        render_pixel(scene, settings, x, y, samples.clone(), |index, r| {
             rays += r.rays as u64;
             if !p.add_sample(r.radiance) {
                 invalid_count += 1;
@@ -78,10 +76,29 @@ fn render_row(
                 }
                 tracing::warn!(x, y, index, radiance = ?r.radiance, "invalid sample dropped (NaN, infinite, negative or huge)");
             }
-        }
+        });
         pixels.push(p);
     }
     (pixels, rays, invalid_count, invalid)
+}
+
+/// Renders samples `samples` of pixel (x, y), handing each one's result to `each` in index order:
+/// the values [`render_sample`] gives, with the pixel's sampler set up once rather than per sample
+/// (its scramble seeds depend on the pixel alone).
+#[inline]
+pub fn render_pixel(
+    scene: &Scene,
+    settings: &RenderSettings,
+    x: u32,
+    y: u32,
+    samples: Range<u32>,
+    mut each: impl FnMut(u32, PathResult),
+) {
+    let mut sampler = PixelSampler::new(settings.sampler, settings.seed, x, y, samples.start);
+    for index in samples {
+        sampler.set_index(index);
+        each(index, render_with(scene, settings, &sampler, x, y));
+    }
 }
 
 /// Renders one sample of one pixel, alone: the same value it has inside any tile or range. Use it to

@@ -11,7 +11,7 @@ mod sobol;
 
 pub use hash::{hash_u32, hash_words};
 pub use independent::independent_sample;
-pub use sobol::{owen_sobol_pair, owen_sobol_sample};
+pub use sobol::{owen_sobol_pair, owen_sobol_sample, SobolPixel};
 
 use crate::settings::SamplerKind;
 use glam::Vec2;
@@ -46,6 +46,8 @@ pub struct PixelSampler {
     index: u32,
     /// `index` bit-reversed, computed once (the Sobol generator works on reversed indices).
     index_rev: u32,
+    /// The pixel's Sobol scramble seeds (unused by the independent sampler).
+    sobol: SobolPixel,
 }
 
 impl PixelSampler {
@@ -57,24 +59,30 @@ impl PixelSampler {
             pixel_key,
             index,
             index_rev: index.reverse_bits(),
+            sobol: SobolPixel::new(pixel_key),
         }
     }
 
-    /// The sampler of sample `index` of the same pixel (the pixel's hash is not recomputed).
+    /// The sampler of sample `index` of the same pixel (the pixel's seeds are not recomputed).
     #[inline]
     pub fn with_index(&self, index: u32) -> Self {
-        PixelSampler {
-            index,
-            index_rev: index.reverse_bits(),
-            ..*self
-        }
+        let mut s = *self;
+        s.set_index(index);
+        s
+    }
+
+    /// Moves this sampler to sample `index` of the same pixel, in place.
+    #[inline]
+    pub fn set_index(&mut self, index: u32) {
+        self.index = index;
+        self.index_rev = index.reverse_bits();
     }
 
     /// The value of dimension `dim`, in [0, 1).
     #[inline]
     pub fn get1(&self, dim: u32) -> f32 {
         match self.kind {
-            SamplerKind::Sobol => owen_sobol_sample(self.pixel_key, self.index_rev, dim),
+            SamplerKind::Sobol => self.sobol.sample(self.index_rev, dim),
             SamplerKind::Independent => independent_sample(self.pixel_key, self.index, dim),
         }
     }
@@ -83,7 +91,7 @@ impl PixelSampler {
     pub fn get2(&self, dim: u32) -> Vec2 {
         match self.kind {
             SamplerKind::Sobol => {
-                let (a, b) = owen_sobol_pair(self.pixel_key, self.index_rev, dim);
+                let (a, b) = self.sobol.pair(self.index_rev, dim);
                 Vec2::new(a, b)
             }
             SamplerKind::Independent => Vec2::new(self.get1(dim), self.get1(dim + 1)),
