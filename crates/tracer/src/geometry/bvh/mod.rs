@@ -12,6 +12,7 @@ mod build;
 mod node;
 mod packet;
 mod pair;
+mod stack;
 mod walk;
 
 pub use pair::RayQuery;

@@ -6,6 +6,7 @@
 //! recursive form.
 
 use super::packet::PacketRay;
+use super::stack::Stack;
 use super::{
     key_child, key_near, sort_far_to_near, BoxRay, Bvh, Closest, NodeRef, HIT_LANES_FIRST,
     LANES_SET, STACK,
@@ -15,8 +16,7 @@ use crate::geometry::TriangleHit;
 /// The state of a closest-hit traversal between steps.
 pub(super) struct ClosestWalk {
     /// Sorted keys (see `sort_far_to_near`): child and entry distance.
-    stack: [u64; STACK],
-    sp: usize,
+    stack: Stack<u64, STACK>,
     node: NodeRef,
     /// False once the walk has ended.
     pub live: bool,
@@ -24,8 +24,7 @@ pub(super) struct ClosestWalk {
 
 /// The state of a shadow-ray traversal between steps.
 pub(super) struct AnyWalk {
-    stack: [NodeRef; STACK],
-    sp: usize,
+    stack: Stack<NodeRef, STACK>,
     node: NodeRef,
     /// False once the walk has ended.
     pub live: bool,
@@ -37,8 +36,7 @@ impl ClosestWalk {
     #[inline(always)]
     pub fn new(root: NodeRef) -> ClosestWalk {
         ClosestWalk {
-            stack: [0; STACK],
-            sp: 0,
+            stack: Stack::new(),
             node: root,
             live: true,
         }
@@ -49,8 +47,7 @@ impl AnyWalk {
     #[inline(always)]
     pub fn new(root: NodeRef) -> AnyWalk {
         AnyWalk {
-            stack: [NodeRef::NONE; STACK],
-            sp: 0,
+            stack: Stack::new(),
             node: root,
             live: true,
             hit: false,
@@ -79,11 +76,9 @@ impl Bvh {
             if mask != 0 {
                 let count = LANES_SET[mask as usize];
                 let by_far = sort_far_to_near(mask, near, n);
-                if w.sp + 3 <= STACK {
-                    w.stack[w.sp] = by_far[0];
-                    w.stack[w.sp + 1] = by_far[1];
-                    w.stack[w.sp + 2] = by_far[2];
-                    w.sp += count - 1;
+                if w.stack.has_room(3) {
+                    w.stack
+                        .push_first([by_far[0], by_far[1], by_far[2]], count - 1);
                 } else {
                     for &key in &by_far[..count - 1] {
                         self.closest_recursive(key_child(key), ray, boxes, best, accept);
@@ -94,12 +89,10 @@ impl Bvh {
             }
         }
         loop {
-            if w.sp == 0 {
+            let Some(key) = w.stack.pop() else {
                 w.live = false;
                 return;
-            }
-            w.sp -= 1;
-            let key = w.stack[w.sp];
+            };
             if key_near(key) <= best.t {
                 w.node = key_child(key);
                 return;
@@ -126,12 +119,10 @@ impl Bvh {
         } else {
             let n = &self.nodes[w.node.index()];
             let (mask, _) = boxes.test(n, t_max);
-            if w.sp + 4 <= STACK {
+            if w.stack.has_room(4) {
                 let lanes = HIT_LANES_FIRST[mask as usize];
-                for (slot, &k) in w.stack[w.sp..w.sp + 4].iter_mut().zip(&lanes) {
-                    *slot = n.child[k as usize];
-                }
-                w.sp += LANES_SET[mask as usize];
+                w.stack
+                    .push_first(lanes.map(|k| n.child[k as usize]), LANES_SET[mask as usize]);
             } else {
                 let mut m = mask;
                 while m != 0 {
@@ -145,11 +136,9 @@ impl Bvh {
                 }
             }
         }
-        if w.sp == 0 {
-            w.live = false;
-            return;
+        match w.stack.pop() {
+            Some(node) => w.node = node,
+            None => w.live = false,
         }
-        w.sp -= 1;
-        w.node = w.stack[w.sp];
     }
 }
