@@ -59,7 +59,11 @@ impl PixelSampler {
             pixel_key,
             index,
             index_rev: index.reverse_bits(),
-            sobol: SobolPixel::new(pixel_key),
+            // The independent sampler never reads the Sobol seeds: not worth 80 hashes a pixel.
+            sobol: match kind {
+                SamplerKind::Sobol => SobolPixel::new(pixel_key),
+                SamplerKind::Independent => SobolPixel::UNUSED,
+            },
         }
     }
 

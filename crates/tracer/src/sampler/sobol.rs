@@ -220,6 +220,13 @@ pub struct SobolPixel {
 }
 
 impl SobolPixel {
+    /// A placeholder for samplers that draw no Sobol values (its seeds are not the pixel's).
+    pub const UNUSED: SobolPixel = SobolPixel {
+        key: 0,
+        group: [0; CACHED_GROUPS],
+        component: [[0; 4]; CACHED_GROUPS],
+    };
+
     pub fn new(pixel_key: u32) -> SobolPixel {
         let mut group = [0; CACHED_GROUPS];
         let mut component = [[0; 4]; CACHED_GROUPS];
