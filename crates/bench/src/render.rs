@@ -1,6 +1,7 @@
-//! Rendering for measurement: the tracer's own per-sample function, driven here so that the
-//! largest single sample value and the invalid samples can be observed on the way. The pixels are
-//! accumulated exactly as `pathfarm_tracer::render_tile` does, so the images are the same bits.
+//! Rendering for measurement: the tracer's own per-pixel function (`render_pixel`, what
+//! `render_tile` runs), driven here so that the largest single sample value and the invalid samples
+//! can be observed on the way. The pixels are accumulated exactly as `pathfarm_tracer::render_tile`
+//! does, so the images are the same bits.
 
 use pathfarm_tracer::math::luminance;
 use pathfarm_tracer::{render_pixel, Accumulation, PixelAccum, RenderSettings, Scene};
