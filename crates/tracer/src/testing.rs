@@ -1,5 +1,8 @@
 //! Helpers shared by the crate's unit tests.
 
+use crate::geometry::Mesh;
+use glam::Vec3;
+
 /// A deterministic stream of uniform values in [0, 1) (xorshift64, top 24 bits): reproducible
 /// random cases without a dependency, the same on every run.
 pub(crate) fn uniform_stream(seed: u64) -> impl FnMut() -> f32 {
@@ -10,4 +13,27 @@ pub(crate) fn uniform_stream(seed: u64) -> impl FnMut() -> f32 {
         s ^= s << 17;
         (s >> 40) as f32 / (1u64 << 24) as f32
     }
+}
+
+/// `count` small triangles (corners within ±0.5 of the first), each first corner drawn by `corner`,
+/// every `duplicate_every`-th one added twice so that hits tie: a random soup for BVH tests.
+pub(crate) fn triangle_soup(
+    rng: &mut impl FnMut() -> f32,
+    count: usize,
+    duplicate_every: usize,
+    mut corner: impl FnMut(&mut dyn FnMut() -> f32) -> Vec3,
+) -> Mesh {
+    let mut mesh = Mesh::default();
+    for k in 0..count {
+        let a = corner(rng);
+        let b = a + Vec3::new(rng(), rng(), rng()) - 0.5;
+        let c = a + Vec3::new(rng(), rng(), rng()) - 0.5;
+        mesh.positions.push([a, b, c]);
+        mesh.material.push(0);
+        if k % duplicate_every == 0 {
+            mesh.positions.push([a, b, c]);
+            mesh.material.push(0);
+        }
+    }
+    mesh
 }

@@ -23,9 +23,9 @@ use node::{Node4, NodeRef, TriPacket};
 use packet::{intersect_packet, PacketRay};
 use walk::{AnyWalk, ClosestWalk};
 
-/// Entries of the traversal stack kept on the machine stack. Small on purpose: the array is filled
-/// on every ray, and a million-triangle tree needs about three entries per level of its ~12; a
-/// deeper traversal continues in a recursive call rather than failing.
+/// Entries of the traversal stack kept on the machine stack (`stack.rs`). A million-triangle tree
+/// needs about three entries per level of its ~12; a deeper traversal continues in a recursive
+/// call rather than failing.
 const STACK: usize = 32;
 
 /// The slab test widens the far distance by this factor (Ize, "Robust BVH Ray Traversal", 2013:
@@ -521,24 +521,15 @@ mod tests {
     #[test]
     fn matches_brute_force_on_a_random_soup() {
         let mut rng = crate::testing::uniform_stream(0x2545_f491_4f6c_dd1du64);
-        let mut mesh = Mesh::default();
         let mut verts: Vec<Vec3> = Vec::new();
         for _ in 0..600 {
             verts.push(Vec3::new(rng(), rng(), rng()) * 10.0 - 5.0);
         }
-        for k in 0..3000 {
+        // Small triangles around shared vertices, plus exact duplicates (ties).
+        let mut mesh = crate::testing::triangle_soup(&mut rng, 3000, 50, |rng| {
             let i = |r: f32| ((r * verts.len() as f32) as usize).min(verts.len() - 1);
-            let a = verts[i(rng())];
-            // Small triangles around shared vertices, plus exact duplicates (ties).
-            let b = a + Vec3::new(rng(), rng(), rng()) - 0.5;
-            let c = a + Vec3::new(rng(), rng(), rng()) - 0.5;
-            mesh.positions.push([a, b, c]);
-            mesh.material.push(0);
-            if k % 50 == 0 {
-                mesh.positions.push([a, b, c]);
-                mesh.material.push(0);
-            }
-        }
+            verts[i(rng())]
+        });
         let (bvh, order) = Bvh::build(&mesh);
         mesh.reorder(&order);
         assert!(bvh.depth() >= 3, "depth {}", bvh.depth());

@@ -52,7 +52,7 @@ impl Bvh {
         while wb.live {
             self.any_step(&mut wb, &ray_b, &boxes_b, b.t_max, &mut accept_b);
         }
-        ((best.id != u32::MAX).then_some((best.id, best.hit)), wb.hit)
+        (best.found(), wb.hit)
     }
 }
 
@@ -68,18 +68,9 @@ mod tests {
     #[test]
     fn the_pair_answers_as_the_two_queries_do() {
         let mut rng = crate::testing::uniform_stream(0x9e37_79b9_7f4a_7c15u64);
-        let mut soup = Mesh::default();
-        for k in 0..2000 {
-            let a = Vec3::new(rng(), rng(), rng()) * 10.0 - 5.0;
-            let b = a + Vec3::new(rng(), rng(), rng()) - 0.5;
-            let c = a + Vec3::new(rng(), rng(), rng()) - 0.5;
-            soup.positions.push([a, b, c]);
-            soup.material.push(0);
-            if k % 40 == 0 {
-                soup.positions.push([a, b, c]);
-                soup.material.push(0);
-            }
-        }
+        let soup = crate::testing::triangle_soup(&mut rng, 2000, 40, |rng| {
+            Vec3::new(rng(), rng(), rng()) * 10.0 - 5.0
+        });
         let mut chain = Mesh::default();
         for k in 0..160 {
             let c = Vec3::new(1.25f32.powi(k), 0.0, 0.0);
