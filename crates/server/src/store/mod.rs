@@ -22,6 +22,7 @@ mod gauges;
 mod group_commit;
 mod jobs;
 mod lease;
+mod migrations;
 mod statements;
 mod tasks;
 mod workers;
@@ -31,12 +32,14 @@ pub use jobs::{JobRow, NewJob, TileRow};
 pub use tasks::MergeOutcome;
 
 use sqlx::any::{AnyPoolOptions, AnyRow};
+use sqlx::migrate::Migrator;
 use sqlx::{Any, AnyPool, Executor, Row, Transaction};
+use std::sync::LazyLock;
 use std::time::{SystemTime, UNIX_EPOCH};
 use tokio::sync::{Mutex, MutexGuard};
 
-static SQLITE_MIGRATIONS: sqlx::migrate::Migrator = sqlx::migrate!("../../migrations/sqlite");
-static POSTGRES_MIGRATIONS: sqlx::migrate::Migrator = sqlx::migrate!("../../migrations/postgres");
+static SQLITE_MIGRATIONS: LazyLock<Migrator> = LazyLock::new(migrations::sqlite);
+static POSTGRES_MIGRATIONS: LazyLock<Migrator> = LazyLock::new(migrations::postgres);
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Dialect {
