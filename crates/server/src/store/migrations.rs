@@ -10,6 +10,7 @@
 use sqlx::migrate::{Migration, MigrationType, Migrator};
 use sqlx::SqlSafeStr;
 use std::borrow::Cow;
+use std::sync::LazyLock;
 
 /// One migration file: its name (`<version>_<description>.sql`) and contents.
 type File = (&'static str, &'static str);
@@ -20,18 +21,14 @@ macro_rules! migration_files {
     };
 }
 
-const SQLITE: &[File] = migration_files!("sqlite": "0001_init.sql", "0002_convergence.sql");
-const POSTGRES: &[File] = migration_files!("postgres": "0001_init.sql", "0002_convergence.sql");
-
 /// The SQLite schema's migrator.
-pub(super) fn sqlite() -> Migrator {
-    migrator(SQLITE)
-}
+pub(super) static SQLITE: LazyLock<Migrator> =
+    LazyLock::new(|| migrator(migration_files!("sqlite": "0001_init.sql", "0002_convergence.sql")));
 
 /// The PostgreSQL schema's migrator.
-pub(super) fn postgres() -> Migrator {
-    migrator(POSTGRES)
-}
+pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
+    migrator(migration_files!("postgres": "0001_init.sql", "0002_convergence.sql"))
+});
 
 fn migrator(files: &'static [File]) -> Migrator {
     Migrator::with_migrations(
@@ -89,14 +86,14 @@ mod tests {
     #[tokio::test]
     async fn the_embedded_migrations_are_the_directorys() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../migrations");
-        for (dialect, embedded) in [("sqlite", sqlite()), ("postgres", postgres())] {
+        for (dialect, embedded) in [("sqlite", &*SQLITE), ("postgres", &*POSTGRES)] {
             let dir = root.join(dialect);
             let read = Migrator::new(dir.as_path())
                 .await
                 .unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
             assert!(read.iter().count() >= 2, "{dialect}: no migrations read");
             assert_eq!(
-                fields(&embedded),
+                fields(embedded),
                 fields(&read),
                 "{dialect}: the embedded list differs from {} (a file added there must be \
                  listed in store/migrations.rs)",

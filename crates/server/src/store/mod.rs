@@ -32,14 +32,9 @@ pub use jobs::{JobRow, NewJob, TileRow};
 pub use tasks::MergeOutcome;
 
 use sqlx::any::{AnyPoolOptions, AnyRow};
-use sqlx::migrate::Migrator;
 use sqlx::{Any, AnyPool, Executor, Row, Transaction};
-use std::sync::LazyLock;
 use std::time::{SystemTime, UNIX_EPOCH};
 use tokio::sync::{Mutex, MutexGuard};
-
-static SQLITE_MIGRATIONS: LazyLock<Migrator> = LazyLock::new(migrations::sqlite);
-static POSTGRES_MIGRATIONS: LazyLock<Migrator> = LazyLock::new(migrations::postgres);
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Dialect {
@@ -172,8 +167,8 @@ impl Store {
                 source,
             })?;
         match dialect {
-            Dialect::Sqlite => SQLITE_MIGRATIONS.run(&pool).await?,
-            Dialect::Postgres => POSTGRES_MIGRATIONS.run(&pool).await?,
+            Dialect::Sqlite => migrations::SQLITE.run(&pool).await?,
+            Dialect::Postgres => migrations::POSTGRES.run(&pool).await?,
         }
         Ok(Store {
             pool,
