@@ -9,6 +9,7 @@
 //! watertight test would hit.
 
 mod build;
+mod flat;
 mod node;
 mod packet;
 mod pair;
@@ -18,6 +19,7 @@ mod walk;
 pub use pair::RayQuery;
 
 use super::{Mesh, RayPrecomp, TriangleHit};
+use flat::Flat;
 use glam::{Vec3, Vec3A, Vec4};
 use node::{Node4, NodeRef, TriPacket};
 use packet::{intersect_packet, PacketRay};
@@ -40,6 +42,9 @@ pub struct Bvh {
     packets: Vec<TriPacket>,
     root: Option<NodeRef>,
     depth: usize,
+    /// For a mesh of at most `flat::MAX_TRIANGLES` triangles on a processor with 16- or 8-lane
+    /// vectors: every triangle in wide packets, tested without the tree (`flat.rs`).
+    flat: Option<Flat>,
 }
 
 /// The per-ray constants of the box tests.
@@ -94,13 +99,37 @@ impl Bvh {
             return (Bvh::default(), Vec::new());
         }
         let built = build::build(mesh);
+        let flat = if mesh.len() <= flat::MAX_TRIANGLES {
+            let reordered: Vec<[Vec3; 3]> = built
+                .order
+                .iter()
+                .map(|&old| mesh.positions[old as usize])
+                .collect();
+            Flat::new(&reordered)
+        } else {
+            None
+        };
         let bvh = Bvh {
             nodes: built.nodes,
             packets: built.packets,
             root: Some(built.root),
             depth: built.depth,
+            flat,
         };
         (bvh, built.order)
+    }
+
+    /// This BVH with its queries answered by the tree even where the mesh is small enough for the
+    /// flat test (for tests that compare the two).
+    #[cfg(test)]
+    pub(crate) fn tree_only(mut self) -> Bvh {
+        self.flat = None;
+        self
+    }
+
+    /// Whether queries skip the tree and test every triangle (`flat.rs`).
+    pub fn is_flat(&self) -> bool {
+        self.flat.is_some()
     }
 
     /// Number of BVH nodes (for memory reports).
@@ -117,6 +146,7 @@ impl Bvh {
     pub fn bytes(&self) -> usize {
         self.nodes.len() * std::mem::size_of::<Node4>()
             + self.packets.len() * std::mem::size_of::<TriPacket>()
+            + self.flat.as_ref().map_or(0, Flat::bytes)
     }
 
     /// The closest hit in (0, t_max) among the triangles `accept(index, hit)` lets through (it
@@ -130,6 +160,9 @@ impl Bvh {
         t_max: f32,
         mut accept: impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
+        if let Some(flat) = &self.flat {
+            return flat.closest(pre, t_max, &mut accept);
+        }
         let root = self.root?;
         let ray = PacketRay::new(pre);
         let boxes = BoxRay::new(pre.o, d);
@@ -267,6 +300,9 @@ impl Bvh {
         t_max: f32,
         mut accept: impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
+        if let Some(flat) = &self.flat {
+            return flat.any(pre, t_max, &mut accept);
+        }
         let Some(root) = self.root else { return false };
         let ray = PacketRay::new(pre);
         let boxes = BoxRay::new(pre.o, d);
@@ -431,34 +467,37 @@ mod tests {
                 mesh.positions.push([a, b, c]);
                 mesh.material.push(0);
             }
-            let (bvh, order) = Bvh::build(&mesh);
+            let (built, order) = Bvh::build(&mesh);
             mesh.reorder(&order);
-            for (o, d, t) in [
-                (
-                    Vec3::new(0.01, 0.02, 0.5),
-                    Vec3::new(0.001, 0.002, -1.0).normalize(),
-                    1.5,
-                ),
-                // Axis-parallel rays (every ray of an orthographic camera).
-                (Vec3::new(0.1, 0.2, 0.0), -Vec3::Z, 1.0),
-                (Vec3::ZERO, -Vec3::Z, 1.0),
-            ] {
-                let pre = RayPrecomp::new(&Ray::new(o, d));
-                let (id, hit) = bvh
-                    .closest(&pre, d, f32::INFINITY, |_, _| true)
-                    .unwrap_or_else(|| panic!("{n} triangles: missed {d}"));
-                assert!((hit.t - t).abs() < 1e-4, "{n} triangles, {d}: {}", hit.t);
-                let direct = intersect_watertight(&pre, &mesh.positions[id as usize], 10.0);
-                assert_eq!(direct, Some(hit), "the reported hit is triangle {id}'s");
-                assert!(bvh.any(&pre, d, 10.0, |_, _| true));
-                assert!(
-                    !bvh.any(&pre, d, t * 0.99, |_, _| true),
-                    "{n}: hit before t"
-                );
-                assert!(
-                    !bvh.any(&pre, d, 10.0, |_, _| false),
-                    "the filter is obeyed"
-                );
+            // Both ways of answering: the flat test where the processor has it, and the tree.
+            for bvh in [built.clone(), built.tree_only()] {
+                for (o, d, t) in [
+                    (
+                        Vec3::new(0.01, 0.02, 0.5),
+                        Vec3::new(0.001, 0.002, -1.0).normalize(),
+                        1.5,
+                    ),
+                    // Axis-parallel rays (every ray of an orthographic camera).
+                    (Vec3::new(0.1, 0.2, 0.0), -Vec3::Z, 1.0),
+                    (Vec3::ZERO, -Vec3::Z, 1.0),
+                ] {
+                    let pre = RayPrecomp::new(&Ray::new(o, d));
+                    let (id, hit) = bvh
+                        .closest(&pre, d, f32::INFINITY, |_, _| true)
+                        .unwrap_or_else(|| panic!("{n} triangles: missed {d}"));
+                    assert!((hit.t - t).abs() < 1e-4, "{n} triangles, {d}: {}", hit.t);
+                    let direct = intersect_watertight(&pre, &mesh.positions[id as usize], 10.0);
+                    assert_eq!(direct, Some(hit), "the reported hit is triangle {id}'s");
+                    assert!(bvh.any(&pre, d, 10.0, |_, _| true));
+                    assert!(
+                        !bvh.any(&pre, d, t * 0.99, |_, _| true),
+                        "{n}: hit before t"
+                    );
+                    assert!(
+                        !bvh.any(&pre, d, 10.0, |_, _| false),
+                        "the filter is obeyed"
+                    );
+                }
             }
         }
     }

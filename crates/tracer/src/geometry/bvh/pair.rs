@@ -35,6 +35,13 @@ impl Bvh {
         b: RayQuery,
         mut accept_b: impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
+        if let Some(flat) = &self.flat {
+            // No chains of dependent steps to interleave: the two queries one after the other.
+            return (
+                flat.closest(a.pre, a.t_max, &mut accept_a),
+                flat.any(b.pre, b.t_max, &mut accept_b),
+            );
+        }
         let Some(root) = self.root else {
             return (None, false);
         };
@@ -82,7 +89,16 @@ mod tests {
             ]);
             chain.material.push(0);
         }
-        for (name, mesh, scale) in [("soup", soup, 12.0f32), ("chain", chain, 0.1)] {
+        // Few enough triangles for the flat test (`flat.rs`), where the processor has it.
+        let small = crate::testing::triangle_soup(&mut rng, 50, 4, |rng| {
+            Vec3::new(rng(), rng(), rng()) * 1.5 - 0.75
+        });
+        assert!(small.len() <= super::super::flat::MAX_TRIANGLES);
+        for (name, mesh, scale) in [
+            ("soup", soup, 12.0f32),
+            ("chain", chain, 0.1),
+            ("small", small, 2.0),
+        ] {
             let (bvh, _) = Bvh::build(&mesh);
             if name == "chain" {
                 let depth = bvh.depth();

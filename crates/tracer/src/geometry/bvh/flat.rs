@@ -1,0 +1,574 @@
+//! Meshes of a few dozen triangles without a tree: every triangle tested, sixteen at a time.
+//!
+//! A 4-wide tree over the Cornell box's 32 triangles still costs a query a chain of dependent steps
+//! (about two node tests, two packet tests, the sorting of children, a stack, and the branches
+//! between them: about 900 instructions and 4 mispredicted branches per closest hit). With 16-lane
+//! vectors the whole mesh is two or four packet tests with no branch between them. Testing every
+//! packet with 4-lane vectors was slower than the tree (docs/benchmarks.md); with 16 lanes it is a
+//! quarter of the work.
+//!
+//! The lanes run exactly the operations of the watertight test (`triangle.rs`), in the same order,
+//! without fused multiply-adds, so every verdict, distance and barycentric is the scalar test's
+//! bits, and the answer is the tree's (the smallest (t, triangle index) that the filter accepts).
+//! A lane with an edge function exactly zero goes to the scalar test, as in `packet.rs`.
+//!
+//! It needs AVX-512F (one register of sixteen lanes), detected once when the mesh is built; without
+//! it, or for larger meshes, the tree is used. (The same test on AVX2, as two 8-lane halves, spilled
+//! registers and measured within a few percent of the tree on the Cornell box: not kept.)
+
+use super::Closest;
+use crate::geometry::{intersect_watertight, RayPrecomp, TriangleHit};
+use glam::Vec3;
+
+/// Lanes of a wide packet.
+const WIDE: usize = 16;
+
+/// The largest mesh tested without a tree: four wide packets. Beyond that the tree's culling wins.
+pub(super) const MAX_TRIANGLES: usize = 64;
+
+/// Sixteen triangles in structure-of-arrays form: `v[vertex][axis][lane]`. Lane k holds triangle
+/// `first_id + k`; unused lanes repeat the last triangle and are masked out by `valid`.
+#[derive(Clone, Debug)]
+#[repr(C, align(64))]
+struct WidePacket {
+    v: [[[f32; WIDE]; 3]; 3],
+    first_id: u32,
+    valid: u32,
+}
+
+impl WidePacket {
+    fn triangle(&self, k: usize) -> [Vec3; 3] {
+        let get = |vertex: usize| {
+            let [x, y, z] = &self.v[vertex];
+            Vec3::new(x[k], y[k], z[k])
+        };
+        [get(0), get(1), get(2)]
+    }
+}
+
+/// Every triangle of a small mesh in wide packets (see the module documentation).
+#[derive(Clone, Debug)]
+pub(super) struct Flat {
+    packets: Vec<WidePacket>,
+    /// Proof that the processor has AVX-512F.
+    avx512: Avx512,
+}
+
+impl Flat {
+    /// The flat form of `triangles` (triangle k has index k), if the mesh is small enough and the
+    /// processor has AVX-512F; otherwise `None` (use the tree).
+    pub fn new(triangles: &[[Vec3; 3]]) -> Option<Flat> {
+        if triangles.is_empty() || triangles.len() > MAX_TRIANGLES {
+            return None;
+        }
+        let avx512 = Avx512::detect()?;
+        let packets = triangles
+            .chunks(WIDE)
+            .enumerate()
+            .map(|(c, chunk)| {
+                let mut v = [[[0.0f32; WIDE]; 3]; 3];
+                for (vertex, axes) in v.iter_mut().enumerate() {
+                    for (axis, lanes) in axes.iter_mut().enumerate() {
+                        for (k, x) in lanes.iter_mut().enumerate() {
+                            *x = chunk[k.min(chunk.len() - 1)][vertex][axis];
+                        }
+                    }
+                }
+                WidePacket {
+                    v,
+                    first_id: (c * WIDE) as u32,
+                    valid: (1u32 << chunk.len()) - 1,
+                }
+            })
+            .collect();
+        Some(Flat { packets, avx512 })
+    }
+
+    /// Bytes held (for memory reports).
+    pub fn bytes(&self) -> usize {
+        self.packets.len() * std::mem::size_of::<WidePacket>()
+    }
+
+    /// The closest hit in (0, t_max) that `accept` lets through, ties broken towards the smaller
+    /// index: [`super::Bvh::closest`]'s answer.
+    #[inline]
+    pub fn closest(
+        &self,
+        pre: &RayPrecomp,
+        t_max: f32,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> Option<(u32, TriangleHit)> {
+        self.avx512.closest(&self.packets, pre, t_max, accept)
+    }
+
+    /// Whether some triangle that `accept` lets through is hit in (0, t_max).
+    #[inline]
+    pub fn any(
+        &self,
+        pre: &RayPrecomp,
+        t_max: f32,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
+        self.avx512.any(&self.packets, pre, t_max, accept)
+    }
+}
+
+/// The hits of one wide packet: bit k of `mask` for lane k, distances and barycentrics in lane k.
+struct WideHits {
+    mask: u32,
+    t: [f32; WIDE],
+    b1: [f32; WIDE],
+    b2: [f32; WIDE],
+}
+
+impl WideHits {
+    #[inline(always)]
+    fn get(&self, k: usize) -> TriangleHit {
+        TriangleHit {
+            t: self.t[k],
+            b1: self.b1[k],
+            b2: self.b2[k],
+        }
+    }
+}
+
+/// The 16-lane operations of the test, for one instruction set (`x86::Avx512`; another would be
+/// another implementation). Called only inside a function compiled for that instruction set, so that
+/// each operation inlines to its instruction.
+trait Lanes: Copy {
+    type F: Copy;
+    fn splat(self, x: f32) -> Self::F;
+    fn load(self, x: &[f32; WIDE]) -> Self::F;
+    fn store(self, x: Self::F) -> [f32; WIDE];
+    fn add(self, a: Self::F, b: Self::F) -> Self::F;
+    fn sub(self, a: Self::F, b: Self::F) -> Self::F;
+    fn mul(self, a: Self::F, b: Self::F) -> Self::F;
+    fn div(self, a: Self::F, b: Self::F) -> Self::F;
+    /// Bit k: lane k of `a` is less than lane k of `b` (false for NaN, as `<`).
+    fn lt(self, a: Self::F, b: Self::F) -> u32;
+    /// Bit k: lane k of `a` equals lane k of `b`.
+    fn eq(self, a: Self::F, b: Self::F) -> u32;
+    /// The smallest of the lanes of `x` whose bits are set in `mask` (not 0).
+    fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32;
+}
+
+/// The ray's constants of the watertight test, splatted across the lanes. (Functions, not closures:
+/// a closure is not inlined into the `#[target_feature]` function, and out of it every intrinsic
+/// would be a call.)
+struct Sheared<L: Lanes> {
+    k: [usize; 3],
+    o: [L::F; 3],
+    s: [L::F; 3],
+}
+
+impl<L: Lanes> Sheared<L> {
+    #[inline(always)]
+    fn new(l: L, pre: &RayPrecomp) -> Self {
+        let [kx, ky, kz] = pre.k;
+        let o = pre.o.to_array();
+        let [sx, sy, sz] = pre.s;
+        Sheared {
+            k: pre.k,
+            o: [l.splat(o[kx]), l.splat(o[ky]), l.splat(o[kz])],
+            s: [l.splat(sx), l.splat(sy), l.splat(sz)],
+        }
+    }
+
+    /// The sheared vertex, as `RayPrecomp::shear`: (dx − sx·dz, dy − sy·dz, sz·dz).
+    #[inline(always)]
+    fn shear(&self, l: L, v: &[[f32; WIDE]; 3]) -> (L::F, L::F, L::F) {
+        let [kx, ky, kz] = self.k;
+        let dx = l.sub(l.load(&v[kx]), self.o[0]);
+        let dy = l.sub(l.load(&v[ky]), self.o[1]);
+        let dz = l.sub(l.load(&v[kz]), self.o[2]);
+        (
+            l.sub(dx, l.mul(self.s[0], dz)),
+            l.sub(dy, l.mul(self.s[1], dz)),
+            l.mul(self.s[2], dz),
+        )
+    }
+}
+
+/// Tests the ray against the sixteen triangles of `p`: [`intersect_watertight`] lane by lane.
+#[inline(always)]
+fn test<L: Lanes>(l: L, pre: &RayPrecomp, p: &WidePacket, t_max: f32) -> WideHits {
+    let r = Sheared::new(l, pre);
+    let (ax, ay, az) = r.shear(l, &p.v[0]);
+    let (bx, by, bz) = r.shear(l, &p.v[1]);
+    let (cx, cy, cz) = r.shear(l, &p.v[2]);
+    let u = l.sub(l.mul(cx, by), l.mul(cy, bx));
+    let v = l.sub(l.mul(ax, cy), l.mul(ay, cx));
+    let w = l.sub(l.mul(bx, ay), l.mul(by, ax));
+    let zero = l.splat(0.0);
+    let on_edge = (l.eq(u, zero) | l.eq(v, zero) | l.eq(w, zero)) & p.valid;
+    let negative = l.lt(u, zero) | l.lt(v, zero) | l.lt(w, zero);
+    let positive = l.lt(zero, u) | l.lt(zero, v) | l.lt(zero, w);
+    let outside = negative & positive;
+    let det = l.add(l.add(u, v), w);
+    let t_scaled = l.add(l.add(l.mul(u, az), l.mul(v, bz)), l.mul(w, cz));
+    let limit = l.mul(l.splat(t_max), det);
+    let det_pos = l.lt(zero, det);
+    let det_neg = l.lt(det, zero);
+    let in_range_pos = det_pos & l.lt(zero, t_scaled) & l.lt(t_scaled, limit);
+    let in_range_neg = det_neg & l.lt(t_scaled, zero) & l.lt(limit, t_scaled);
+    let mut mask = !outside & (in_range_pos | in_range_neg) & p.valid & !on_edge;
+    let inv = l.div(l.splat(1.0), det);
+    let mut hits = WideHits {
+        mask: 0,
+        t: l.store(l.mul(t_scaled, inv)),
+        b1: l.store(l.mul(v, inv)),
+        b2: l.store(l.mul(w, inv)),
+    };
+    let mut rest = on_edge;
+    while rest != 0 {
+        let k = rest.trailing_zeros() as usize;
+        rest &= rest - 1;
+        if let Some(h) = intersect_watertight(pre, &p.triangle(k), t_max) {
+            mask |= 1 << k;
+            hits.t[k] = h.t;
+            hits.b1[k] = h.b1;
+            hits.b2[k] = h.b2;
+        }
+    }
+    hits.mask = mask;
+    hits
+}
+
+#[inline(always)]
+fn closest_with<L: Lanes>(
+    l: L,
+    packets: &[WidePacket],
+    pre: &RayPrecomp,
+    t_max: f32,
+    accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+) -> Option<(u32, TriangleHit)> {
+    let mut best = Closest::new(t_max);
+    for p in packets {
+        // Ties with the best so far are let through so that the index can break them.
+        let hits = test(l, pre, p, best.tie_limit());
+        if hits.mask == 0 {
+            continue;
+        }
+        // The packet's smallest (t, index), found without a branch per lane: if it is no
+        // improvement, no other lane is.
+        let min = l.min_where(hits.mask, &hits.t);
+        let k = (l.eq(l.load(&hits.t), l.splat(min)) & hits.mask).trailing_zeros() as usize;
+        let id = p.first_id + k as u32;
+        if !best.improved_by(min, id) {
+            continue;
+        }
+        let h = hits.get(k);
+        if accept(id, &h) {
+            best = Closest { t: min, id, hit: h };
+            continue;
+        }
+        // The filter rejected it (an alpha cutout): every other lane in turn.
+        let mut m = hits.mask & !(1 << k);
+        while m != 0 {
+            let k = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let h = hits.get(k);
+            let id = p.first_id + k as u32;
+            if best.improved_by(h.t, id) && accept(id, &h) {
+                best = Closest { t: h.t, id, hit: h };
+            }
+        }
+    }
+    best.found()
+}
+
+#[inline(always)]
+fn any_with<L: Lanes>(
+    l: L,
+    packets: &[WidePacket],
+    pre: &RayPrecomp,
+    t_max: f32,
+    accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+) -> bool {
+    for p in packets {
+        let hits = test(l, pre, p, t_max);
+        let mut m = hits.mask;
+        while m != 0 {
+            let k = m.trailing_zeros() as usize;
+            m &= m - 1;
+            if accept(p.first_id + k as u32, &hits.get(k)) {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+#[cfg(target_arch = "x86_64")]
+use x86::Avx512;
+
+/// Elsewhere there is no AVX-512: a type without values, so a `Flat` cannot exist.
+#[cfg(not(target_arch = "x86_64"))]
+#[derive(Clone, Copy, Debug)]
+enum Avx512 {}
+
+#[cfg(not(target_arch = "x86_64"))]
+impl Avx512 {
+    fn detect() -> Option<Avx512> {
+        None
+    }
+    fn closest(
+        self,
+        _: &[WidePacket],
+        _: &RayPrecomp,
+        _: f32,
+        _: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> Option<(u32, TriangleHit)> {
+        match self {}
+    }
+    fn any(
+        self,
+        _: &[WidePacket],
+        _: &RayPrecomp,
+        _: f32,
+        _: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
+        match self {}
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    //! The AVX-512F lanes. Every intrinsic needs its CPU feature, so every call is `unsafe`; the
+    //! safety argument is the [`Avx512`] value itself, which only [`Avx512::detect`] makes.
+
+    use super::{any_with, closest_with, Lanes, WidePacket, WIDE};
+    use crate::geometry::{RayPrecomp, TriangleHit};
+    use std::arch::x86_64::*;
+
+    /// Proof that the processor has AVX-512F (the field is private: only `detect` makes one).
+    /// Its [`Lanes`] operations are one 16-lane register each; compares give a 16-bit mask.
+    #[derive(Clone, Copy, Debug)]
+    pub(super) struct Avx512(());
+
+    impl Avx512 {
+        pub fn detect() -> Option<Avx512> {
+            is_x86_feature_detected!("avx512f").then_some(Avx512(()))
+        }
+
+        /// [`closest_with`] compiled for AVX-512F.
+        #[inline]
+        pub fn closest(
+            self,
+            packets: &[WidePacket],
+            pre: &RayPrecomp,
+            t_max: f32,
+            accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        ) -> Option<(u32, TriangleHit)> {
+            // SAFETY: `self` exists, so the processor has AVX-512F.
+            unsafe { closest_avx512(self, packets, pre, t_max, accept) }
+        }
+
+        /// [`any_with`] compiled for AVX-512F.
+        #[inline]
+        pub fn any(
+            self,
+            packets: &[WidePacket],
+            pre: &RayPrecomp,
+            t_max: f32,
+            accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        ) -> bool {
+            // SAFETY: as in `closest`.
+            unsafe { any_avx512(self, packets, pre, t_max, accept) }
+        }
+    }
+
+    /// The whole loop is compiled with the feature, so that the generic test and the `Lanes`
+    /// operations inline into it (they are `#[inline(always)]`; a function compiled without the
+    /// feature could not inline the intrinsics, and every operation would be a call).
+    ///
+    /// # Safety
+    /// The processor must have AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    unsafe fn closest_avx512(
+        l: Avx512,
+        packets: &[WidePacket],
+        pre: &RayPrecomp,
+        t_max: f32,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> Option<(u32, TriangleHit)> {
+        closest_with(l, packets, pre, t_max, accept)
+    }
+
+    /// # Safety
+    /// The processor must have AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    unsafe fn any_avx512(
+        l: Avx512,
+        packets: &[WidePacket],
+        pre: &RayPrecomp,
+        t_max: f32,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
+        any_with(l, packets, pre, t_max, accept)
+    }
+
+    // SAFETY (every `unsafe` block of this impl): an `Avx512` exists, so the processor has
+    // AVX-512F; the loads and stores go through references to 16 `f32`s, which the unaligned
+    // forms accept at any address.
+    impl Lanes for Avx512 {
+        type F = __m512;
+        #[inline(always)]
+        fn splat(self, x: f32) -> __m512 {
+            unsafe { _mm512_set1_ps(x) }
+        }
+        #[inline(always)]
+        fn load(self, x: &[f32; WIDE]) -> __m512 {
+            unsafe { _mm512_loadu_ps(x.as_ptr()) }
+        }
+        #[inline(always)]
+        fn store(self, x: __m512) -> [f32; WIDE] {
+            let mut out = [0.0f32; WIDE];
+            unsafe { _mm512_storeu_ps(out.as_mut_ptr(), x) };
+            out
+        }
+        #[inline(always)]
+        fn add(self, a: __m512, b: __m512) -> __m512 {
+            unsafe { _mm512_add_ps(a, b) }
+        }
+        #[inline(always)]
+        fn sub(self, a: __m512, b: __m512) -> __m512 {
+            unsafe { _mm512_sub_ps(a, b) }
+        }
+        #[inline(always)]
+        fn mul(self, a: __m512, b: __m512) -> __m512 {
+            unsafe { _mm512_mul_ps(a, b) }
+        }
+        #[inline(always)]
+        fn div(self, a: __m512, b: __m512) -> __m512 {
+            unsafe { _mm512_div_ps(a, b) }
+        }
+        #[inline(always)]
+        fn lt(self, a: __m512, b: __m512) -> u32 {
+            u32::from(unsafe { _mm512_cmp_ps_mask::<_CMP_LT_OQ>(a, b) })
+        }
+        #[inline(always)]
+        fn eq(self, a: __m512, b: __m512) -> u32 {
+            u32::from(unsafe { _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(a, b) })
+        }
+        #[inline(always)]
+        fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32 {
+            unsafe { _mm512_mask_reduce_min_ps(mask as __mmask16, self.load(x)) }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ray;
+
+    /// The brute-force answer: the smallest (t, index) among the hits `accept` lets through.
+    fn brute_force(
+        tris: &[[Vec3; 3]],
+        pre: &RayPrecomp,
+        t_max: f32,
+        accept: impl Fn(u32) -> bool,
+    ) -> Option<(u32, TriangleHit)> {
+        let mut best: Option<(u32, TriangleHit)> = None;
+        for (id, tri) in tris.iter().enumerate() {
+            if let Some(h) = intersect_watertight(pre, tri, t_max) {
+                if accept(id as u32) && best.is_none_or(|(_, b)| h.t < b.t) {
+                    best = Some((id as u32, h));
+                }
+            }
+        }
+        best
+    }
+
+    /// On meshes of 1 to 64 triangles — random ones with shared edges and exact duplicates (ties),
+    /// and axis-aligned squares hit by axis-aligned rays (edge functions exactly zero, decided in
+    /// double precision) — the wide test gives the brute-force scalar answer bit for bit: the same
+    /// triangle, distance and barycentrics, with and without a filter, and the same visibility.
+    #[test]
+    fn every_answer_is_the_scalar_tests_bit_for_bit() {
+        if Avx512::detect().is_none() {
+            eprintln!("SKIPPED: this processor has no AVX-512F, so meshes use the tree");
+            return;
+        }
+        let mut rng = crate::testing::uniform_stream(0x51_7cc1_b727_220a);
+        let (mut hits, mut ties, mut edges, mut rejected) = (0, 0, 0, 0);
+        for case in 0..400 {
+            let n = case % MAX_TRIANGLES + 1;
+            let mut tris: Vec<[Vec3; 3]> = Vec::new();
+            while tris.len() < n {
+                let p = |rng: &mut dyn FnMut() -> f32| Vec3::new(rng(), rng(), rng()) * 2.0 - 1.0;
+                match tris.len() % 5 {
+                    // A quad of two triangles in the plane z = k/4, sharing its diagonal.
+                    0 if tris.len() + 2 <= n => {
+                        let z = (tris.len() % 7) as f32 * 0.25 - 0.75;
+                        let [a, b, c, d] = [(-1., -1.), (1., -1.), (1., 1.), (-1., 1.)]
+                            .map(|(x, y)| Vec3::new(x, y, z));
+                        tris.push([a, b, c]);
+                        tris.push([a, c, d]);
+                    }
+                    // A duplicate of the previous triangle: a tie broken by index.
+                    1 if !tris.is_empty() => tris.push(tris[tris.len() - 1]),
+                    // A triangle sharing an edge with the previous one.
+                    2 if !tris.is_empty() => {
+                        let [a, b, _] = tris[tris.len() - 1];
+                        tris.push([b, a, p(&mut rng)]);
+                    }
+                    _ => tris.push([p(&mut rng), p(&mut rng), p(&mut rng)]),
+                }
+            }
+            let flat = Flat::new(&tris).expect("AVX-512F was detected");
+            for ray in 0..64 {
+                let (o, d) = if ray % 4 == 0 {
+                    // Axis-aligned rays through a grid of quarter points: exact edges and corners.
+                    let q = (Vec3::new(rng(), rng(), 0.0) * 8.0 - 4.0).round() * 0.25;
+                    (Vec3::new(q.x, q.y, 2.0), -Vec3::Z)
+                } else {
+                    let o = Vec3::new(rng(), rng(), rng()) * 6.0 - 3.0;
+                    let tri = tris[ray % n];
+                    let target = tri[0] * 0.4 + tri[1] * 0.35 + tri[2] * 0.25;
+                    let jitter = Vec3::new(rng(), rng(), rng()) * 0.2 - 0.1;
+                    (o, (target + jitter - o).normalize_or(Vec3::X))
+                };
+                let pre = RayPrecomp::new(&Ray::new(o, d));
+                let t_max = if ray % 3 == 0 { 1.7 } else { f32::INFINITY };
+                let want = brute_force(&tris, &pre, t_max, |_| true);
+                let got = flat.closest(&pre, t_max, &mut |_, _| true);
+                assert_eq!(got, want, "case {case} ray {ray}");
+                assert_eq!(flat.any(&pre, t_max, &mut |_, _| true), want.is_some());
+                if let Some((id, h)) = want {
+                    hits += 1;
+                    let tied = tris.iter().enumerate().any(|(other, tri)| {
+                        other as u32 != id
+                            && intersect_watertight(&pre, tri, t_max).is_some_and(|o| o.t == h.t)
+                    });
+                    ties += u32::from(tied);
+                    edges += u32::from(h.b1 == 0.0 || h.b2 == 0.0 || h.b1 + h.b2 == 1.0);
+                    // A filter that rejects the nearest triangle (an alpha cutout) finds the next.
+                    let next = flat.closest(&pre, t_max, &mut |other, _| other != id);
+                    assert_eq!(next, brute_force(&tris, &pre, t_max, |other| other != id));
+                    let behind = flat.any(&pre, t_max, &mut |other, _| other != id);
+                    assert_eq!(behind, next.is_some());
+                    rejected += u32::from(next.is_some());
+                }
+            }
+        }
+        assert!(
+            hits > 10_000 && ties > 1_000 && edges > 200 && rejected > 3_000,
+            "{hits} hits, {ties} ties, {edges} on edges, {rejected} behind a rejected one: \
+             the cases do not exercise the test"
+        );
+    }
+
+    #[test]
+    fn only_small_meshes_are_flat() {
+        let tri = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        assert!(Flat::new(&[]).is_none());
+        assert!(Flat::new(&vec![tri; MAX_TRIANGLES + 1]).is_none());
+        let flat = Flat::new(&vec![tri; MAX_TRIANGLES]);
+        assert_eq!(flat.is_some(), Avx512::detect().is_some());
+        if let Some(flat) = flat {
+            assert_eq!(flat.packets.len(), MAX_TRIANGLES / WIDE);
+        }
+    }
+}
