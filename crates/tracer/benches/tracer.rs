@@ -10,6 +10,10 @@
 //!   on the Cornell box and on the 330k scene. One fixed batch of 65,536 rays from random points in
 //!   the air inside the box: closest-hit rays in uniformly random directions, shadow rays towards
 //!   random points of the ceiling light (t_max = distance · (1 − 10⁻⁴), as the integrator does).
+//! - `flat_vs_tree`: the same rays against the Cornell box's 32 triangles through `Bvh` directly,
+//!   answered by the flat 16-lane test of every triangle (`geometry/bvh/flat.rs`, on a processor
+//!   with AVX-512F) and by the 4-wide tree (`Bvh::tree_only`): a closest-hit and a shadow query per
+//!   element.
 //! - `bsdf`: `Bsdf::sample` followed by `Bsdf::eval` of the sampled direction, for a batch of 1,024
 //!   random outgoing directions, for a diffuse, a rough-metal and a smooth-glass material.
 //! - `accumulation`: `Accumulation::merge` of one 256×256 accumulation into another.
@@ -22,7 +26,7 @@ mod scene_gen;
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
 use glam::{Vec2, Vec3};
 use pathfarm_tracer::bsdf::{Bsdf, PbrParams};
-use pathfarm_tracer::geometry::Ray;
+use pathfarm_tracer::geometry::{Bvh, Ray, RayPrecomp};
 use pathfarm_tracer::scene::SceneParts;
 use pathfarm_tracer::{Accumulation, Scene};
 use std::hint::black_box;
@@ -218,6 +222,50 @@ fn rays(c: &mut Criterion) {
     group.finish();
 }
 
+fn flat_vs_tree(c: &mut Criterion) {
+    let batch = ray_batch();
+    let mut mesh = scene_gen::cornell_parts().mesh;
+    let (bvh, order) = Bvh::build(&mesh);
+    mesh.reorder(&order);
+    eprintln!(
+        "flat_vs_tree: {} triangles, flat test {}",
+        mesh.len(),
+        if bvh.is_flat() {
+            "in use"
+        } else {
+            "not available (no AVX-512F): both rows are the tree"
+        }
+    );
+    let queries: Vec<(RayPrecomp, Vec3, RayPrecomp, Vec3, f32)> = batch
+        .closest
+        .iter()
+        .zip(&batch.shadow)
+        .map(|(ray, (shadow, t_max))| {
+            let (a, b) = (RayPrecomp::new(ray), RayPrecomp::new(shadow));
+            (a, ray.d, b, shadow.d, *t_max)
+        })
+        .collect();
+    let mut group = c.benchmark_group("flat_vs_tree");
+    group.throughput(Throughput::Elements(RAYS as u64));
+    for (name, bvh) in [("flat", bvh.clone()), ("tree", bvh.tree_only())] {
+        group.bench_function(format!("cornell/{name}"), |b| {
+            b.iter(|| {
+                let (mut sum, mut n) = (0.0f32, 0u32);
+                for (a, da, s, ds, t_max) in &queries {
+                    if let Some((_, hit)) =
+                        bvh.closest(black_box(a), *da, f32::INFINITY, |_, _| true)
+                    {
+                        sum += hit.t;
+                    }
+                    n += bvh.any(black_box(s), *ds, *t_max, |_, _| true) as u32;
+                }
+                (sum, n)
+            })
+        });
+    }
+    group.finish();
+}
+
 fn bsdf(c: &mut Criterion) {
     let white = Vec3::new(0.8, 0.8, 0.8);
     let configs = [
@@ -302,6 +350,6 @@ fn accumulation(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(3));
-    targets = bvh_build, rays, bsdf, accumulation
+    targets = bvh_build, rays, flat_vs_tree, bsdf, accumulation
 }
 criterion_main!(benches);

@@ -42,8 +42,8 @@ pub struct Bvh {
     packets: Vec<TriPacket>,
     root: Option<NodeRef>,
     depth: usize,
-    /// For a mesh of at most `flat::MAX_TRIANGLES` triangles on a processor with 16- or 8-lane
-    /// vectors: every triangle in wide packets, tested without the tree (`flat.rs`).
+    /// For a mesh of at most `flat::MAX_TRIANGLES` triangles on a processor with AVX-512F: every
+    /// triangle in 16-lane packets, tested without the tree (`flat.rs`).
     flat: Option<Flat>,
 }
 
@@ -120,9 +120,8 @@ impl Bvh {
     }
 
     /// This BVH with its queries answered by the tree even where the mesh is small enough for the
-    /// flat test (for tests that compare the two).
-    #[cfg(test)]
-    pub(crate) fn tree_only(mut self) -> Bvh {
+    /// flat test: the same answers, for tests and benchmarks that compare the two.
+    pub fn tree_only(mut self) -> Bvh {
         self.flat = None;
         self
     }
