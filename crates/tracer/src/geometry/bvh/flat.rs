@@ -16,8 +16,9 @@
 //! it, or for larger meshes, the tree is used. (The same test on AVX2, as two 8-lane halves, spilled
 //! registers and measured within a few percent of the tree on the Cornell box: not kept.)
 
+use super::packet::LaneHits;
 use super::Closest;
-use crate::geometry::{intersect_watertight, RayPrecomp, TriangleHit};
+use crate::geometry::{RayPrecomp, TriangleHit};
 use glam::Vec3;
 
 /// Lanes of a wide packet.
@@ -113,24 +114,8 @@ impl Flat {
     }
 }
 
-/// The hits of one wide packet: bit k of `mask` for lane k, distances and barycentrics in lane k.
-struct WideHits {
-    mask: u32,
-    t: [f32; WIDE],
-    b1: [f32; WIDE],
-    b2: [f32; WIDE],
-}
-
-impl WideHits {
-    #[inline(always)]
-    fn get(&self, k: usize) -> TriangleHit {
-        TriangleHit {
-            t: self.t[k],
-            b1: self.b1[k],
-            b2: self.b2[k],
-        }
-    }
-}
+/// The hits of one wide packet.
+type WideHits = LaneHits<WIDE>;
 
 /// The 16-lane operations of the test, for one instruction set (`x86::Avx512`; another would be
 /// another implementation). Called only inside a function compiled for that instruction set, so that
@@ -211,26 +196,15 @@ fn test<L: Lanes>(l: L, pre: &RayPrecomp, p: &WidePacket, t_max: f32) -> WideHit
     let det_neg = l.lt(det, zero);
     let in_range_pos = det_pos & l.lt(zero, t_scaled) & l.lt(t_scaled, limit);
     let in_range_neg = det_neg & l.lt(t_scaled, zero) & l.lt(limit, t_scaled);
-    let mut mask = !outside & (in_range_pos | in_range_neg) & p.valid & !on_edge;
+    let mask = !outside & (in_range_pos | in_range_neg) & p.valid & !on_edge;
     let inv = l.div(l.splat(1.0), det);
     let mut hits = WideHits {
-        mask: 0,
+        mask,
         t: l.store(l.mul(t_scaled, inv)),
         b1: l.store(l.mul(v, inv)),
         b2: l.store(l.mul(w, inv)),
     };
-    let mut rest = on_edge;
-    while rest != 0 {
-        let k = rest.trailing_zeros() as usize;
-        rest &= rest - 1;
-        if let Some(h) = intersect_watertight(pre, &p.triangle(k), t_max) {
-            mask |= 1 << k;
-            hits.t[k] = h.t;
-            hits.b1[k] = h.b1;
-            hits.b2[k] = h.b2;
-        }
-    }
-    hits.mask = mask;
+    hits.decide_edges(on_edge, pre, t_max, |k| p.triangle(k));
     hits
 }
 
@@ -263,16 +237,7 @@ fn closest_with<L: Lanes>(
             continue;
         }
         // The filter rejected it (an alpha cutout): every other lane in turn.
-        let mut m = hits.mask & !(1 << k);
-        while m != 0 {
-            let k = m.trailing_zeros() as usize;
-            m &= m - 1;
-            let h = hits.get(k);
-            let id = p.first_id + k as u32;
-            if best.improved_by(h.t, id) && accept(id, &h) {
-                best = Closest { t: h.t, id, hit: h };
-            }
-        }
+        hits.offer(hits.mask & !(1 << k), p.first_id, &mut best, accept);
     }
     best.found()
 }
@@ -285,18 +250,9 @@ fn any_with<L: Lanes>(
     t_max: f32,
     accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
 ) -> bool {
-    for p in packets {
-        let hits = test(l, pre, p, t_max);
-        let mut m = hits.mask;
-        while m != 0 {
-            let k = m.trailing_zeros() as usize;
-            m &= m - 1;
-            if accept(p.first_id + k as u32, &hits.get(k)) {
-                return true;
-            }
-        }
-    }
-    false
+    packets
+        .iter()
+        .any(|p| test(l, pre, p, t_max).any_accepted(p.first_id, accept))
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -461,7 +417,7 @@ mod x86 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::Ray;
+    use crate::geometry::{intersect_watertight, Ray};
 
     /// The brute-force answer: the smallest (t, index) among the hits `accept` lets through.
     fn brute_force(

@@ -254,16 +254,7 @@ impl Bvh {
         for p in &self.packets[node.packets()] {
             // Accept ties (t equal to the best so far) so they can be broken by index.
             let hits = intersect_packet(ray, p, best.tie_limit());
-            let mut m = hits.mask;
-            while m != 0 {
-                let k = m.trailing_zeros() as usize;
-                m &= m - 1;
-                let h = hits.get(k);
-                let id = p.first_id + k as u32;
-                if best.improved_by(h.t, id) && accept(id, &h) {
-                    *best = Closest { t: h.t, id, hit: h };
-                }
-            }
+            hits.offer(hits.mask, p.first_id, best, accept);
         }
     }
 
@@ -277,14 +268,8 @@ impl Bvh {
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
         for p in &self.packets[node.packets()] {
-            let hits = intersect_packet(ray, p, t_max);
-            let mut m = hits.mask;
-            while m != 0 {
-                let k = m.trailing_zeros() as usize;
-                m &= m - 1;
-                if accept(p.first_id + k as u32, &hits.get(k)) {
-                    return true;
-                }
+            if intersect_packet(ray, p, t_max).any_accepted(p.first_id, accept) {
+                return true;
             }
         }
         false

@@ -7,8 +7,9 @@
 //! double precision — is left to the scalar test for the lanes that need it.
 
 use super::node::TriPacket;
+use super::Closest;
 use crate::geometry::{intersect_watertight, RayPrecomp, TriangleHit};
-use glam::Vec4;
+use glam::{Vec3, Vec4};
 
 /// The per-ray constants of the test, splatted across lanes once per ray.
 #[derive(Clone, Copy, Debug)]
@@ -44,17 +45,21 @@ impl PacketRay {
     }
 }
 
-/// The hits of one packet: bit k of `mask` set when lane k's triangle is hit in (0, t_max), with
-/// its distance and barycentrics in lane k of `t`, `b1`, `b2`.
+/// The hits of a packet of N triangles: bit k of `mask` set when lane k's triangle is hit in
+/// (0, t_max), with its distance and barycentrics in lane k of `t`, `b1`, `b2`. Lane k is triangle
+/// `first_id + k`. Shared by the 4-lane test below and the 16-lane one of `flat.rs`.
 #[derive(Clone, Copy, Debug)]
-pub(super) struct PacketHits {
+pub(super) struct LaneHits<const N: usize> {
     pub mask: u32,
-    pub t: [f32; 4],
-    pub b1: [f32; 4],
-    pub b2: [f32; 4],
+    pub t: [f32; N],
+    pub b1: [f32; N],
+    pub b2: [f32; N],
 }
 
-impl PacketHits {
+/// The hits of one 4-triangle packet.
+pub(super) type PacketHits = LaneHits<4>;
+
+impl<const N: usize> LaneHits<N> {
     #[inline(always)]
     pub fn get(&self, k: usize) -> TriangleHit {
         TriangleHit {
@@ -62,6 +67,69 @@ impl PacketHits {
             b1: self.b1[k],
             b2: self.b2[k],
         }
+    }
+
+    /// Decides the lanes of `on_edge` (an edge function exactly zero in single precision) with
+    /// the scalar test, which redoes them in double precision; `triangle(k)` is lane k's triangle.
+    #[inline(always)]
+    pub fn decide_edges(
+        &mut self,
+        on_edge: u32,
+        pre: &RayPrecomp,
+        t_max: f32,
+        triangle: impl Fn(usize) -> [Vec3; 3],
+    ) {
+        let mut rest = on_edge;
+        while rest != 0 {
+            let k = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            if let Some(h) = intersect_watertight(pre, &triangle(k), t_max) {
+                self.mask |= 1 << k;
+                self.t[k] = h.t;
+                self.b1[k] = h.b1;
+                self.b2[k] = h.b2;
+            }
+        }
+    }
+
+    /// Offers the hit lanes of `lanes` to `best` in lane order: each that is closer (or ties with a
+    /// smaller index) and that `accept` lets through becomes the best.
+    #[inline(always)]
+    pub fn offer(
+        &self,
+        lanes: u32,
+        first_id: u32,
+        best: &mut Closest,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) {
+        let mut m = lanes;
+        while m != 0 {
+            let k = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let h = self.get(k);
+            let id = first_id + k as u32;
+            if best.improved_by(h.t, id) && accept(id, &h) {
+                *best = Closest { t: h.t, id, hit: h };
+            }
+        }
+    }
+
+    /// Whether `accept` lets through one of the hits.
+    #[inline(always)]
+    pub fn any_accepted(
+        &self,
+        first_id: u32,
+        accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
+        let mut m = self.mask;
+        while m != 0 {
+            let k = m.trailing_zeros() as usize;
+            m &= m - 1;
+            if accept(first_id + k as u32, &self.get(k)) {
+                return true;
+            }
+        }
+        false
     }
 }
 
@@ -83,7 +151,7 @@ pub(super) fn intersect_packet(r: &PacketRay, p: &TriPacket, t_max: f32) -> Pack
     let in_range_pos = det.cmpgt(zero) & t_scaled.cmpgt(zero) & t_scaled.cmplt(limit);
     let in_range_neg = det.cmplt(zero) & t_scaled.cmplt(zero) & t_scaled.cmpgt(limit);
     let hit = !outside & (in_range_pos | in_range_neg);
-    let mut mask = hit.bitmask() & p.valid & !on_edge;
+    let mask = hit.bitmask() & p.valid & !on_edge;
     // Computed whether or not a lane was hit: a branch on it would be mispredicted often, and
     // the division of the lanes that were not hit is harmless.
     let inv = Vec4::ONE / det;
@@ -94,18 +162,8 @@ pub(super) fn intersect_packet(r: &PacketRay, p: &TriPacket, t_max: f32) -> Pack
         b2: (w * inv).to_array(),
     };
     // Lanes with an edge function exactly zero: the scalar test decides them in double precision.
-    let mut rest = on_edge;
-    while rest != 0 {
-        let k = rest.trailing_zeros() as usize;
-        rest &= rest - 1;
-        if let Some(h) = intersect_watertight(&r.scalar, &p.triangle(k), t_max) {
-            mask |= 1 << k;
-            out.t[k] = h.t;
-            out.b1[k] = h.b1;
-            out.b2[k] = h.b2;
-        }
-    }
     out.mask = mask;
+    out.decide_edges(on_edge, &r.scalar, t_max, |k| p.triangle(k));
     out
 }
 
