@@ -1,14 +1,15 @@
 //! The scenes committed under `scenes/` (the benchmark's and the reference scenes): every one loads
 //! self-contained (no external resources) without warnings, has a camera and a light, and renders a
 //! small image with no invalid samples and a positive, finite mean; and each benchmark scene has the
-//! property it was made for (`examples/make_bench_scenes.rs`).
+//! property it was made for (`examples/make_bench_scenes.rs`). The small ones render the same bits
+//! whether their ray queries go to the flat 16-lane test or to the tree.
 
 mod common;
 
 use common::image_mean_and_stderr;
 use pathfarm_tracer::gltf::{load_parts, LoadOptions, NoExternalResources};
 use pathfarm_tracer::math::luminance;
-use pathfarm_tracer::{render_image, RenderSettings, Scene};
+use pathfarm_tracer::{render_image, DirectStrategy, RenderSettings, SamplerKind, Scene};
 use std::path::PathBuf;
 
 /// The repository's `scenes/` directory.
@@ -195,4 +196,45 @@ fn textured_has_color_normal_and_metallic_roughness_textures() {
         "no material with color, normal and metallic-roughness textures"
     );
     assert!(scene.mesh.uv0.is_some() && scene.mesh.tangents.is_some());
+}
+
+/// A farm mixes processors: on one with AVX-512F a scene of at most 64 triangles is tested without
+/// its BVH (`geometry/bvh/flat.rs`), on one without it the tree answers. Both must render the same
+/// bits, for every direct-lighting strategy and sampler.
+#[test]
+fn small_scenes_render_the_same_bits_with_the_flat_test_and_with_the_tree() {
+    let mut compared = Vec::new();
+    for (name, bytes) in shipped() {
+        let flat = load(&name, &bytes);
+        if !flat.bvh.is_flat() {
+            continue;
+        }
+        let mut tree = load(&name, &bytes);
+        tree.bvh = std::mem::take(&mut tree.bvh).tree_only();
+        assert!(!tree.bvh.is_flat());
+        for direct in DirectStrategy::ALL {
+            for sampler in [SamplerKind::Sobol, SamplerKind::Independent] {
+                let settings = RenderSettings {
+                    direct,
+                    sampler,
+                    seed: 11,
+                    ..RenderSettings::new(24, 20)
+                };
+                let a = render_image(&flat, &settings, 8, 0..4, &|_| {});
+                let b = render_image(&tree, &settings, 8, 0..4, &|_| {});
+                assert!(a.rays > 0);
+                assert!(
+                    a.pixels == b.pixels && a.rays == b.rays,
+                    "{name}, {direct:?}, {sampler:?}: the flat test and the tree differ"
+                );
+            }
+        }
+        compared.push(name);
+    }
+    if compared.is_empty() {
+        eprintln!("SKIPPED: this processor has no AVX-512F, so every scene uses its tree");
+    } else {
+        // cornell.gltf (32 triangles), furnacebox.gltf (12), smalllight.gltf (34).
+        assert_eq!(compared.len(), 3, "flat scenes: {compared:?}");
+    }
 }
