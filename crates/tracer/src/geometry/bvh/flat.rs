@@ -106,6 +106,18 @@ impl Flat {
         self.avx512.closest(&self.packets, pre, t_max, accept)
     }
 
+    /// [`Flat::closest`] of ray `a` and [`Flat::any`] of ray `b`, packet by packet in one loop.
+    #[inline]
+    pub fn closest_and_any(
+        &self,
+        a: (&RayPrecomp, f32),
+        accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        b: (&RayPrecomp, f32),
+        accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> (Option<(u32, TriangleHit)>, bool) {
+        self.avx512.pair(&self.packets, a, accept_a, b, accept_b)
+    }
+
     /// Whether some triangle that `accept` lets through is hit in (0, t_max).
     #[inline]
     pub fn any(
@@ -222,28 +234,61 @@ fn closest_with<L: Lanes>(
 ) -> Option<(u32, TriangleHit)> {
     let mut best = Closest::new(t_max);
     for p in packets {
-        // Ties with the best so far are let through so that the index can break them.
-        let hits = test(l, pre, p, best.tie_limit());
-        if hits.mask == 0 {
-            continue;
-        }
-        // The packet's smallest (t, index), found without a branch per lane: if it is no
-        // improvement, no other lane is.
-        let min = l.min_where(hits.mask, &hits.t);
-        let k = (l.eq(l.load(&hits.t), l.splat(min)) & hits.mask).trailing_zeros() as usize;
-        let id = p.first_id + k as u32;
-        if !best.improved_by(min, id) {
-            continue;
-        }
-        let h = hits.get(k);
-        if accept(id, &h) {
-            best = Closest { t: min, id, hit: h };
-            continue;
-        }
-        // The filter rejected it (an alpha cutout): every other lane in turn.
-        hits.offer(hits.mask & !(1 << k), p.first_id, &mut best, accept);
+        closest_in_packet(l, p, pre, &mut best, accept);
     }
     best.found()
+}
+
+/// Offers the hits of packet `p` to `best`.
+#[inline(always)]
+fn closest_in_packet<L: Lanes>(
+    l: L,
+    p: &WidePacket,
+    pre: &RayPrecomp,
+    best: &mut Closest,
+    accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+) {
+    // Ties with the best so far are let through so that the index can break them.
+    let hits = test(l, pre, p, best.tie_limit());
+    if hits.mask == 0 {
+        return;
+    }
+    // The packet's smallest (t, index), found without a branch per lane: if it is no
+    // improvement, no other lane is.
+    let min = l.min_where(hits.mask, &hits.t);
+    let k = (l.eq(l.load(&hits.t), l.splat(min)) & hits.mask).trailing_zeros() as usize;
+    let id = p.first_id + k as u32;
+    if !best.improved_by(min, id) {
+        return;
+    }
+    let h = hits.get(k);
+    if accept(id, &h) {
+        *best = Closest { t: min, id, hit: h };
+        return;
+    }
+    // The filter rejected it (an alpha cutout): every other lane in turn.
+    hits.offer(hits.mask & !(1 << k), p.first_id, best, accept);
+}
+
+/// A closest-hit query and a shadow query, packet by packet in one loop.
+#[inline(always)]
+fn pair_with<L: Lanes>(
+    l: L,
+    packets: &[WidePacket],
+    a: (&RayPrecomp, f32),
+    accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    b: (&RayPrecomp, f32),
+    accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
+) -> (Option<(u32, TriangleHit)>, bool) {
+    let mut best = Closest::new(a.1);
+    let mut blocked = false;
+    for p in packets {
+        closest_in_packet(l, p, a.0, &mut best, accept_a);
+        if !blocked {
+            blocked = test(l, b.0, p, b.1).any_accepted(p.first_id, accept_b);
+        }
+    }
+    (best.found(), blocked)
 }
 
 #[inline(always)]
@@ -296,6 +341,16 @@ impl Avx512 {
     ) -> bool {
         match self {}
     }
+    fn pair(
+        self,
+        _: &[WidePacket],
+        _: (&RayPrecomp, f32),
+        _: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        _: (&RayPrecomp, f32),
+        _: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> (Option<(u32, TriangleHit)>, bool) {
+        match self {}
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -303,7 +358,7 @@ mod x86 {
     //! The AVX-512F lanes. Every intrinsic needs its CPU feature, so every call is `unsafe`; the
     //! safety argument is the [`Avx512`] value itself, which only [`Avx512::detect`] makes.
 
-    use super::{any_with, closest_with, Lanes, WidePacket, WIDE};
+    use super::{any_with, closest_with, pair_with, Lanes, WidePacket, WIDE};
     use crate::geometry::{RayPrecomp, TriangleHit};
     use std::arch::x86_64::*;
 
@@ -328,6 +383,20 @@ mod x86 {
         ) -> Option<(u32, TriangleHit)> {
             // SAFETY: `self` exists, so the processor has AVX-512F.
             unsafe { closest_avx512(self, packets, pre, t_max, accept) }
+        }
+
+        /// [`pair_with`] compiled for AVX-512F.
+        #[inline]
+        pub fn pair(
+            self,
+            packets: &[WidePacket],
+            a: (&RayPrecomp, f32),
+            accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
+            b: (&RayPrecomp, f32),
+            accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        ) -> (Option<(u32, TriangleHit)>, bool) {
+            // SAFETY: as in `closest`.
+            unsafe { pair_avx512(self, packets, a, accept_a, b, accept_b) }
         }
 
         /// [`any_with`] compiled for AVX-512F.
@@ -359,6 +428,20 @@ mod x86 {
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
         closest_with(l, packets, pre, t_max, accept)
+    }
+
+    /// # Safety
+    /// The processor must have AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    unsafe fn pair_avx512(
+        l: Avx512,
+        packets: &[WidePacket],
+        a: (&RayPrecomp, f32),
+        accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        b: (&RayPrecomp, f32),
+        accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> (Option<(u32, TriangleHit)>, bool) {
+        pair_with(l, packets, a, accept_a, b, accept_b)
     }
 
     /// # Safety

@@ -37,9 +37,11 @@ impl Bvh {
     ) -> (Option<(u32, TriangleHit)>, bool) {
         if let Some(flat) = &self.flat {
             // No chains of dependent steps to interleave: the two queries one after the other.
-            return (
-                flat.closest(a.pre, a.t_max, &mut accept_a),
-                flat.any(b.pre, b.t_max, &mut accept_b),
+            return flat.closest_and_any(
+                (a.pre, a.t_max),
+                &mut accept_a,
+                (b.pre, b.t_max),
+                &mut accept_b,
             );
         }
         let Some(root) = self.root else {
