@@ -103,7 +103,8 @@ impl Flat {
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
-        self.avx512.closest(&self.packets, pre, t_max, accept)
+        // SAFETY: `self.avx512` exists, so the processor has AVX-512F.
+        unsafe { self.avx512.closest(&self.packets, pre, t_max, accept) }
     }
 
     /// [`Flat::closest`] of ray `a` and [`Flat::any`] of ray `b`, packet by packet in one loop.
@@ -115,7 +116,8 @@ impl Flat {
         b: (&RayPrecomp, f32),
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
-        self.avx512.pair(&self.packets, a, accept_a, b, accept_b)
+        // SAFETY: as in `closest`.
+        unsafe { self.avx512.pair(&self.packets, a, accept_a, b, accept_b) }
     }
 
     /// Whether some triangle that `accept` lets through is hit in (0, t_max).
@@ -126,7 +128,8 @@ impl Flat {
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
-        self.avx512.any(&self.packets, pre, t_max, accept)
+        // SAFETY: as in `closest`.
+        unsafe { self.avx512.any(&self.packets, pre, t_max, accept) }
     }
 }
 
@@ -323,7 +326,7 @@ impl Avx512 {
     fn detect() -> Option<Avx512> {
         None
     }
-    fn closest(
+    unsafe fn closest(
         self,
         _: &[WidePacket],
         _: &RayPrecomp,
@@ -332,7 +335,7 @@ impl Avx512 {
     ) -> Option<(u32, TriangleHit)> {
         match self {}
     }
-    fn any(
+    unsafe fn any(
         self,
         _: &[WidePacket],
         _: &RayPrecomp,
@@ -341,7 +344,7 @@ impl Avx512 {
     ) -> bool {
         match self {}
     }
-    fn pair(
+    unsafe fn pair(
         self,
         _: &[WidePacket],
         _: (&RayPrecomp, f32),

@@ -15,22 +15,31 @@ impl Avx512 {
         is_x86_feature_detected!("avx512f").then_some(Avx512(()))
     }
 
-    /// [`closest_with`] compiled for AVX-512F.
-    #[inline]
-    pub fn closest(
+    /// [`closest_with`] compiled for AVX-512F. The whole loop is compiled with the feature, so
+    /// that the generic test and the `Lanes` operations inline into it (they are
+    /// `#[inline(always)]`; a function compiled without the feature could not inline the
+    /// intrinsics, and every operation would be a call).
+    ///
+    /// # Safety
+    /// None beyond `self`'s existence (the processor has AVX-512F); `unsafe` only because the
+    /// compiler requires it for calls into `#[target_feature]` functions.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn closest(
         self,
         packets: &[WidePacket],
         pre: &RayPrecomp,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
-        // SAFETY: `self` exists, so the processor has AVX-512F.
-        unsafe { closest_avx512(self, packets, pre, t_max, accept) }
+        closest_with(self, packets, pre, t_max, accept)
     }
 
     /// [`pair_with`] compiled for AVX-512F.
-    #[inline]
-    pub fn pair(
+    ///
+    /// # Safety
+    /// As [`Avx512::closest`].
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn pair(
         self,
         packets: &[WidePacket],
         a: (&RayPrecomp, f32),
@@ -38,66 +47,23 @@ impl Avx512 {
         b: (&RayPrecomp, f32),
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
-        // SAFETY: as in `closest`.
-        unsafe { pair_avx512(self, packets, a, accept_a, b, accept_b) }
+        pair_with(self, packets, a, accept_a, b, accept_b)
     }
 
     /// [`any_with`] compiled for AVX-512F.
-    #[inline]
-    pub fn any(
+    ///
+    /// # Safety
+    /// As [`Avx512::closest`].
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn any(
         self,
         packets: &[WidePacket],
         pre: &RayPrecomp,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
-        // SAFETY: as in `closest`.
-        unsafe { any_avx512(self, packets, pre, t_max, accept) }
+        any_with(self, packets, pre, t_max, accept)
     }
-}
-
-/// The whole loop is compiled with the feature, so that the generic test and the `Lanes`
-/// operations inline into it (they are `#[inline(always)]`; a function compiled without the
-/// feature could not inline the intrinsics, and every operation would be a call).
-///
-/// # Safety
-/// The processor must have AVX-512F.
-#[target_feature(enable = "avx512f")]
-unsafe fn closest_avx512(
-    l: Avx512,
-    packets: &[WidePacket],
-    pre: &RayPrecomp,
-    t_max: f32,
-    accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-) -> Option<(u32, TriangleHit)> {
-    closest_with(l, packets, pre, t_max, accept)
-}
-
-/// # Safety
-/// The processor must have AVX-512F.
-#[target_feature(enable = "avx512f")]
-unsafe fn pair_avx512(
-    l: Avx512,
-    packets: &[WidePacket],
-    a: (&RayPrecomp, f32),
-    accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
-    b: (&RayPrecomp, f32),
-    accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
-) -> (Option<(u32, TriangleHit)>, bool) {
-    pair_with(l, packets, a, accept_a, b, accept_b)
-}
-
-/// # Safety
-/// The processor must have AVX-512F.
-#[target_feature(enable = "avx512f")]
-unsafe fn any_avx512(
-    l: Avx512,
-    packets: &[WidePacket],
-    pre: &RayPrecomp,
-    t_max: f32,
-    accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-) -> bool {
-    any_with(l, packets, pre, t_max, accept)
 }
 
 // SAFETY (every `unsafe` block of this impl): an `Avx512` exists, so the processor has
