@@ -1,10 +1,10 @@
-//! Rendering for measurement: the tracer's own per-pixel function (`render_pixel`, what
+//! Rendering for measurement: the tracer's own function for a run of samples (`render_samples`, what
 //! `render_tile` runs), driven here so that the largest single sample value and the invalid samples
 //! can be observed on the way. The pixels are accumulated exactly as `pathfarm_tracer::render_tile`
 //! does, so the images are the same bits.
 
 use pathfarm_tracer::math::luminance;
-use pathfarm_tracer::{render_pixel, Accumulation, PixelAccum, RenderSettings, Scene};
+use pathfarm_tracer::{render_samples, Accumulation, PixelAccum, RenderSettings, Scene};
 use rayon::prelude::*;
 use std::ops::Range;
 use std::time::Instant;
@@ -26,20 +26,17 @@ pub fn render_range(scene: &Scene, settings: &RenderSettings, samples: Range<u32
     let rows: Vec<(Vec<PixelAccum>, u64, f64, u64)> = (0..h)
         .into_par_iter()
         .map(|y| {
-            let mut pixels = Vec::with_capacity(w as usize);
+            let mut pixels = vec![PixelAccum::default(); w as usize];
             let (mut rays, mut max_sample, mut invalid) = (0u64, 0f64, 0u64);
-            for x in 0..w {
-                let mut p = PixelAccum::default();
-                render_pixel(scene, settings, x, y, samples.clone(), |_, r| {
-                    rays += r.rays as u64;
-                    if p.add_sample(r.radiance) {
-                        max_sample = max_sample.max(luminance(r.radiance) as f64);
-                    } else {
-                        invalid += 1;
-                    }
-                });
-                pixels.push(p);
-            }
+            let work = (0..w).flat_map(|x| samples.clone().map(move |index| (x, y, index)));
+            render_samples(scene, settings, work, |x, _, _, r| {
+                rays += r.rays as u64;
+                if pixels[x as usize].add_sample(r.radiance) {
+                    max_sample = max_sample.max(luminance(r.radiance) as f64);
+                } else {
+                    invalid += 1;
+                }
+            });
             (pixels, rays, max_sample, invalid)
         })
         .collect();

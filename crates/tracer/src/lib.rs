@@ -32,6 +32,6 @@ pub mod stats;
 mod testing;
 
 pub use accumulation::{Accumulation, PixelAccum};
-pub use render::{render_image, render_pixel, render_sample, render_tile, Tile};
+pub use render::{render_image, render_sample, render_samples, render_tile, Tile};
 pub use scene::Scene;
 pub use settings::{DirectStrategy, RenderSettings, RussianRoulette, SamplerKind};

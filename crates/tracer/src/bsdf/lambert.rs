@@ -23,21 +23,28 @@ pub(super) fn sample(u: Vec2) -> Vec3 {
     sample_cosine_hemisphere(u)
 }
 
-/// The pure Lambertian's short paths of the [`Bsdf`] queries, inlined into the integrator: a
-/// Lambertian lobe needs only cos θo and cos θi, two dot products with the shading normal.
-impl Bsdf {
-    /// What [`Bsdf::local_pair`] gives the Lambertian lobe: cos θi on wo's side of the shading
-    /// surface, when it is positive and the pair passes the same tests. The lobe needs only the
-    /// two z components, so the other four dot products are not computed (the values are the same
-    /// bits: `to_local`'s z is the same dot product).
+/// The pure Lambertian at one surface point, as free functions of what it reads (the shading frame,
+/// the geometric normal and the albedo): the [`Bsdf`] methods below call them, and so does the
+/// wavefront integrator, which keeps these quantities in lanes rather than in a `Bsdf`. One body of
+/// code for both is what makes the two integrators' bits the same.
+pub(crate) mod at {
+    use super::{pdf, sample, BsdfSample};
+    use crate::bsdf::guard;
+    use crate::math::Frame;
+    use glam::{Vec2, Vec3};
+
+    /// What the general local pair gives the Lambertian lobe: cos θi on wo's side of the shading
+    /// surface (normal `n`), when it is positive and the pair passes the same tests. The lobe needs
+    /// only the two z components, so the other four dot products are not computed (the values are
+    /// the same bits: `to_local`'s z is the same dot product).
     #[inline(always)]
-    pub(super) fn lambert_cos_i(&self, wo: Vec3, wi: Vec3) -> Option<f32> {
-        let (lo_z, li_z) = (wo.dot(self.frame.z), wi.dot(self.frame.z));
+    pub(crate) fn cos_i(n: Vec3, ng: Vec3, wo: Vec3, wi: Vec3) -> Option<f32> {
+        let (lo_z, li_z) = (wo.dot(n), wi.dot(n));
         if lo_z == 0.0
             || li_z == 0.0
             || lo_z.is_nan()
             || li_z.is_nan()
-            || !self.guard(wo, wi, lo_z, li_z)
+            || !guard(ng, wo, wi, lo_z, li_z)
         {
             return None;
         }
@@ -45,20 +52,26 @@ impl Bsdf {
         (cos_i > 0.0).then_some(cos_i)
     }
 
-    /// [`Bsdf::eval_pdf`] of the pure Lambertian.
+    /// f · cos θi and the pdf of [`sample`] for the pair (wo, wi).
     #[inline(always)]
-    pub(super) fn lambert_eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
-        match self.lambert_cos_i(wo, wi) {
-            Some(c) => (self.params.base_color * eval(c), pdf(c)),
+    pub(crate) fn eval_pdf(n: Vec3, ng: Vec3, albedo: Vec3, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        match cos_i(n, ng, wo, wi) {
+            Some(c) => (albedo * super::eval(c), pdf(c)),
             None => (Vec3::ZERO, 0.0),
         }
     }
 
-    /// [`Bsdf::sample`] of the pure Lambertian.
+    /// A cosine-weighted direction about the shading normal on wo's side.
     #[inline(always)]
-    pub(super) fn lambert_sample(&self, wo: Vec3, u: Vec2) -> Option<BsdfSample> {
+    pub(crate) fn sample_wi(
+        frame: &Frame,
+        ng: Vec3,
+        albedo: Vec3,
+        wo: Vec3,
+        u: Vec2,
+    ) -> Option<BsdfSample> {
         // Only cos θo (its sign) matters to the Lambertian lobe: one dot product, not three.
-        let lo_z = wo.dot(self.frame.z);
+        let lo_z = wo.dot(frame.z);
         if lo_z == 0.0 || lo_z.is_nan() {
             return None;
         }
@@ -67,14 +80,44 @@ impl Bsdf {
         if i.z <= 0.0 {
             return None;
         }
-        self.finish(
-            wo,
-            lo_z,
-            i * Vec3::new(1.0, 1.0, s),
-            self.params.base_color,
-            pdf(i.z),
-            false,
-        )
+        let li = i * Vec3::new(1.0, 1.0, s);
+        // What `Bsdf::finish` does for a non-delta sample.
+        let pdf = pdf(i.z);
+        if li.z == 0.0 || pdf.is_nan() || pdf <= 0.0 {
+            return None;
+        }
+        let wi = frame.to_world(li);
+        if !guard(ng, wo, wi, lo_z, li.z) {
+            return None;
+        }
+        Some(BsdfSample {
+            wi,
+            weight: albedo,
+            pdf,
+            delta: false,
+            transmitted: (li.z > 0.0) != (lo_z > 0.0),
+        })
+    }
+}
+
+/// The pure Lambertian's short paths of the [`Bsdf`] queries, inlined into the integrator.
+impl Bsdf {
+    #[inline(always)]
+    #[cfg(test)]
+    pub(super) fn lambert_cos_i(&self, wo: Vec3, wi: Vec3) -> Option<f32> {
+        at::cos_i(self.frame.z, self.ng, wo, wi)
+    }
+
+    /// [`Bsdf::eval_pdf`] of the pure Lambertian.
+    #[inline(always)]
+    pub(super) fn lambert_eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        at::eval_pdf(self.frame.z, self.ng, self.params.base_color, wo, wi)
+    }
+
+    /// [`Bsdf::sample`] of the pure Lambertian.
+    #[inline(always)]
+    pub(super) fn lambert_sample(&self, wo: Vec3, u: Vec2) -> Option<BsdfSample> {
+        at::sample_wi(&self.frame, self.ng, self.params.base_color, wo, u)
     }
 }
 

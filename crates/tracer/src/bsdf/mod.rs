@@ -55,6 +55,8 @@ mod specular_layer;
 
 pub use params::PbrParams;
 
+pub(crate) use lambert::at as lambert_at;
+
 use crate::math::Frame;
 use albedo::AlbedoRow;
 use dielectric::{refraction_half_vector, Interface, INDEX_MATCHED};
@@ -101,6 +103,14 @@ pub struct Bsdf {
     diffuse_on: bool,
     spec_on: bool,
     trans_on: bool,
+}
+
+/// True when the geometric normal `ng` agrees with the shading frame (wo and wi at heights `lo_z`
+/// and `li_z` in it) on whether (wo, wi) is a reflection or a transmission: the light-leak guard.
+#[inline(always)]
+pub(crate) fn guard(ng: Vec3, wo: Vec3, wi: Vec3, lo_z: f32, li_z: f32) -> bool {
+    let (go, gi) = (wo.dot(ng), wi.dot(ng));
+    go != 0.0 && gi != 0.0 && ((go > 0.0) == (gi > 0.0)) == ((lo_z > 0.0) == (li_z > 0.0))
 }
 
 /// The quantities that depend on wo only.
@@ -418,8 +428,7 @@ impl Bsdf {
     /// reflection or a transmission.
     #[inline]
     fn guard(&self, wo: Vec3, wi: Vec3, lo_z: f32, li_z: f32) -> bool {
-        let (go, gi) = (wo.dot(self.ng), wi.dot(self.ng));
-        go != 0.0 && gi != 0.0 && ((go > 0.0) == (gi > 0.0)) == ((lo_z > 0.0) == (li_z > 0.0))
+        guard(self.ng, wo, wi, lo_z, li_z)
     }
 
     /// Local directions with wo mirrored into the upper hemisphere (the lobes are isotropic, so the

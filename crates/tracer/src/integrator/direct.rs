@@ -46,7 +46,7 @@ impl Vertex<'_> {
 }
 
 /// Shadow rays stop this fraction short of the light so they do not hit the light's own triangle.
-const SHADOW_EPSILON: f32 = 1e-4;
+pub(crate) const SHADOW_EPSILON: f32 = 1e-4;
 
 /// One punctual light chosen in proportion to power. Delta lights can only be reached this way, so
 /// every strategy calls it.
@@ -110,48 +110,85 @@ pub(crate) fn area_light_query(
         .lights
         .area
         .sample(u_sel, s.bounce2(depth, dims::LIGHT_POINT))?;
-    let d = ls.point - v.p;
-    let dist2 = d.length_squared();
-    if dist2 <= 0.0 {
-        return None;
-    }
-    let dist = dist2.sqrt();
-    let wi = d / dist;
-    let cos_l = -wi.dot(ls.normal);
-    if cos_l == 0.0 {
-        return None;
-    }
     let tri = ls.triangle as usize;
     let material = &scene.materials[scene.mesh.material[tri] as usize];
+    let g = LightGeometry::new(v.p, ls.point, ls.normal);
     let uv = light_uv(scene, tri, ls.barycentrics);
-    let le = material.emission(&scene.textures, &uv, cos_l > 0.0);
-    if is_black(le) {
-        return None;
-    }
+    let le = material.emission(&scene.textures, &uv, g.cos_l > 0.0);
     // With MIS the BSDF's pdf is needed too: evaluate both in one pass over the lobes.
     let (f, bsdf_pdf) = if mis {
-        v.bsdf.eval_pdf(v.wo, wi)
+        v.bsdf.eval_pdf(v.wo, g.wi)
     } else {
-        (v.bsdf.eval(v.wo, wi), 0.0)
+        (v.bsdf.eval(v.wo, g.wi), 0.0)
     };
-    if is_black(f) {
-        return None;
-    }
-    let pdf = ls.pdf_area * dist2 / cos_l.abs();
-    if !(pdf > 0.0 && pdf.is_finite()) {
-        return None;
-    }
-    let w = if mis {
-        power_heuristic(pdf, bsdf_pdf)
-    } else {
-        1.0
-    };
+    let value = g.value(ls.pdf_area, le, f, bsdf_pdf, v.transmittance(g.dist), mis)?;
+    let (wi, dist) = (g.wi, g.dist);
     Some(ShadowQuery {
         ray: v.spawn(wi),
         t_max: dist * (1.0 - SHADOW_EPSILON),
         alpha_u: s.bounce1(depth, dims::ALPHA),
-        value: f * le * v.transmittance(dist) * (w / pdf),
+        value,
     })
+}
+
+/// Where a light point lies as seen from a vertex at `p`. Shared, with [`LightGeometry::value`], by
+/// [`area_light_query`] and the wavefront integrator's lanes.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LightGeometry {
+    /// Unit direction to the point.
+    pub wi: Vec3,
+    pub dist: f32,
+    pub dist2: f32,
+    /// Cosine at the light (positive: `p` is on the light's front side).
+    pub cos_l: f32,
+}
+
+impl LightGeometry {
+    #[inline(always)]
+    pub(crate) fn new(p: Vec3, point: Vec3, normal: Vec3) -> Self {
+        let d = point - p;
+        let dist2 = d.length_squared();
+        let dist = dist2.sqrt();
+        let wi = d / dist;
+        let cos_l = -wi.dot(normal);
+        LightGeometry {
+            wi,
+            dist,
+            dist2,
+            cos_l,
+        }
+    }
+
+    /// What the light sample contributes if its shadow ray is clear: f · Le · T / pdf, with the
+    /// power-heuristic weight under `mis`, for a point drawn with area density `pdf_area`, emitting
+    /// `le` towards the vertex, where the BSDF gives `f` (and `bsdf_pdf`) and the medium `T`.
+    /// None when it contributes nothing. Everything is computed before anything is rejected, and
+    /// no closure is called: that is what lets the wavefront's loop over its lanes be vectorised.
+    #[inline(always)]
+    pub(crate) fn value(
+        &self,
+        pdf_area: f32,
+        le: Vec3,
+        f: Vec3,
+        bsdf_pdf: f32,
+        transmittance: Vec3,
+        mis: bool,
+    ) -> Option<Vec3> {
+        let pdf = pdf_area * self.dist2 / self.cos_l.abs();
+        let w = if mis {
+            power_heuristic(pdf, bsdf_pdf)
+        } else {
+            1.0
+        };
+        let value = f * le * transmittance * (w / pdf);
+        let valid = self.dist2 > 0.0
+            && self.cos_l != 0.0
+            && !is_black(le)
+            && !is_black(f)
+            && pdf > 0.0
+            && pdf.is_finite();
+        valid.then_some(value)
+    }
 }
 
 #[inline]

@@ -10,8 +10,10 @@
 
 mod direct;
 mod path;
+mod wavefront;
 
 pub use path::{trace_path, PathResult};
+pub(crate) use wavefront::{DiffuseScene, Wavefront};
 
 /// How emission found by a BSDF-sampled ray is counted at the next vertex. This is what keeps every
 /// strategy unbiased: emission is counted by exactly one estimator (or split between two by MIS).

@@ -174,19 +174,7 @@ pub fn trace_path(
         }
 
         // 4. Russian roulette.
-        let survive = match settings.rr {
-            RussianRoulette::Off => 1.0,
-            RussianRoulette::Auto if depth >= 3 => beta.max_element().min(1.0),
-            RussianRoulette::Auto => 1.0,
-            RussianRoulette::Fixed(p) if depth >= 1 => p,
-            RussianRoulette::Fixed(_) => 1.0,
-            RussianRoulette::Threshold { terminate, below }
-                if depth >= 1 && crate::math::luminance(beta) < below =>
-            {
-                1.0 - terminate
-            }
-            RussianRoulette::Threshold { .. } => 1.0,
-        };
+        let survive = survival(settings.rr, depth, beta);
         if survive < 1.0 {
             if sampler.bounce1(depth, dims::ROULETTE) >= survive {
                 l += shadow_alone(scene, shadow);
@@ -215,6 +203,25 @@ pub fn trace_path(
     }
     out.radiance = l;
     out
+}
+
+/// The probability that Russian roulette lets a path go on after vertex `depth`, whose throughput
+/// is now `beta` (1: no roulette here).
+#[inline(always)]
+pub(crate) fn survival(rr: RussianRoulette, depth: u32, beta: Vec3) -> f32 {
+    match rr {
+        RussianRoulette::Off => 1.0,
+        RussianRoulette::Auto if depth >= 3 => beta.max_element().min(1.0),
+        RussianRoulette::Auto => 1.0,
+        RussianRoulette::Fixed(p) if depth >= 1 => p,
+        RussianRoulette::Fixed(_) => 1.0,
+        RussianRoulette::Threshold { terminate, below }
+            if depth >= 1 && crate::math::luminance(beta) < below =>
+        {
+            1.0 - terminate
+        }
+        RussianRoulette::Threshold { .. } => 1.0,
+    }
 }
 
 /// The alpha-coverage sample of the closest-hit ray of bounce `depth` (none without alpha).

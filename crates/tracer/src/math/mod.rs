@@ -6,6 +6,7 @@ mod offset;
 
 pub use frame::Frame;
 pub use offset::offset_ray_origin;
+pub(crate) use offset::offset_unit_normal;
 
 use glam::Vec3;
 

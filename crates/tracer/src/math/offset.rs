@@ -32,6 +32,25 @@ fn offset_scalar(p: Vec3, n: Vec3) -> Vec3 {
         (INT_SCALE * n.y) as i32,
         (INT_SCALE * n.z) as i32,
     ];
+    offset_by(p, n, of_i)
+}
+
+/// [`offset_ray_origin`] for a unit normal `n` (|component| ≤ 1), in the form the wavefront
+/// integrator's lanes are vectorised from: the compiler vectorises no saturating float-to-integer
+/// conversion (`as i32`), so the integer steps, whole numbers of at most 256 in magnitude, are
+/// read off the bits of 1.5 · 2²³ + trunc(256 n), which holds them exactly. The same bits as
+/// [`offset_ray_origin`] for every unit normal (tested).
+#[inline(always)]
+pub(crate) fn offset_unit_normal(p: Vec3, n: Vec3) -> Vec3 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5 · 2²³: the sum's low mantissa bits are the integer
+    let int =
+        |v: f32| ((MAGIC + (INT_SCALE * v).trunc()).to_bits() as i32).wrapping_sub(0x4b40_0000);
+    offset_by(p, n, [int(n.x), int(n.y), int(n.z)])
+}
+
+/// The offset itself, given the integer steps `of_i` = 256 n truncated.
+#[inline(always)]
+fn offset_by(p: Vec3, n: Vec3, of_i: [i32; 3]) -> Vec3 {
     let step = |v: f32, o: i32| -> f32 {
         let bits = v.to_bits() as i32;
         f32::from_bits(bits.wrapping_add(if v < 0.0 { o.wrapping_neg() } else { o }) as u32)
@@ -89,6 +108,27 @@ fn offset_sse2(p: Vec3, n: Vec3) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_lanewise_form_is_the_scalar_one_for_unit_normals() {
+        let mut u = crate::testing::uniform_stream(0x9e37_79b9_7f4a_7c15);
+        let axes = [Vec3::X, Vec3::Y, Vec3::Z, -Vec3::X, -Vec3::Y, -Vec3::Z];
+        for case in 0..200_000 {
+            let n = if case < 6 {
+                axes[case]
+            } else {
+                crate::sampling::sample_uniform_sphere(glam::Vec2::new(u(), u()))
+            };
+            let scale = [1e-6, 0.01, 1.0, 100.0, 1e6][case % 5];
+            let p = Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5) * scale;
+            let (a, b) = (offset_unit_normal(p, n), offset_scalar(p, n));
+            assert_eq!(
+                [a.x.to_bits(), a.y.to_bits(), a.z.to_bits()],
+                [b.x.to_bits(), b.y.to_bits(), b.z.to_bits()],
+                "p {p:?} n {n:?}"
+            );
+        }
+    }
 
     #[test]
     fn offset_moves_to_the_normal_side_at_all_scales() {

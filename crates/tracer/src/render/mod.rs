@@ -9,7 +9,7 @@ mod tile;
 pub use tile::{Tile, TileError};
 
 use crate::accumulation::{Accumulation, InvalidSample, PixelAccum, MAX_RECORDED_INVALID};
-use crate::integrator::{trace_path, PathResult};
+use crate::integrator::{trace_path, PathResult, Wavefront};
 use crate::sampler::{dims, PixelSampler};
 use crate::scene::Scene;
 use crate::settings::RenderSettings;
@@ -54,6 +54,10 @@ pub fn render_tile(
     acc
 }
 
+/// Renders samples `samples` of pixels `xs` of row `y`. Results may arrive out of order (see
+/// [`render_samples`]): each is added to its pixel (exact integer sums, so the order does not
+/// matter), and the invalid samples are recorded in (x, index) order, so that the record does not
+/// depend on it either.
 fn render_row(
     scene: &Scene,
     settings: &RenderSettings,
@@ -61,43 +65,59 @@ fn render_row(
     xs: Range<u32>,
     samples: Range<u32>,
 ) -> (Vec<PixelAccum>, u64, u64, Vec<InvalidSample>) {
-    let mut pixels = Vec::with_capacity(xs.len());
+    let x0 = xs.start;
+    let mut pixels = vec![PixelAccum::default(); xs.len()];
     let mut rays = 0u64;
     let mut invalid_count = 0u64;
     let mut invalid = Vec::new();
-    for x in xs {
-        let mut p = PixelAccum::default();
-        render_pixel(scene, settings, x, y, samples.clone(), |index, r| {
-            rays += r.rays as u64;
-            if !p.add_sample(r.radiance) {
-                invalid_count += 1;
-                if invalid.len() < MAX_RECORDED_INVALID {
-                    invalid.push(InvalidSample { x, y, index });
-                }
-                tracing::warn!(x, y, index, radiance = ?r.radiance, "invalid sample dropped (NaN, infinite, negative or huge)");
+    let work = xs.flat_map(|x| samples.clone().map(move |index| (x, y, index)));
+    render_samples(scene, settings, work, |x, y, index, r| {
+        rays += r.rays as u64;
+        if !pixels[(x - x0) as usize].add_sample(r.radiance) {
+            invalid_count += 1;
+            invalid.push(InvalidSample { x, y, index });
+            if invalid.len() >= 4 * MAX_RECORDED_INVALID {
+                // Only the first ones in (x, index) order are kept: bound the list as it grows.
+                invalid.sort_by_key(|s| (s.x, s.index));
+                invalid.truncate(MAX_RECORDED_INVALID);
             }
-        });
-        pixels.push(p);
-    }
+            tracing::warn!(x, y, index, radiance = ?r.radiance, "invalid sample dropped (NaN, infinite, negative or huge)");
+        }
+    });
+    invalid.sort_by_key(|s| (s.x, s.index));
+    invalid.truncate(MAX_RECORDED_INVALID);
     (pixels, rays, invalid_count, invalid)
 }
 
-/// Renders samples `samples` of pixel (x, y), handing each one's result to `each` in index order:
-/// the values [`render_sample`] gives, with the pixel's sampler set up once rather than per sample
-/// (its scramble seeds depend on the pixel alone).
-#[inline]
-pub fn render_pixel(
+/// Renders every `(x, y, sample index)` of `work` on the calling thread and hands each result to
+/// `each`: the value [`render_sample`] gives it. Scenes and settings the wavefront integrator
+/// models (`integrator/wavefront`) are rendered by it, several paths at a time, and their results
+/// arrive in no particular order; the others are rendered one path at a time, in `work`'s order.
+pub fn render_samples(
     scene: &Scene,
     settings: &RenderSettings,
-    x: u32,
-    y: u32,
-    samples: Range<u32>,
-    mut each: impl FnMut(u32, PathResult),
+    work: impl Iterator<Item = (u32, u32, u32)>,
+    mut each: impl FnMut(u32, u32, u32, PathResult),
 ) {
-    let mut sampler = PixelSampler::new(settings.sampler, settings.seed, x, y, samples.start);
-    for index in samples {
-        sampler.set_index(index);
-        each(index, render_with(scene, settings, &sampler, x, y));
+    if let Some(wavefront) = Wavefront::new(scene, settings) {
+        wavefront.render(work, each);
+        return;
+    }
+    // The pixel's sampler is set up once for a run of samples of one pixel.
+    let mut current: Option<(u32, u32, PixelSampler)> = None;
+    for (x, y, index) in work {
+        let sampler = match &mut current {
+            Some((cx, cy, s)) if (*cx, *cy) == (x, y) => {
+                s.set_index(index);
+                *s
+            }
+            _ => {
+                let s = PixelSampler::new(settings.sampler, settings.seed, x, y, index);
+                current = Some((x, y, s));
+                s
+            }
+        };
+        each(x, y, index, render_with(scene, settings, &sampler, x, y));
     }
 }
 

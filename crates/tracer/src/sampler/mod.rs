@@ -11,6 +11,7 @@ mod sobol;
 
 pub use hash::{hash_u32, hash_words};
 pub use independent::independent_sample;
+pub(crate) use sobol::owen_sobol_sample_lanewise;
 pub use sobol::{owen_sobol_pair, owen_sobol_sample, SobolPixel};
 
 use crate::settings::SamplerKind;
@@ -114,8 +115,9 @@ impl PixelSampler {
     }
 }
 
-#[inline]
-fn bounce_dim(bounce: u32, offset: u32) -> u32 {
+/// The dimension of offset `offset` within bounce `bounce` (see [`dims`]).
+#[inline(always)]
+pub(crate) fn bounce_dim(bounce: u32, offset: u32) -> u32 {
     dims::BOUNCE_BASE
         .wrapping_add(bounce.wrapping_mul(dims::PER_BOUNCE))
         .wrapping_add(offset)

@@ -9,6 +9,7 @@ pub use intersect::{Hit, SurfaceInteraction};
 use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::geometry::{Bvh, Mesh, MeshError};
+use crate::integrator::DiffuseScene;
 use crate::light::{AreaLights, Lights, PunctualLight};
 use crate::material::{Material, Texture};
 use glam::Vec3;
@@ -80,6 +81,8 @@ pub struct Scene {
     /// Per material, its BSDF when no texture varies it (at a placeholder frame; see
     /// [`Scene::bsdf_at`]). Derived from `materials` at build time.
     bsdf_templates: Vec<Option<Bsdf>>,
+    /// What the wavefront integrator needs, for a scene it can render. Derived at build time.
+    pub(crate) diffuse: Option<DiffuseScene>,
 }
 
 impl Scene {
@@ -163,9 +166,17 @@ impl Scene {
                 m.constant_params()
                     .map(|p| Bsdf::new(p, Vec3::Z, Vec3::Z, None))
             })
-            .collect();
+            .collect::<Vec<_>>();
+        let diffuse = DiffuseScene::new(
+            &materials,
+            &bsdf_templates,
+            &mesh,
+            &lights.area,
+            lights.punctual.len(),
+        );
         Ok(Scene {
             bsdf_templates,
+            diffuse,
             mesh,
             bvh,
             materials,

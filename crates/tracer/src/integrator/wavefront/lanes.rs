@@ -1,0 +1,604 @@
+//! The lanes of the wavefront integrator and its steps. One step moves every live path by one
+//! vertex:
+//!
+//! 1. `refill` (scalar): lanes whose path ended take the next sample and its camera ray;
+//! 2. `trace_closest` (scalar): lanes without a hit yet trace their ray; lanes that hit nothing
+//!    end, the others load their triangle and material;
+//! 3. `shade_hit` (vector): the hit point and normal, emission seen by the ray, the light's
+//!    sample values;
+//! 4. `sample_lights` (scalar): the light triangle and point each lane's values choose;
+//! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
+//!    roulette and the next ray;
+//! 6. `trace_shadows` (scalar): each shadow ray, together with the lane's next ray when the path
+//!    goes on (as `trace_path` does), and the results of the paths that ended.
+//!
+//! The vector steps are loops over the lanes whose bodies are the scalar integrator's code for one
+//! path: branches become selects, and a lane's result is only kept where its path is at that
+//! stage. Steps 3 and 5 are compiled twice, for AVX-512 (chosen at run time) and for the baseline.
+
+use super::{DiffuseMaterial, DiffuseScene, LANES};
+use crate::bsdf::lambert_at;
+use crate::geometry::Ray;
+use crate::integrator::direct::{LightGeometry, SHADOW_EPSILON};
+use crate::integrator::path::survival;
+use crate::integrator::PathResult;
+use crate::math::{is_black, offset_unit_normal, Frame};
+use crate::sampler::{bounce_dim, dims, hash_words, owen_sobol_sample_lanewise};
+use crate::sampling::power_heuristic;
+use crate::scene::{Hit, Scene};
+use crate::settings::{RenderSettings, RussianRoulette};
+use glam::{Vec2, Vec3};
+
+type F = [f32; LANES];
+type U = [u32; LANES];
+type B = [bool; LANES];
+
+/// True if this processor runs the AVX-512 build of the vector steps.
+pub(super) fn avx512_detected() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512bw")
+            && std::arch::is_x86_feature_detected!("avx512dq")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// A vector per lane, one array per coordinate.
+#[derive(Clone, Copy, Debug)]
+struct V3 {
+    x: F,
+    y: F,
+    z: F,
+}
+
+impl V3 {
+    const ZERO: V3 = V3 {
+        x: [0.0; LANES],
+        y: [0.0; LANES],
+        z: [0.0; LANES],
+    };
+
+    #[inline(always)]
+    fn get(&self, i: usize) -> Vec3 {
+        Vec3::new(self.x[i], self.y[i], self.z[i])
+    }
+
+    #[inline(always)]
+    fn set(&mut self, i: usize, v: Vec3) {
+        self.x[i] = v.x;
+        self.y[i] = v.y;
+        self.z[i] = v.z;
+    }
+}
+
+/// Every lane's state. A lane is `alive` while it holds a path; the other masks say where that
+/// path is within the current step.
+pub(super) struct Lanes<'a> {
+    scene: &'a Scene,
+    materials: &'a [DiffuseMaterial],
+    settings: &'a RenderSettings,
+    depth_limit: u32,
+
+    // The sample each lane renders.
+    x: U,
+    y: U,
+    index: U,
+    /// The pixel's sampler key and the index bit-reversed, as `PixelSampler` holds them.
+    key: U,
+    index_rev: U,
+    alive: B,
+
+    // The path.
+    o: V3,
+    d: V3,
+    beta: V3,
+    l: V3,
+    /// Emission found by the current ray is MIS-weighted against light sampling with this BSDF
+    /// pdf (false: counted in full, for camera rays).
+    mis: B,
+    bsdf_pdf: F,
+    depth: U,
+    rays: U,
+    vertices: U,
+    /// The current ray's closest hit is yet to be traced (it was not traced with a shadow ray).
+    untraced: B,
+    found: [Option<Hit>; LANES],
+
+    // The hit, loaded by `trace_closest`.
+    hit: B,
+    t: F,
+    b1: F,
+    b2: F,
+    corner_a: V3,
+    corner_b: V3,
+    corner_c: V3,
+    albedo: V3,
+    emission_front: V3,
+    emission_back: V3,
+    diffuse_on: B,
+    light_density: F,
+
+    // Set by `shade_hit`.
+    p: V3,
+    ng: V3,
+    /// The path goes on from this vertex (it is within the depth limit).
+    go: B,
+    u_light_select: F,
+    u_light: [F; 2],
+
+    // Set by `sample_lights`.
+    light_ok: B,
+    light_point: V3,
+    light_normal: V3,
+    light_pdf_area: F,
+    light_front: V3,
+    light_back: V3,
+
+    // Set by `scatter`.
+    shadow: B,
+    shadow_o: V3,
+    shadow_d: V3,
+    shadow_t_max: F,
+    shadow_value: V3,
+    /// The path continues with the new ray in `o`, `d`.
+    cont: B,
+}
+
+impl<'a> Lanes<'a> {
+    pub(super) fn new(
+        scene: &'a Scene,
+        diffuse: &'a DiffuseScene,
+        settings: &'a RenderSettings,
+    ) -> Self {
+        Lanes {
+            scene,
+            materials: &diffuse.materials,
+            settings,
+            depth_limit: settings.depth_limit(),
+            x: [0; LANES],
+            y: [0; LANES],
+            index: [0; LANES],
+            key: [0; LANES],
+            index_rev: [0; LANES],
+            alive: [false; LANES],
+            o: V3::ZERO,
+            d: V3::ZERO,
+            beta: V3::ZERO,
+            l: V3::ZERO,
+            mis: [false; LANES],
+            bsdf_pdf: [0.0; LANES],
+            depth: [0; LANES],
+            rays: [0; LANES],
+            vertices: [0; LANES],
+            untraced: [false; LANES],
+            found: [None; LANES],
+            hit: [false; LANES],
+            t: [0.0; LANES],
+            b1: [0.0; LANES],
+            b2: [0.0; LANES],
+            corner_a: V3::ZERO,
+            corner_b: V3::ZERO,
+            corner_c: V3::ZERO,
+            albedo: V3::ZERO,
+            emission_front: V3::ZERO,
+            emission_back: V3::ZERO,
+            diffuse_on: [false; LANES],
+            light_density: [0.0; LANES],
+            p: V3::ZERO,
+            ng: V3::ZERO,
+            go: [false; LANES],
+            u_light_select: [0.0; LANES],
+            u_light: [[0.0; LANES]; 2],
+            light_ok: [false; LANES],
+            light_point: V3::ZERO,
+            light_normal: V3::ZERO,
+            light_pdf_area: [0.0; LANES],
+            light_front: V3::ZERO,
+            light_back: V3::ZERO,
+            shadow: [false; LANES],
+            shadow_o: V3::ZERO,
+            shadow_d: V3::ZERO,
+            shadow_t_max: [0.0; LANES],
+            shadow_value: V3::ZERO,
+            cont: [false; LANES],
+        }
+    }
+
+    /// Renders all of `work`, handing each sample's result to `each`.
+    /// `avx512`: run the AVX-512 build of the vector steps; only true when
+    /// [`avx512_detected`] is.
+    pub(super) fn run(
+        &mut self,
+        avx512: bool,
+        mut work: impl Iterator<Item = (u32, u32, u32)>,
+        mut each: impl FnMut(u32, u32, u32, PathResult),
+    ) {
+        let avx512 = avx512 && avx512_detected();
+        loop {
+            self.refill(&mut work, &mut each);
+            if !self.alive.iter().any(|&a| a) {
+                return;
+            }
+            self.trace_closest();
+            #[cfg(target_arch = "x86_64")]
+            if avx512 {
+                // SAFETY: the processor has the features these functions are compiled for
+                // (detected above).
+                unsafe { self.shade_hit_avx512() };
+            } else {
+                self.shade_hit();
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            {
+                let _ = avx512;
+                self.shade_hit();
+            }
+            self.sample_lights();
+            #[cfg(target_arch = "x86_64")]
+            if avx512 {
+                // SAFETY: as above.
+                unsafe { self.scatter_avx512() };
+            } else {
+                self.scatter_by_roulette();
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            self.scatter_by_roulette();
+            self.trace_shadows(&mut each);
+        }
+    }
+
+    /// Gives every lane without a path the next sample of `work`, with its camera ray. A sample
+    /// whose camera ray is not finite is handed on at once with a NaN radiance, as
+    /// `render_sample` does.
+    fn refill(
+        &mut self,
+        work: &mut impl Iterator<Item = (u32, u32, u32)>,
+        each: &mut impl FnMut(u32, u32, u32, PathResult),
+    ) {
+        let seed = self.settings.seed;
+        let (w, h) = (self.settings.width, self.settings.height);
+        for i in 0..LANES {
+            if self.alive[i] {
+                continue;
+            }
+            for (x, y, index) in work.by_ref() {
+                let key = hash_words(&[seed as u32, (seed >> 32) as u32, x, y]);
+                let index_rev = index.reverse_bits();
+                let jitter = Vec2::new(
+                    owen_sobol_sample_lanewise(key, index_rev, dims::PIXEL),
+                    owen_sobol_sample_lanewise(key, index_rev, dims::PIXEL + 1),
+                );
+                let film = Vec2::new(x as f32, y as f32) + jitter;
+                let ray = self.scene.camera.generate_ray(film, w, h);
+                if !ray.d.is_finite() {
+                    let nan = PathResult {
+                        radiance: Vec3::splat(f32::NAN),
+                        rays: 0,
+                        vertices: 0,
+                    };
+                    each(x, y, index, nan);
+                    continue;
+                }
+                (self.x[i], self.y[i], self.index[i]) = (x, y, index);
+                (self.key[i], self.index_rev[i]) = (key, index_rev);
+                self.alive[i] = true;
+                self.o.set(i, ray.o);
+                self.d.set(i, ray.d);
+                self.beta.set(i, Vec3::ONE);
+                self.l.set(i, Vec3::ZERO);
+                self.mis[i] = false;
+                self.bsdf_pdf[i] = 0.0;
+                self.depth[i] = 0;
+                self.rays[i] = 0;
+                self.vertices[i] = 0;
+                self.untraced[i] = true;
+                break;
+            }
+        }
+    }
+
+    /// Traces the closest hit of every live lane that does not have it yet, and loads the hit
+    /// triangle's corners and material. `hit` is false for dead lanes and for rays that escaped.
+    fn trace_closest(&mut self) {
+        let scene = self.scene;
+        for i in 0..LANES {
+            if !self.alive[i] {
+                self.hit[i] = false;
+                continue;
+            }
+            if self.untraced[i] {
+                self.rays[i] += 1;
+                let ray = Ray::new(self.o.get(i), self.d.get(i));
+                self.found[i] = scene.intersect(&ray, f32::INFINITY, 0.0);
+            }
+            let Some(hit) = self.found[i] else {
+                self.hit[i] = false;
+                continue;
+            };
+            self.hit[i] = true;
+            self.t[i] = hit.t;
+            self.b1[i] = hit.b1;
+            self.b2[i] = hit.b2;
+            let tri = hit.triangle as usize;
+            let [a, b, c] = scene.mesh.positions[tri];
+            self.corner_a.set(i, a);
+            self.corner_b.set(i, b);
+            self.corner_c.set(i, c);
+            let m = &self.materials[scene.mesh.material[tri] as usize];
+            self.albedo.set(i, m.albedo);
+            self.emission_front.set(i, m.emission_front);
+            self.emission_back.set(i, m.emission_back);
+            self.diffuse_on[i] = m.diffuse_on;
+            self.light_density[i] = m.light_density;
+        }
+    }
+
+    /// `shade_hit` compiled for AVX-512.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
+    unsafe fn shade_hit_avx512(&mut self) {
+        self.shade_hit();
+    }
+
+    /// The surface at each hit (`Scene::surface` without vertex normals), the emission the ray
+    /// sees (`trace_path` step 1), and the sample values of the light sample.
+    #[inline(always)]
+    fn shade_hit(&mut self) {
+        // Inputs and outputs are copied to locals: the compiler vectorises a loop over distinct
+        // local arrays, not one over fields of `self` indexed by a variable.
+        let (hit, ca, cb, cc) = (self.hit, self.corner_a, self.corner_b, self.corner_c);
+        let (b1s, b2s, ds, ts) = (self.b1, self.b2, self.d, self.t);
+        let (ef, eb, mis, dens, pdfs) = (
+            self.emission_front,
+            self.emission_back,
+            self.mis,
+            self.light_density,
+            self.bsdf_pdf,
+        );
+        let (mut ls, betas, mut vertices, depths) = (self.l, self.beta, self.vertices, self.depth);
+        let (mut go, mut ps, mut ngs) = ([false; LANES], V3::ZERO, V3::ZERO);
+        let (keys, revs) = (self.key, self.index_rev);
+        let (mut u_select, mut u_light) = ([0.0; LANES], [[0.0; LANES]; 2]);
+        let limit = self.depth_limit;
+        for i in 0..LANES {
+            let on = hit[i];
+            let (a, b, c) = (ca.get(i), cb.get(i), cc.get(i));
+            let (b1, b2) = (b1s[i], b2s[i]);
+            let b0 = 1.0 - b1 - b2;
+            let p = a * b0 + b * b1 + c * b2;
+            let ng = (b - a).cross(c - a).normalize();
+            let d = ds.get(i);
+            let front = d.dot(ng) < 0.0;
+            let le = if front { ef.get(i) } else { eb.get(i) };
+            let t = ts[i];
+            let w = if mis[i] {
+                let cos_l = d.dot(ng).abs();
+                let light_pdf = dens[i] * t * t / cos_l;
+                power_heuristic(pdfs[i], light_pdf)
+            } else {
+                1.0
+            };
+            let l = ls.get(i);
+            let lit = l + betas.get(i) * le * w;
+            ls.set(i, if on && !is_black(le) { lit } else { l });
+            vertices[i] += u32::from(on);
+            go[i] = on && depths[i] < limit;
+            ps.set(i, p);
+            ngs.set(i, ng);
+            let dim = |offset| bounce_dim(depths[i], offset);
+            u_select[i] = owen_sobol_sample_lanewise(keys[i], revs[i], dim(dims::LIGHT_SELECT));
+            u_light[0][i] = owen_sobol_sample_lanewise(keys[i], revs[i], dim(dims::LIGHT_POINT));
+            u_light[1][i] =
+                owen_sobol_sample_lanewise(keys[i], revs[i], dim(dims::LIGHT_POINT + 1));
+        }
+        (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
+        (self.u_light_select, self.u_light) = (u_select, u_light);
+    }
+
+    /// Chooses each lane's light triangle and point (`AreaLights::sample`, one lane at a time: a
+    /// search in the lights' distribution) and loads the light's emission.
+    fn sample_lights(&mut self) {
+        let scene = self.scene;
+        for i in 0..LANES {
+            self.light_ok[i] = false;
+            if !(self.go[i] && self.diffuse_on[i]) {
+                continue;
+            }
+            let u = Vec2::new(self.u_light[0][i], self.u_light[1][i]);
+            let Some(ls) = scene.lights.area.sample(self.u_light_select[i], u) else {
+                continue;
+            };
+            let m = &self.materials[scene.mesh.material[ls.triangle as usize] as usize];
+            self.light_ok[i] = true;
+            self.light_point.set(i, ls.point);
+            self.light_normal.set(i, ls.normal);
+            self.light_pdf_area[i] = ls.pdf_area;
+            self.light_front.set(i, m.emission_front);
+            self.light_back.set(i, m.emission_back);
+        }
+    }
+
+    /// `scatter` compiled for AVX-512.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
+    unsafe fn scatter_avx512(&mut self) {
+        self.scatter_by_roulette();
+    }
+
+    /// [`Lanes::scatter`] with the roulette's variant a constant in each copy: a `match` on it
+    /// inside the loop would keep the loop from being vectorised.
+    #[inline(always)]
+    fn scatter_by_roulette(&mut self) {
+        match self.settings.rr {
+            RussianRoulette::Off => self.scatter(RussianRoulette::Off),
+            RussianRoulette::Auto => self.scatter(RussianRoulette::Auto),
+            RussianRoulette::Fixed(p) => self.scatter(RussianRoulette::Fixed(p)),
+            RussianRoulette::Threshold { terminate, below } => {
+                self.scatter(RussianRoulette::Threshold { terminate, below })
+            }
+        }
+    }
+
+    /// `trace_path` steps 2 to 4 for every lane whose path goes on from its hit: the light
+    /// sample's value and shadow ray (traced later), the BSDF sample, Russian roulette and the
+    /// next ray. A lane whose path ends here keeps `cont` false.
+    #[inline(always)]
+    fn scatter(&mut self, rr: RussianRoulette) {
+        // Copied to locals, as in `shade_hit`.
+        let (gos, ps, ngs, ds, albedos) = (self.go, self.p, self.ng, self.d, self.albedo);
+        let (mut betas, depths, keys, revs) = (self.beta, self.depth, self.key, self.index_rev);
+        let (light_ok, light_point, light_normal, light_pdf) = (
+            self.light_ok,
+            self.light_point,
+            self.light_normal,
+            self.light_pdf_area,
+        );
+        let (light_front, light_back, mut rays) = (self.light_front, self.light_back, self.rays);
+        let (mut shadows, mut shadow_o, mut shadow_d) = ([false; LANES], V3::ZERO, V3::ZERO);
+        let (mut shadow_t_max, mut shadow_value) = ([0.0; LANES], V3::ZERO);
+        let (mut os, mut new_ds, mut pdfs, mut mis) = (self.o, ds, self.bsdf_pdf, self.mis);
+        let (mut new_depths, mut conts) = (depths, [false; LANES]);
+        for i in 0..LANES {
+            let go = gos[i];
+            let p = ps.get(i);
+            let ng = ngs.get(i);
+            let wo = -ds.get(i);
+            let albedo = albedos.get(i);
+            let beta = betas.get(i);
+            let spawn = |wi: Vec3| {
+                let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
+                offset_unit_normal(p, side)
+            };
+
+            // 2. Direct lighting: the light sample's contribution, if its shadow ray is clear.
+            let g = LightGeometry::new(p, light_point.get(i), light_normal.get(i));
+            let le = if g.cos_l > 0.0 {
+                light_front.get(i)
+            } else {
+                light_back.get(i)
+            };
+            let (f, bsdf_pdf) = lambert_at::eval_pdf(ng, ng, albedo, wo, g.wi);
+            let query = g
+                .value(light_pdf[i], le, f, bsdf_pdf, Vec3::ONE, true)
+                .map(|value| (g.wi, g.dist, value));
+            let shadow = go && light_ok[i] && query.is_some();
+            let (wi_l, dist, value) = query.unwrap_or((Vec3::Z, 0.0, Vec3::ZERO));
+            shadows[i] = shadow;
+            shadow_o.set(i, spawn(wi_l));
+            shadow_d.set(i, wi_l);
+            shadow_t_max[i] = dist * (1.0 - SHADOW_EPSILON);
+            shadow_value.set(i, beta * value);
+            rays[i] += u32::from(shadow);
+        }
+        let mut sampled_wi = V3::ZERO;
+        let mut sampled_weight = V3::ZERO;
+        let mut sampled_pdf = [0.0; LANES];
+        let mut sampled_ok = [false; LANES];
+        for i in 0..LANES {
+            let ng = ngs.get(i);
+            let wo = -ds.get(i);
+            let albedo = albedos.get(i);
+            let depth = depths[i];
+            let sample1 =
+                |offset| owen_sobol_sample_lanewise(keys[i], revs[i], bounce_dim(depth, offset));
+            // 3. The continuation: a cosine-weighted direction (one lobe, no lobe choice).
+            let u = Vec2::new(sample1(dims::BSDF_DIR), sample1(dims::BSDF_DIR + 1));
+            let frame = Frame::from_z(ng);
+            let bs =
+                lambert_at::sample_wi(&frame, ng, albedo, wo, u).filter(|bs| !is_black(bs.weight));
+            sampled_ok[i] = bs.is_some();
+            let (wi, weight, pdf) =
+                bs.map_or((Vec3::Z, Vec3::ZERO, 0.0), |bs| (bs.wi, bs.weight, bs.pdf));
+            sampled_wi.set(i, wi);
+            sampled_weight.set(i, weight);
+            sampled_pdf[i] = pdf;
+        }
+        for i in 0..LANES {
+            let go = gos[i];
+            let p = ps.get(i);
+            let ng = ngs.get(i);
+            let beta = betas.get(i);
+            let depth = depths[i];
+            let sample1 =
+                |offset| owen_sobol_sample_lanewise(keys[i], revs[i], bounce_dim(depth, offset));
+            let spawn = |wi: Vec3| {
+                let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
+                offset_unit_normal(p, side)
+            };
+            let (wi, weight, pdf, sampled) = (
+                sampled_wi.get(i),
+                sampled_weight.get(i),
+                sampled_pdf[i],
+                sampled_ok[i],
+            );
+            let mut beta_next = beta * weight;
+            let mut cont = go && sampled && !is_black(beta_next);
+
+            // 4. Russian roulette.
+            let survive = survival(rr, depth, beta_next);
+            if survive < 1.0 {
+                cont &= sample1(dims::ROULETTE) < survive;
+                beta_next /= survive;
+            }
+            conts[i] = cont;
+            if cont {
+                betas.set(i, beta_next);
+                pdfs[i] = pdf;
+                mis[i] = true;
+                os.set(i, spawn(wi));
+                new_ds.set(i, wi);
+                new_depths[i] = depth + 1;
+            }
+        }
+        (self.shadow, self.shadow_o, self.shadow_d) = (shadows, shadow_o, shadow_d);
+        (self.shadow_t_max, self.shadow_value, self.rays) = (shadow_t_max, shadow_value, rays);
+        (self.beta, self.bsdf_pdf, self.mis, self.o, self.d) = (betas, pdfs, mis, os, new_ds);
+        (self.depth, self.cont) = (new_depths, conts);
+    }
+
+    /// Traces each lane's shadow ray (with its next ray, when the path goes on), adds the light
+    /// it lets through, and hands on the results of the paths that ended.
+    fn trace_shadows(&mut self, each: &mut impl FnMut(u32, u32, u32, PathResult)) {
+        let scene = self.scene;
+        for i in 0..LANES {
+            if !self.alive[i] {
+                continue;
+            }
+            let cont = self.go[i] && self.cont[i];
+            if self.go[i] && self.shadow[i] {
+                let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
+                let t_max = self.shadow_t_max[i];
+                let visible = if cont {
+                    self.rays[i] += 1;
+                    let ray = Ray::new(self.o.get(i), self.d.get(i));
+                    let (found, visible) =
+                        scene.intersect_and_visible(&ray, 0.0, &shadow, t_max, 0.0);
+                    self.found[i] = found;
+                    self.untraced[i] = false;
+                    visible
+                } else {
+                    scene.visible(&shadow, t_max, 0.0)
+                };
+                if visible {
+                    self.l.set(i, self.l.get(i) + self.shadow_value.get(i));
+                }
+            } else if cont {
+                self.untraced[i] = true;
+            }
+            if !cont {
+                self.alive[i] = false;
+                let result = PathResult {
+                    radiance: self.l.get(i),
+                    rays: self.rays[i],
+                    vertices: self.vertices[i],
+                };
+                each(self.x[i], self.y[i], self.index[i], result);
+            }
+        }
+    }
+}

@@ -1,0 +1,138 @@
+//! The wavefront integrator: [`LANES`] camera paths of one thread traced side by side, their
+//! shading done one step at a time for all of them in SIMD lanes.
+//!
+//! It is the path integrator of `path.rs`, not an approximation of it: every lane runs exactly the
+//! scalar integrator's operations on its own path, in the same order, through the same functions
+//! (the Lambertian lobe of `bsdf::lambert_at`, `light_sample_value`, `survival`, the Sobol values,
+//! the ray-origin offset), so each sample's radiance has the same bits as
+//! [`super::trace_path`]'s. The lanes are plain arrays and their loops plain Rust: the compiler
+//! vectorises them, and IEEE arithmetic lane by lane rounds as it does one value at a time (Rust
+//! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
+//!
+//! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
+//! untextured materials, emissive triangles as the only lights, no alpha, no vertex normals; MIS
+//! with the Sobol sampler. Everything else runs the scalar integrator, with the same result it
+//! always had. Ray queries stay scalar, one lane at a time, through the scene's BVH.
+//!
+//! A lane whose path ends takes the next (pixel, sample) of its thread's work at once, so lanes
+//! do not idle while the longest path of a group finishes. Results therefore arrive out of index
+//! order; the accumulation is exact integer arithmetic, so the order does not change its bits.
+
+mod lanes;
+#[cfg(test)]
+mod tests;
+
+use super::PathResult;
+use crate::light::AreaLights;
+use crate::material::Material;
+use crate::scene::Scene;
+use crate::settings::{DirectStrategy, RenderSettings, SamplerKind};
+use glam::Vec3;
+use lanes::Lanes;
+
+/// Paths traced side by side: one AVX-512 register of `f32`.
+pub(crate) const LANES: usize = 16;
+
+/// What a lane needs of a material, for a scene the wavefront can render.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct DiffuseMaterial {
+    /// The sanitised base colour of the Lambertian lobe.
+    pub albedo: Vec3,
+    /// The lobe is not black (`Bsdf::has_non_delta`): direct lighting is estimated.
+    pub diffuse_on: bool,
+    /// `Material::emission` towards the front side, and towards the back.
+    pub emission_front: Vec3,
+    pub emission_back: Vec3,
+    /// `AreaLights::pdf_area` of the material.
+    pub light_density: f32,
+}
+
+/// A scene the wavefront integrator can render, and the per-material facts its lanes read. Built
+/// with the scene; `None` for scenes that need more than the lanes model.
+#[derive(Clone, Debug)]
+pub(crate) struct DiffuseScene {
+    pub materials: Vec<DiffuseMaterial>,
+}
+
+impl DiffuseScene {
+    /// The lanes' view of a scene, if every material is an untextured pure Lambertian (emissive
+    /// or not) without alpha or volume, the mesh has no vertex normals or tangents, and the only
+    /// lights are emissive triangles (at least one).
+    pub(crate) fn new(
+        materials: &[Material],
+        templates: &[Option<crate::bsdf::Bsdf>],
+        mesh: &crate::geometry::Mesh,
+        area: &AreaLights,
+        punctual_lights: usize,
+    ) -> Option<DiffuseScene> {
+        if mesh.normals.is_some() || mesh.tangents.is_some() || punctual_lights > 0 {
+            return None;
+        }
+        if area.is_empty() {
+            return None;
+        }
+        let mut out = Vec::with_capacity(materials.len());
+        for (m, (material, template)) in materials.iter().zip(templates).enumerate() {
+            let bsdf = template.as_ref()?;
+            let untextured = material.emissive_texture.is_none();
+            let plain = !material.has_alpha() && material.volume.is_none();
+            if !bsdf.single_lobe() || !untextured || !plain {
+                return None;
+            }
+            let no_uv = [glam::Vec2::ZERO; 2];
+            out.push(DiffuseMaterial {
+                albedo: bsdf.params().base_color,
+                diffuse_on: bsdf.has_non_delta(),
+                emission_front: material.emission(&[], &no_uv, true),
+                emission_back: material.emission(&[], &no_uv, false),
+                light_density: area.pdf_area(m as u32),
+            });
+        }
+        Some(DiffuseScene { materials: out })
+    }
+}
+
+/// The wavefront integrator for one render, when the scene and the settings are ones it models.
+pub(crate) struct Wavefront<'a> {
+    scene: &'a Scene,
+    diffuse: &'a DiffuseScene,
+    settings: &'a RenderSettings,
+    /// The vector steps run their AVX-512 build (detected; tests switch it off to test the other).
+    avx512: bool,
+}
+
+impl<'a> Wavefront<'a> {
+    /// The wavefront for this scene and these settings, or None when the scalar integrator must
+    /// render them.
+    pub(crate) fn new(scene: &'a Scene, settings: &'a RenderSettings) -> Option<Self> {
+        let diffuse = scene.diffuse.as_ref()?;
+        let supported =
+            settings.direct == DirectStrategy::Mis && settings.sampler == SamplerKind::Sobol;
+        supported.then_some(Wavefront {
+            scene,
+            diffuse,
+            settings,
+            avx512: lanes::avx512_detected(),
+        })
+    }
+
+    /// The same wavefront with its vector steps in their baseline build (SSE2 on x86-64).
+    #[cfg(test)]
+    fn baseline(self) -> Self {
+        Wavefront {
+            avx512: false,
+            ..self
+        }
+    }
+
+    /// Renders every `(x, y, sample index)` of `work` and hands each result to `each`, in no
+    /// particular order. Each result is the one [`crate::render::render_sample`] gives.
+    pub(crate) fn render(
+        &self,
+        work: impl Iterator<Item = (u32, u32, u32)>,
+        each: impl FnMut(u32, u32, u32, PathResult),
+    ) {
+        let mut lanes = Lanes::new(self.scene, self.diffuse, self.settings);
+        lanes.run(self.avx512, work, each);
+    }
+}

@@ -1,0 +1,149 @@
+//! The wavefront integrator against the scalar one, sample by sample: every radiance bit, ray
+//! count and vertex count must be the same, with both builds of the vector steps.
+
+use super::Wavefront;
+use crate::gltf::{load_parts, LoadOptions, NoExternalResources};
+use crate::render::render_sample;
+use crate::scene::{Scene, SceneParts};
+use crate::settings::{DirectStrategy, RenderSettings, RussianRoulette, SamplerKind};
+use glam::{Vec3, Vec4};
+
+fn parts(name: &str) -> SceneParts {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes")
+        .join(format!("{name}.gltf"));
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    load_parts(&bytes, &NoExternalResources, &LoadOptions::default())
+        .unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+fn scene(parts: SceneParts) -> Scene {
+    Scene::build(parts).expect("scene builds")
+}
+
+/// Renders `samples` of a grid of pixels both ways and compares every result.
+fn assert_same_bits(scene: &Scene, settings: &RenderSettings, samples: std::ops::Range<u32>) {
+    let wavefront = Wavefront::new(scene, settings).expect("the wavefront takes this scene");
+    let pixels: Vec<(u32, u32)> = (0..settings.height)
+        .step_by(3)
+        .flat_map(|y| (0..settings.width).step_by(5).map(move |x| (x, y)))
+        .collect();
+    let work: Vec<(u32, u32, u32)> = pixels
+        .iter()
+        .flat_map(|&(x, y)| samples.clone().map(move |i| (x, y, i)))
+        .collect();
+    for wavefront in [Some(wavefront.baseline()), Wavefront::new(scene, settings)]
+        .into_iter()
+        .flatten()
+    {
+        let mut got = Vec::new();
+        wavefront.render(work.iter().copied(), |x, y, i, r| got.push((x, y, i, r)));
+        assert_eq!(got.len(), work.len(), "every sample is rendered once");
+        got.sort_by_key(|&(x, y, i, _)| (y, x, i));
+        let mut expected = work.clone();
+        expected.sort_by_key(|&(x, y, i)| (y, x, i));
+        let mut nonzero = 0;
+        for ((x, y, i, r), (ex, ey, ei)) in got.into_iter().zip(expected) {
+            assert_eq!((x, y, i), (ex, ey, ei));
+            let s = render_sample(scene, settings, x, y, i);
+            let bits = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+            assert_eq!(
+                (bits(r.radiance), r.rays, r.vertices),
+                (bits(s.radiance), s.rays, s.vertices),
+                "pixel ({x}, {y}) sample {i}, {:?} (AVX-512: {})",
+                settings.rr,
+                wavefront.avx512
+            );
+            nonzero += usize::from(s.radiance != Vec3::ZERO);
+        }
+        // Not a comparison of zeros (with depth 0, only pixels that see a light carry any).
+        if settings.max_depth != Some(0) {
+            assert!(
+                nonzero > work.len() / 10,
+                "only {nonzero} of {} samples carry light",
+                work.len()
+            );
+        }
+    }
+}
+
+fn settings(seed: u64, rr: RussianRoulette, max_depth: Option<u32>) -> RenderSettings {
+    RenderSettings {
+        seed,
+        rr,
+        max_depth,
+        ..RenderSettings::new(48, 36)
+    }
+}
+
+#[test]
+fn every_sample_is_the_scalar_integrators_bit_for_bit() {
+    let rrs = [
+        (RussianRoulette::Auto, None),
+        (RussianRoulette::Off, Some(6)),
+        (RussianRoulette::Fixed(0.7), None),
+        (
+            RussianRoulette::Threshold {
+                terminate: 0.5,
+                below: 0.3,
+            },
+            None,
+        ),
+        (RussianRoulette::Auto, Some(0)),
+        (RussianRoulette::Auto, Some(2)),
+    ];
+    for name in ["cornell", "smalllight", "furnacebox"] {
+        let scene = scene(parts(name));
+        for (k, &(rr, max_depth)) in rrs.iter().enumerate() {
+            let settings = settings(k as u64 * 0x9e37_79b9_7f4a_7c15, rr, max_depth);
+            assert_same_bits(&scene, &settings, 0..6);
+            assert_same_bits(&scene, &settings, 1_000_003..1_000_005);
+        }
+    }
+}
+
+/// Cases the shipped scenes do not have: a double-sided light, a light seen from behind, a black
+/// material (no direct lighting, the path ends at the BSDF sample) and an emissive wall that
+/// reflects too.
+#[test]
+fn double_sided_lights_black_and_emissive_walls_are_the_scalar_integrators() {
+    let mut p = parts("cornell");
+    let light = p
+        .materials
+        .iter()
+        .position(|m| m.is_emissive())
+        .expect("the box has a light");
+    p.materials[light].double_sided = true;
+    let walls: Vec<usize> = (0..p.materials.len()).filter(|&m| m != light).collect();
+    p.materials[walls[0]].base_color = Vec4::new(0.0, 0.0, 0.0, 1.0);
+    p.materials[walls[1]].emissive = Vec3::new(0.2, 0.1, 0.05);
+    let scene = scene(p);
+    for rr in [RussianRoulette::Auto, RussianRoulette::Fixed(0.5)] {
+        assert_same_bits(&scene, &settings(7, rr, None), 0..8);
+    }
+}
+
+#[test]
+fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
+    let cornell = scene(parts("cornell"));
+    let base = settings(1, RussianRoulette::Auto, None);
+    assert!(Wavefront::new(&cornell, &base).is_some());
+    for other in [
+        RenderSettings {
+            direct: DirectStrategy::Light,
+            ..base
+        },
+        RenderSettings {
+            sampler: SamplerKind::Independent,
+            ..base
+        },
+    ] {
+        assert!(Wavefront::new(&cornell, &other).is_none());
+    }
+    for name in ["glossy", "caustics", "textured"] {
+        assert!(
+            Wavefront::new(&scene(parts(name)), &base).is_none(),
+            "{name} needs more than the lanes model"
+        );
+    }
+}
