@@ -8,6 +8,12 @@ use crate::sampling::{sample_uniform_triangle, Distribution1D};
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
 
+/// The point of a triangle with corners `c` at barycentrics `b` (one per corner).
+#[inline(always)]
+pub(crate) fn point_on(c: [Vec3; 3], b: Vec3) -> Vec3 {
+    c[0] * b.x + c[1] * b.y + c[2] * b.z
+}
+
 /// A point sampled on an area light.
 #[derive(Clone, Copy, Debug)]
 pub struct AreaLightSample {
@@ -116,10 +122,9 @@ impl AreaLights {
         }
         let (k, _) = self.distribution.sample_discrete(u_select);
         let t = &self.sampled[k];
-        let [a, b, c] = t.corners;
         let bary = sample_uniform_triangle(u);
         Some(AreaLightSample {
-            point: a * bary.x + b * bary.y + c * bary.z,
+            point: point_on(t.corners, bary),
             normal: t.normal,
             triangle: self.triangles[k],
             barycentrics: bary,
@@ -129,6 +134,20 @@ impl AreaLights {
 
     /// The area-measure pdf with which [`AreaLights::sample`] picks a point on a triangle of
     /// material `material`.
+    /// Every light triangle as [`AreaLights::sample`] sees it, in the order of its distribution:
+    /// (corners, unit normal, area density of the sample, triangle index in the mesh).
+    pub(crate) fn sampled(&self) -> impl Iterator<Item = ([Vec3; 3], Vec3, f32, u32)> + '_ {
+        self.sampled
+            .iter()
+            .zip(&self.triangles)
+            .map(|(t, &tri)| (t.corners, t.normal, t.pdf_area, tri))
+    }
+
+    /// The distribution light triangles are chosen from (in proportion to power).
+    pub(crate) fn distribution(&self) -> &Distribution1D {
+        &self.distribution
+    }
+
     #[inline]
     pub fn pdf_area(&self, material: u32) -> f32 {
         self.material_area_density

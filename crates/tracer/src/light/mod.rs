@@ -10,6 +10,7 @@ mod directional;
 mod point;
 mod spot;
 
+pub(crate) use area::point_on;
 pub use area::{AreaLightSample, AreaLights};
 pub use directional::DirectionalLight;
 pub use point::PointLight;

@@ -58,6 +58,16 @@ impl Distribution1D {
         self.weights.len()
     }
 
+    /// The CDF: `len() + 1` values from 0 to 1.
+    pub(crate) fn cdf(&self) -> &[f32] {
+        &self.cdf
+    }
+
+    /// The (sanitised) weights.
+    pub(crate) fn weights(&self) -> &[f32] {
+        &self.weights
+    }
+
     /// True when no outcome has positive weight.
     pub fn is_empty(&self) -> bool {
         self.total <= 0.0

@@ -11,14 +11,16 @@
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
 //! untextured materials, emissive triangles as the only lights, no alpha, no vertex normals; MIS
-//! with the Sobol sampler. Everything else runs the scalar integrator, with the same result it
-//! always had. Ray queries stay scalar, one lane at a time, through the scene's BVH.
+//! with the Sobol sampler, on an x86-64 processor with AVX-512. Everything else runs the
+//! scalar integrator, with the same result it always had. Ray queries stay scalar, one lane at a
+//! time, through the scene's BVH.
 //!
 //! A lane whose path ends takes the next (pixel, sample) of its thread's work at once, so lanes
 //! do not idle while the longest path of a group finishes. Results therefore arrive out of index
 //! order; the accumulation is exact integer arithmetic, so the order does not change its bits.
 
 mod lanes;
+mod lights;
 #[cfg(test)]
 mod tests;
 
@@ -28,10 +30,39 @@ use crate::material::Material;
 use crate::scene::Scene;
 use crate::settings::{DirectStrategy, RenderSettings, SamplerKind};
 use glam::Vec3;
-use lanes::Lanes;
+use lanes::{Isa, Lanes};
+use lights::LightTable;
 
 /// Paths traced side by side: one AVX-512 register of `f32`.
 pub(crate) const LANES: usize = 16;
+
+/// A vector per lane, one array per coordinate.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct V3 {
+    pub x: [f32; LANES],
+    pub y: [f32; LANES],
+    pub z: [f32; LANES],
+}
+
+impl V3 {
+    pub const ZERO: V3 = V3 {
+        x: [0.0; LANES],
+        y: [0.0; LANES],
+        z: [0.0; LANES],
+    };
+
+    #[inline(always)]
+    pub fn get(&self, i: usize) -> Vec3 {
+        Vec3::new(self.x[i], self.y[i], self.z[i])
+    }
+
+    #[inline(always)]
+    pub fn set(&mut self, i: usize, v: Vec3) {
+        self.x[i] = v.x;
+        self.y[i] = v.y;
+        self.z[i] = v.z;
+    }
+}
 
 /// What a lane needs of a material, for a scene the wavefront can render.
 #[derive(Clone, Copy, Debug, Default)]
@@ -52,6 +83,8 @@ pub(crate) struct DiffuseMaterial {
 #[derive(Clone, Debug)]
 pub(crate) struct DiffuseScene {
     pub materials: Vec<DiffuseMaterial>,
+    /// The lights for the lanes to sample, when there are few enough.
+    pub lights: Option<Box<LightTable>>,
 }
 
 impl DiffuseScene {
@@ -88,17 +121,25 @@ impl DiffuseScene {
                 light_density: area.pdf_area(m as u32),
             });
         }
-        Some(DiffuseScene { materials: out })
+        let lights = LightTable::new(area, &out, &mesh.material);
+        Some(DiffuseScene {
+            materials: out,
+            lights,
+        })
     }
 }
 
 /// The wavefront integrator for one render, when the scene and the settings are ones it models.
+#[derive(Clone, Copy)]
 pub(crate) struct Wavefront<'a> {
     scene: &'a Scene,
     diffuse: &'a DiffuseScene,
     settings: &'a RenderSettings,
-    /// The vector steps run their AVX-512 build (detected; tests switch it off to test the other).
-    avx512: bool,
+    /// Proof that the processor runs the vector steps' build.
+    isa: Isa,
+    /// The lights in the lanes' layout, if the scene has one (tests take it away, to test the
+    /// lane-by-lane sampling of scenes with many lights).
+    lights: Option<&'a LightTable>,
 }
 
 impl<'a> Wavefront<'a> {
@@ -108,19 +149,23 @@ impl<'a> Wavefront<'a> {
         let diffuse = scene.diffuse.as_ref()?;
         let supported =
             settings.direct == DirectStrategy::Mis && settings.sampler == SamplerKind::Sobol;
-        supported.then_some(Wavefront {
+        if !supported {
+            return None;
+        }
+        Some(Wavefront {
             scene,
             diffuse,
             settings,
-            avx512: lanes::avx512_detected(),
+            isa: Isa::detect()?,
+            lights: diffuse.lights.as_deref(),
         })
     }
 
-    /// The same wavefront with its vector steps in their baseline build (SSE2 on x86-64).
+    /// The same wavefront choosing lights one lane at a time, as for a scene with many lights.
     #[cfg(test)]
-    fn baseline(self) -> Self {
+    fn without_light_table(self) -> Self {
         Wavefront {
-            avx512: false,
+            lights: None,
             ..self
         }
     }
@@ -132,7 +177,7 @@ impl<'a> Wavefront<'a> {
         work: impl Iterator<Item = (u32, u32, u32)>,
         each: impl FnMut(u32, u32, u32, PathResult),
     ) {
-        let mut lanes = Lanes::new(self.scene, self.diffuse, self.settings);
-        lanes.run(self.avx512, work, each);
+        let mut lanes = Lanes::new(self.scene, self.diffuse, self.lights, self.settings);
+        lanes.run(self.isa, work, each);
     }
 }
