@@ -6,7 +6,8 @@
 //!    end, the others load their triangle and material;
 //! 3. `shade_hit` (vector): the hit point and normal, emission seen by the ray, the light's
 //!    sample values;
-//! 4. `sample_lights` (scalar): the light triangle and point each lane's values choose;
+//! 4. the light triangle and point each lane's values choose: in the lanes, at the end of step 3,
+//!    from the scene's `LightTable`; for scenes with too many lights, `sample_lights` (scalar);
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray;
 //! 6. `trace_shadows` (scalar): each shadow ray, together with the lane's next ray when the path
@@ -19,6 +20,7 @@
 // Elsewhere than x86-64 no `Isa` exists, so the lanes are compiled but never run.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
+use super::isa::{Isa, Kind};
 use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
 use crate::bsdf::lambert_at;
@@ -36,43 +38,6 @@ use glam::{Vec2, Vec3};
 type F = [f32; LANES];
 type U = [u32; LANES];
 type B = [bool; LANES];
-
-/// An instruction set the vector steps are compiled for. A value exists only where the processor
-/// was found to have its features: it is the proof that calling that build is sound.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) struct Isa(Kind);
-
-#[cfg(target_arch = "x86_64")]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Kind {
-    Avx512,
-}
-
-/// Elsewhere than x86-64 there is no build of the lanes (the scalar integrator runs).
-#[cfg(not(target_arch = "x86_64"))]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Kind {}
-
-impl Isa {
-    /// AVX-512 (16 lanes a register), if this processor has it. Without it the scalar integrator
-    /// runs: the same steps compiled for AVX2 (8 lanes) measured no faster than it on the Cornell
-    /// box (2.87 against 2.88 M samples/s), and for the baseline (SSE2: 4 lanes, no gathers, no
-    /// rounding instruction) slower (2.28 M), so neither is kept.
-    pub(super) fn detect() -> Option<Isa> {
-        #[cfg(target_arch = "x86_64")]
-        {
-            let avx512 = std::arch::is_x86_feature_detected!("avx512f")
-                && std::arch::is_x86_feature_detected!("avx512bw")
-                && std::arch::is_x86_feature_detected!("avx512dq")
-                && std::arch::is_x86_feature_detected!("avx512vl");
-            avx512.then_some(Isa(Kind::Avx512))
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            None
-        }
-    }
-}
 
 /// Every lane's state. A lane is `alive` while it holds a path; the other masks say where that
 /// path is within the current step.

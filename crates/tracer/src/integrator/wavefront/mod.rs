@@ -19,6 +19,7 @@
 //! do not idle while the longest path of a group finishes. Results therefore arrive out of index
 //! order; the accumulation is exact integer arithmetic, so the order does not change its bits.
 
+mod isa;
 mod lanes;
 mod lights;
 #[cfg(test)]
@@ -30,7 +31,8 @@ use crate::material::Material;
 use crate::scene::Scene;
 use crate::settings::{DirectStrategy, RenderSettings, SamplerKind};
 use glam::Vec3;
-use lanes::{Isa, Lanes};
+use isa::Isa;
+use lanes::Lanes;
 use lights::LightTable;
 
 /// Paths traced side by side: one AVX-512 register of `f32`.

@@ -26,7 +26,7 @@ fn assert_same_bits(scene: &Scene, settings: &RenderSettings, samples: std::ops:
     let Some(wavefront) = Wavefront::new(scene, settings) else {
         // Only where the processor has no build of the lanes (without AVX2, or not x86-64).
         assert!(
-            super::lanes::Isa::detect().is_none(),
+            super::isa::Isa::detect().is_none(),
             "the wavefront takes this scene"
         );
         eprintln!("SKIPPED: this processor runs no build of the wavefront's lanes");
@@ -135,7 +135,7 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     assert!(cornell.diffuse.as_ref().is_some_and(|d| d.lights.is_some()));
     assert_eq!(
         Wavefront::new(&cornell, &base).is_some(),
-        super::lanes::Isa::detect().is_some()
+        super::isa::Isa::detect().is_some()
     );
     for other in [
         RenderSettings {
