@@ -244,3 +244,54 @@ async fn estimates_with_and_without_a_value_are_stored_on_every_connection() {
         server.stop().await;
     }
 }
+
+/// A job's last image can land in the same millisecond as the point recorded before it (its final
+/// merges come close together, all the more as the tracer gets faster): the history must still end
+/// with the final image. (Found by CI: the point before the last merge stayed the last one, and
+/// the final image's point, at the same elapsed time, was dropped.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_last_image_ends_the_history_even_in_the_same_millisecond() {
+    use pathfarm_server::store::{now_ms, Estimate};
+    let scene = cornell();
+    for (store, url) in stores("same_millisecond").await {
+        let mut cfg = config(&url);
+        cfg.monitor_interval = Duration::from_secs(3600);
+        let server = TestServer::start(cfg).await;
+        let client = server.client(None);
+        let job = client
+            .submit(scene.clone(), "cornell.gltf", &settings(16, 16, 4, 16))
+            .await
+            .unwrap();
+        // Started a second ago and finished half a second later: every estimate from now on is
+        // at elapsed 500 ms.
+        let now = now_ms();
+        sqlx::query("UPDATE jobs SET started_ms = $1, finished_ms = $2 WHERE id = $3")
+            .bind(now - 1000)
+            .bind(now - 500)
+            .bind(&job.id)
+            .execute(server.state.store.pool())
+            .await
+            .unwrap();
+        let record = |version: i64, samples: u64, last: bool| Estimate {
+            version,
+            relative_error: Some(1.0 / (version + 1) as f64),
+            samples,
+            last,
+        };
+        let store_ = &server.state.store;
+        store_
+            .record_estimate(&job.id, &record(1, 700, false))
+            .await
+            .unwrap();
+        store_
+            .record_estimate(&job.id, &record(2, 1024, true))
+            .await
+            .unwrap();
+        let points = client.convergence(&job.id).await.unwrap().points;
+        assert_eq!(points.len(), 1, "{store}: {points:?}");
+        assert_eq!(points[0].samples_done, 1024, "{store}: {points:?}");
+        assert_eq!(points[0].elapsed_s, 0.5, "{store}: {points:?}");
+        assert_eq!(points[0].relative_error, Some(1.0 / 3.0), "{store}");
+        server.stop().await;
+    }
+}

@@ -65,10 +65,16 @@ impl Store {
                 let gap = ((last as f64 * RELATIVE_SPACING) as i64).max(MIN_SPACING_MS);
                 elapsed - last >= gap
             });
-            if (due || e.last) && last.is_none_or(|last| elapsed > last) {
+            // The last image may land in the same millisecond as the point before it (a job's
+            // final merges come close together): it then replaces that point, so the history
+            // always ends with the final image.
+            let later = last.is_none_or(|last| elapsed > last || (e.last && elapsed == last));
+            if (due || e.last) && later {
                 sqlx::query(
                     "INSERT INTO job_progress (job_id, elapsed_ms, samples_done, rel_error) \
-                     VALUES ($1, $2, $3, NULLIF($4, -1.0)) ON CONFLICT (job_id, elapsed_ms) DO NOTHING",
+                     VALUES ($1, $2, $3, NULLIF($4, -1.0)) ON CONFLICT (job_id, elapsed_ms) \
+                     DO UPDATE SET samples_done = excluded.samples_done, rel_error = excluded.rel_error \
+                     WHERE job_progress.samples_done < excluded.samples_done",
                 )
                 .bind(id)
                 .bind(elapsed)
