@@ -5,8 +5,8 @@ mod common;
 
 use common::*;
 use pathfarm_server::heatmap::{viridis, NOISE_SCALE};
-use pathfarm_wire::api::PreviewView;
-use pathfarm_worker::client::ClientError;
+use pathfarm_wire::api::{JobCreated, PreviewView};
+use pathfarm_worker::client::{ApiClient, ClientError};
 use std::time::Duration;
 
 fn decode(png: &[u8]) -> image::RgbImage {
@@ -204,6 +204,20 @@ async fn a_finished_job_reports_its_final_error_at_once() {
     }
 }
 
+/// A server whose monitor does not run during the test (so only the test records estimates), its
+/// client, and a small Cornell box job on it.
+async fn server_without_monitor(url: &str) -> (TestServer, ApiClient, JobCreated) {
+    let mut cfg = config(url);
+    cfg.monitor_interval = Duration::from_secs(3600);
+    let server = TestServer::start(cfg).await;
+    let client = server.client(None);
+    let job = client
+        .submit(cornell(), "cornell.gltf", &settings(16, 16, 4, 16))
+        .await
+        .unwrap();
+    (server, client, job)
+}
+
 /// Estimates without a value (too few samples yet) and with one, alternating: each is stored as
 /// given, through the sentinel the store binds instead of a NULL. (sqlx's `Any` driver sends a
 /// NULL `f64` to PostgreSQL as a float4; the monitor's later estimates then failed on that
@@ -213,16 +227,8 @@ async fn a_finished_job_reports_its_final_error_at_once() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn estimates_with_and_without_a_value_are_stored_on_every_connection() {
     use pathfarm_server::store::Estimate;
-    let scene = cornell();
     for (store, url) in stores("estimates").await {
-        let mut cfg = config(&url);
-        cfg.monitor_interval = Duration::from_secs(3600);
-        let server = TestServer::start(cfg).await;
-        let client = server.client(None);
-        let job = client
-            .submit(scene.clone(), "cornell.gltf", &settings(16, 16, 4, 16))
-            .await
-            .unwrap();
+        let (server, _, job) = server_without_monitor(&url).await;
         for version in 0..40i64 {
             let value = (version % 3 != 0).then_some(0.5 / (version + 1) as f64);
             let e = Estimate {
@@ -252,16 +258,8 @@ async fn estimates_with_and_without_a_value_are_stored_on_every_connection() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn the_last_image_ends_the_history_even_in_the_same_millisecond() {
     use pathfarm_server::store::{now_ms, Estimate};
-    let scene = cornell();
     for (store, url) in stores("same_millisecond").await {
-        let mut cfg = config(&url);
-        cfg.monitor_interval = Duration::from_secs(3600);
-        let server = TestServer::start(cfg).await;
-        let client = server.client(None);
-        let job = client
-            .submit(scene.clone(), "cornell.gltf", &settings(16, 16, 4, 16))
-            .await
-            .unwrap();
+        let (server, client, job) = server_without_monitor(&url).await;
         // Started a second ago and finished half a second later: every estimate from now on is
         // at elapsed 500 ms.
         let now = now_ms();

@@ -122,10 +122,9 @@ pub(crate) fn area_light_query(
         (v.bsdf.eval(v.wo, g.wi), 0.0)
     };
     let value = g.value(ls.pdf_area, le, f, bsdf_pdf, v.transmittance(g.dist), mis)?;
-    let (wi, dist) = (g.wi, g.dist);
     Some(ShadowQuery {
-        ray: v.spawn(wi),
-        t_max: dist * (1.0 - SHADOW_EPSILON),
+        ray: v.spawn(g.wi),
+        t_max: g.dist * (1.0 - SHADOW_EPSILON),
         alpha_u: s.bounce1(depth, dims::ALPHA),
         value,
     })
