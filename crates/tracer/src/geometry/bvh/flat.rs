@@ -12,11 +12,13 @@
 //! bits, and the answer is the tree's (the smallest (t, triangle index) that the filter accepts).
 //! A lane with an edge function exactly zero goes to the scalar test, as in `packet.rs`.
 //!
-//! It needs AVX-512F (one register of sixteen lanes), detected once when the mesh is built; without
-//! it, or for larger meshes, the tree is used. (The same test on AVX2, as two 8-lane halves, spilled
-//! registers and measured within a few percent of the tree on the Cornell box: not kept.)
+//! It needs AVX-512F (a packet is one register) or AVX2 (a packet is two registers, tested one
+//! after the other), detected once when the mesh is built; without either, or for larger meshes,
+//! the tree is used. (AVX2 once tested both halves side by side, which spilled registers and
+//! measured within a few percent of the tree; one half after the other keeps a half's values in
+//! registers.)
 
-// Elsewhere than x86-64 a `Flat` cannot exist (see `Avx512` below): the test is compiled, unused.
+// Elsewhere than x86-64 a `Flat` cannot exist (see `Backend` below): the test is compiled, unused.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_imports))]
 
 use super::packet::LaneHits;
@@ -55,18 +57,22 @@ impl WidePacket {
 #[derive(Clone, Debug)]
 pub(super) struct Flat {
     packets: Vec<WidePacket>,
-    /// Proof that the processor has AVX-512F.
-    avx512: Avx512,
+    /// The instruction set the test runs in, the proof that the processor has it.
+    backend: Backend,
 }
 
 impl Flat {
     /// The flat form of `triangles` (triangle k has index k), if the mesh is small enough and the
-    /// processor has AVX-512F; otherwise `None` (use the tree).
+    /// processor has AVX-512F or AVX2; otherwise `None` (use the tree).
     pub fn new(triangles: &[[Vec3; 3]]) -> Option<Flat> {
+        Flat::with_backend(triangles, Backend::detect()?)
+    }
+
+    /// [`Flat::new`] with the test in `backend`.
+    fn with_backend(triangles: &[[Vec3; 3]], backend: Backend) -> Option<Flat> {
         if triangles.is_empty() || triangles.len() > MAX_TRIANGLES {
             return None;
         }
-        let avx512 = Avx512::detect()?;
         let packets = triangles
             .chunks(WIDE)
             .enumerate()
@@ -86,7 +92,7 @@ impl Flat {
                 }
             })
             .collect();
-        Some(Flat { packets, avx512 })
+        Some(Flat { packets, backend })
     }
 
     /// Bytes held (for memory reports).
@@ -103,8 +109,7 @@ impl Flat {
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
-        // SAFETY: `self.avx512` exists, so the processor has AVX-512F.
-        unsafe { self.avx512.closest(&self.packets, pre, t_max, accept) }
+        self.backend.closest(&self.packets, pre, t_max, accept)
     }
 
     /// [`Flat::closest`] of ray `a` and [`Flat::any`] of ray `b`, packet by packet in one loop.
@@ -116,8 +121,7 @@ impl Flat {
         b: (&RayPrecomp, f32),
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
-        // SAFETY: as in `closest`.
-        unsafe { self.avx512.pair(&self.packets, a, accept_a, b, accept_b) }
+        self.backend.pair(&self.packets, a, accept_a, b, accept_b)
     }
 
     /// Whether some triangle that `accept` lets through is hit in (0, t_max).
@@ -128,32 +132,38 @@ impl Flat {
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
-        // SAFETY: as in `closest`.
-        unsafe { self.avx512.any(&self.packets, pre, t_max, accept) }
+        self.backend.any(&self.packets, pre, t_max, accept)
     }
 }
 
 /// The hits of one wide packet.
 type WideHits = LaneHits<WIDE>;
 
-/// The 16-lane operations of the test, for one instruction set (`x86::Avx512`; another would be
-/// another implementation). Called only inside a function compiled for that instruction set, so that
-/// each operation inlines to its instruction.
+/// The lane operations of the test, for one instruction set (`x86::Avx512`, `x86::Avx2`). A
+/// register holds `N` lanes, `N` dividing [`WIDE`]; a packet is tested `N` lanes at a time. Called
+/// only inside a function compiled for that instruction set, so that each operation inlines to its
+/// instruction.
 trait Lanes: Copy {
+    /// Lanes of one register.
+    const N: usize;
     type F: Copy;
     fn splat(self, x: f32) -> Self::F;
-    fn load(self, x: &[f32; WIDE]) -> Self::F;
-    fn store(self, x: Self::F) -> [f32; WIDE];
+    /// Lanes `at .. at + N` of `x`.
+    fn load(self, x: &[f32; WIDE], at: usize) -> Self::F;
+    /// Stores `x` in lanes `at .. at + N` of `out`.
+    fn store(self, x: Self::F, out: &mut [f32; WIDE], at: usize);
     fn add(self, a: Self::F, b: Self::F) -> Self::F;
     fn sub(self, a: Self::F, b: Self::F) -> Self::F;
     fn mul(self, a: Self::F, b: Self::F) -> Self::F;
     fn div(self, a: Self::F, b: Self::F) -> Self::F;
-    /// Bit k: lane k of `a` is less than lane k of `b` (false for NaN, as `<`).
+    /// Bit k (below `N`): lane k of `a` is less than lane k of `b` (false for NaN, as `<`).
     fn lt(self, a: Self::F, b: Self::F) -> u32;
-    /// Bit k: lane k of `a` equals lane k of `b`.
+    /// Bit k (below `N`): lane k of `a` equals lane k of `b`.
     fn eq(self, a: Self::F, b: Self::F) -> u32;
-    /// The smallest of the lanes of `x` whose bits are set in `mask` (not 0).
+    /// The smallest of the lanes of `x` whose bits are set in `mask` (not 0; any of the `WIDE`).
     fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32;
+    /// Bit k: lane k of `x` equals `value` (any of the `WIDE` lanes).
+    fn lanes_equal(self, x: &[f32; WIDE], value: f32) -> u32;
 }
 
 /// The ray's constants of the watertight test, splatted across the lanes. (Functions, not closures:
@@ -178,13 +188,14 @@ impl<L: Lanes> Sheared<L> {
         }
     }
 
-    /// The sheared vertex, as `RayPrecomp::shear`: (dx − sx·dz, dy − sy·dz, sz·dz).
+    /// The sheared vertex in lanes `at .. at + N`, as `RayPrecomp::shear`: (dx − sx·dz,
+    /// dy − sy·dz, sz·dz).
     #[inline(always)]
-    fn shear(&self, l: L, v: &[[f32; WIDE]; 3]) -> (L::F, L::F, L::F) {
+    fn shear(&self, l: L, v: &[[f32; WIDE]; 3], at: usize) -> (L::F, L::F, L::F) {
         let [kx, ky, kz] = self.k;
-        let dx = l.sub(l.load(&v[kx]), self.o[0]);
-        let dy = l.sub(l.load(&v[ky]), self.o[1]);
-        let dz = l.sub(l.load(&v[kz]), self.o[2]);
+        let dx = l.sub(l.load(&v[kx], at), self.o[0]);
+        let dy = l.sub(l.load(&v[ky], at), self.o[1]);
+        let dz = l.sub(l.load(&v[kz], at), self.o[2]);
         (
             l.sub(dx, l.mul(self.s[0], dz)),
             l.sub(dy, l.mul(self.s[1], dz)),
@@ -197,14 +208,42 @@ impl<L: Lanes> Sheared<L> {
 #[inline(always)]
 fn test<L: Lanes>(l: L, pre: &RayPrecomp, p: &WidePacket, t_max: f32) -> WideHits {
     let r = Sheared::new(l, pre);
-    let (ax, ay, az) = r.shear(l, &p.v[0]);
-    let (bx, by, bz) = r.shear(l, &p.v[1]);
-    let (cx, cy, cz) = r.shear(l, &p.v[2]);
+    let mut hits = WideHits {
+        mask: 0,
+        t: [0.0; WIDE],
+        b1: [0.0; WIDE],
+        b2: [0.0; WIDE],
+    };
+    let mut on_edge = 0;
+    let mut at = 0;
+    while at < WIDE {
+        on_edge |= test_lanes(l, &r, p, t_max, at, &mut hits) << at;
+        at += L::N;
+    }
+    hits.decide_edges(on_edge, pre, t_max, |k| p.triangle(k));
+    hits
+}
+
+/// Lanes `at .. at + N` of [`test`]: their hits go into `hits`; returns the lanes (bit k for lane
+/// `at + k`) whose edge function is exactly zero, left to the scalar test.
+#[inline(always)]
+fn test_lanes<L: Lanes>(
+    l: L,
+    r: &Sheared<L>,
+    p: &WidePacket,
+    t_max: f32,
+    at: usize,
+    hits: &mut WideHits,
+) -> u32 {
+    let (ax, ay, az) = r.shear(l, &p.v[0], at);
+    let (bx, by, bz) = r.shear(l, &p.v[1], at);
+    let (cx, cy, cz) = r.shear(l, &p.v[2], at);
+    let valid = p.valid >> at;
     let u = l.sub(l.mul(cx, by), l.mul(cy, bx));
     let v = l.sub(l.mul(ax, cy), l.mul(ay, cx));
     let w = l.sub(l.mul(bx, ay), l.mul(by, ax));
     let zero = l.splat(0.0);
-    let on_edge = (l.eq(u, zero) | l.eq(v, zero) | l.eq(w, zero)) & p.valid;
+    let on_edge = (l.eq(u, zero) | l.eq(v, zero) | l.eq(w, zero)) & valid;
     let negative = l.lt(u, zero) | l.lt(v, zero) | l.lt(w, zero);
     let positive = l.lt(zero, u) | l.lt(zero, v) | l.lt(zero, w);
     let outside = negative & positive;
@@ -215,16 +254,13 @@ fn test<L: Lanes>(l: L, pre: &RayPrecomp, p: &WidePacket, t_max: f32) -> WideHit
     let det_neg = l.lt(det, zero);
     let in_range_pos = det_pos & l.lt(zero, t_scaled) & l.lt(t_scaled, limit);
     let in_range_neg = det_neg & l.lt(t_scaled, zero) & l.lt(limit, t_scaled);
-    let mask = !outside & (in_range_pos | in_range_neg) & p.valid & !on_edge;
+    let mask = !outside & (in_range_pos | in_range_neg) & valid & !on_edge;
     let inv = l.div(l.splat(1.0), det);
-    let mut hits = WideHits {
-        mask,
-        t: l.store(l.mul(t_scaled, inv)),
-        b1: l.store(l.mul(v, inv)),
-        b2: l.store(l.mul(w, inv)),
-    };
-    hits.decide_edges(on_edge, pre, t_max, |k| p.triangle(k));
-    hits
+    hits.mask |= mask << at;
+    l.store(l.mul(t_scaled, inv), &mut hits.t, at);
+    l.store(l.mul(v, inv), &mut hits.b1, at);
+    l.store(l.mul(w, inv), &mut hits.b2, at);
+    on_edge
 }
 
 #[inline(always)]
@@ -259,7 +295,7 @@ fn closest_in_packet<L: Lanes>(
     // The packet's smallest (t, index), found without a branch per lane: if it is no
     // improvement, no other lane is.
     let min = l.min_where(hits.mask, &hits.t);
-    let k = (l.eq(l.load(&hits.t), l.splat(min)) & hits.mask).trailing_zeros() as usize;
+    let k = (l.lanes_equal(&hits.t, min) & hits.mask).trailing_zeros() as usize;
     let id = p.first_id + k as u32;
     if !best.improved_by(min, id) {
         return;
@@ -314,19 +350,24 @@ fn any_with<L: Lanes>(
 }
 
 #[cfg(target_arch = "x86_64")]
-use x86::Avx512;
+use x86::Backend;
 
-/// Elsewhere there is no AVX-512: a type without values, so a `Flat` cannot exist.
+/// Elsewhere there is no instruction set for the test: a type without values, so a `Flat` cannot
+/// exist.
 #[cfg(not(target_arch = "x86_64"))]
 #[derive(Clone, Copy, Debug)]
-enum Avx512 {}
+enum Backend {}
 
 #[cfg(not(target_arch = "x86_64"))]
-impl Avx512 {
-    fn detect() -> Option<Avx512> {
+impl Backend {
+    fn detect() -> Option<Backend> {
         None
     }
-    unsafe fn closest(
+    #[cfg(test)]
+    fn detected() -> Vec<Backend> {
+        Vec::new()
+    }
+    fn closest(
         self,
         _: &[WidePacket],
         _: &RayPrecomp,
@@ -335,7 +376,7 @@ impl Avx512 {
     ) -> Option<(u32, TriangleHit)> {
         match self {}
     }
-    unsafe fn any(
+    fn any(
         self,
         _: &[WidePacket],
         _: &RayPrecomp,
@@ -344,7 +385,7 @@ impl Avx512 {
     ) -> bool {
         match self {}
     }
-    unsafe fn pair(
+    fn pair(
         self,
         _: &[WidePacket],
         _: (&RayPrecomp, f32),
@@ -390,10 +431,20 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn every_answer_is_the_scalar_tests_bit_for_bit() {
-        if Avx512::detect().is_none() {
-            eprintln!("SKIPPED: this processor has no AVX-512F, so meshes use the tree");
+        let backends = Backend::detected();
+        if backends.is_empty() {
+            eprintln!(
+                "SKIPPED: this processor has neither AVX-512F nor AVX2, so meshes use the tree"
+            );
             return;
         }
+        for backend in backends {
+            answers_are_the_scalar_tests(backend);
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    fn answers_are_the_scalar_tests(backend: Backend) {
         let mut rng = crate::testing::uniform_stream(0x51_7cc1_b727_220a);
         let (mut hits, mut ties, mut edges, mut rejected) = (0, 0, 0, 0);
         for case in 0..400 {
@@ -420,7 +471,7 @@ mod tests {
                     _ => tris.push([p(&mut rng), p(&mut rng), p(&mut rng)]),
                 }
             }
-            let flat = Flat::new(&tris).expect("AVX-512F was detected");
+            let flat = Flat::with_backend(&tris, backend).expect("a small mesh");
             for ray in 0..64 {
                 let (o, d) = if ray % 4 == 0 {
                     // Axis-aligned rays through a grid of quarter points: exact edges and corners.
@@ -437,7 +488,7 @@ mod tests {
                 let t_max = if ray % 3 == 0 { 1.7 } else { f32::INFINITY };
                 let want = brute_force(&tris, &pre, t_max, |_| true);
                 let got = flat.closest(&pre, t_max, &mut |_, _| true);
-                assert_eq!(got, want, "case {case} ray {ray}");
+                assert_eq!(got, want, "{backend:?}: case {case} ray {ray}");
                 assert_eq!(flat.any(&pre, t_max, &mut |_, _| true), want.is_some());
                 if let Some((id, h)) = want {
                     hits += 1;
@@ -458,8 +509,8 @@ mod tests {
         }
         assert!(
             hits > 10_000 && ties > 1_000 && edges > 200 && rejected > 3_000,
-            "{hits} hits, {ties} ties, {edges} on edges, {rejected} behind a rejected one: \
-             the cases do not exercise the test"
+            "{backend:?}: {hits} hits, {ties} ties, {edges} on edges, {rejected} behind a \
+             rejected one: the cases do not exercise the test"
         );
     }
 
@@ -469,7 +520,7 @@ mod tests {
         assert!(Flat::new(&[]).is_none());
         assert!(Flat::new(&vec![tri; MAX_TRIANGLES + 1]).is_none());
         let flat = Flat::new(&vec![tri; MAX_TRIANGLES]);
-        assert_eq!(flat.is_some(), Avx512::detect().is_some());
+        assert_eq!(flat.is_some(), Backend::detect().is_some());
         if let Some(flat) = flat {
             assert_eq!(flat.packets.len(), MAX_TRIANGLES / WIDE);
         }

@@ -2,15 +2,19 @@
 
 /// An instruction set the vector steps are compiled for. A value exists only where the processor
 /// was found to have its features: it is the proof that calling that build is sound. Only
-/// [`Isa::detect`] makes one (its field is visible to `lanes.rs`, which matches on it, and nothing
-/// else in `wavefront/` builds it).
+/// [`Isa::detected`] makes one (its field is visible to `lanes.rs`, which matches on it, and
+/// nothing else in `wavefront/` builds it).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Isa(pub(super) Kind);
 
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Kind {
+    /// AVX-512F/BW/DQ/VL: one register per 16-lane array.
     Avx512,
+    /// AVX2 (with BMI1/2, LZCNT, POPCNT, as x86-64-v3 without FMA: a fused multiply-add would
+    /// round differently from the scalar code): two registers per 16-lane array.
+    Avx2,
 }
 
 /// Elsewhere than x86-64 there is no build of the lanes (the scalar integrator runs).
@@ -19,22 +23,31 @@ pub(super) enum Kind {
 pub(super) enum Kind {}
 
 impl Isa {
-    /// AVX-512 (16 lanes a register), if this processor has it. Without it the scalar integrator
-    /// runs: the same steps compiled for AVX2 (8 lanes) measured no faster than it on the Cornell
-    /// box (2.87 against 2.88 M samples/s), and for the baseline (SSE2: 4 lanes, no gathers, no
-    /// rounding instruction) slower (2.28 M), so neither is kept.
+    /// The build the wavefront runs on this processor, the widest it has; `None` without AVX2
+    /// (the scalar integrator runs). The baseline build (SSE2: 4 lanes, no gathers, no rounding
+    /// instruction) measured slower than the scalar integrator (2.28 against 2.88 M samples/s on
+    /// the Cornell box), so it is not kept.
     pub(crate) fn detect() -> Option<Isa> {
+        Isa::detected().first().copied()
+    }
+
+    /// Every build this processor runs, widest first (tests check each).
+    pub(crate) fn detected() -> Vec<Isa> {
         #[cfg(target_arch = "x86_64")]
         {
-            let avx512 = std::arch::is_x86_feature_detected!("avx512f")
-                && std::arch::is_x86_feature_detected!("avx512bw")
-                && std::arch::is_x86_feature_detected!("avx512dq")
-                && std::arch::is_x86_feature_detected!("avx512vl");
-            avx512.then_some(Isa(Kind::Avx512))
+            use std::arch::is_x86_feature_detected as has;
+            let mut builds = Vec::new();
+            if has!("avx512f") && has!("avx512bw") && has!("avx512dq") && has!("avx512vl") {
+                builds.push(Isa(Kind::Avx512));
+            }
+            if has!("avx2") && has!("bmi1") && has!("bmi2") && has!("lzcnt") && has!("popcnt") {
+                builds.push(Isa(Kind::Avx2));
+            }
+            builds
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
-            None
+            Vec::new()
         }
     }
 }

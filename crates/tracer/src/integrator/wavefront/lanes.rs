@@ -15,7 +15,8 @@
 //!
 //! The vector steps are loops over the lanes whose bodies are the scalar integrator's code for one
 //! path: branches become selects, and a lane's result is only kept where its path is at that
-//! stage. Steps 3 and 5 are compiled for AVX-512, which is detected at run time ([`Isa`]).
+//! stage. Steps 3 and 5 are compiled for AVX-512 and for AVX2, and the widest the processor
+//! has runs ([`Isa`], detected at run time).
 
 // Elsewhere than x86-64 no `Isa` exists, so the lanes are compiled but never run.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
@@ -204,6 +205,8 @@ impl<'a> Lanes<'a> {
             // SAFETY: an `Isa` exists only where its features were detected.
             #[cfg(target_arch = "x86_64")]
             Kind::Avx512 => unsafe { self.shade_hit_avx512() },
+            #[cfg(target_arch = "x86_64")]
+            Kind::Avx2 => unsafe { self.shade_hit_avx2() },
         }
     }
 
@@ -214,6 +217,8 @@ impl<'a> Lanes<'a> {
             // SAFETY: an `Isa` exists only where its features were detected.
             #[cfg(target_arch = "x86_64")]
             Kind::Avx512 => unsafe { self.scatter_avx512() },
+            #[cfg(target_arch = "x86_64")]
+            Kind::Avx2 => unsafe { self.scatter_avx2() },
         }
     }
 
@@ -319,6 +324,13 @@ impl<'a> Lanes<'a> {
         self.shade_hit();
     }
 
+    /// `shade_hit` compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn shade_hit_avx2(&mut self) {
+        self.shade_hit();
+    }
+
     /// The surface at each hit (`Scene::surface` without vertex normals), the emission the ray
     /// sees (`trace_path` step 1), and the sample values of the light sample.
     #[inline(always)]
@@ -416,6 +428,13 @@ impl<'a> Lanes<'a> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
     unsafe fn scatter_avx512(&mut self) {
+        self.scatter_by_roulette();
+    }
+
+    /// `scatter` compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn scatter_avx2(&mut self) {
         self.scatter_by_roulette();
     }
 

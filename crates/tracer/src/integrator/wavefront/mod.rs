@@ -11,7 +11,7 @@
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
 //! untextured materials, emissive triangles as the only lights, no alpha, no vertex normals; MIS
-//! with the Sobol sampler, on an x86-64 processor with AVX-512. Everything else runs the
+//! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
 //! scalar integrator, with the same result it always had. Ray queries stay scalar, one lane at a
 //! time, through the scene's BVH.
 //!
@@ -35,7 +35,7 @@ use isa::Isa;
 use lanes::Lanes;
 use lights::LightTable;
 
-/// Paths traced side by side: one AVX-512 register of `f32`.
+/// Paths traced side by side: one AVX-512 register of `f32`, or two AVX2 registers.
 pub(crate) const LANES: usize = 16;
 
 /// A vector per lane, one array per coordinate.
@@ -161,6 +161,12 @@ impl<'a> Wavefront<'a> {
             isa: Isa::detect()?,
             lights: diffuse.lights.as_deref(),
         })
+    }
+
+    /// The same wavefront with the vector steps' build `isa`.
+    #[cfg(test)]
+    fn with_isa(self, isa: Isa) -> Self {
+        Wavefront { isa, ..self }
     }
 
     /// The same wavefront choosing lights one lane at a time, as for a scene with many lights.

@@ -40,7 +40,12 @@ fn assert_same_bits(scene: &Scene, settings: &RenderSettings, samples: std::ops:
         .iter()
         .flat_map(|&(x, y)| samples.clone().map(move |i| (x, y, i)))
         .collect();
-    for wavefront in [wavefront, wavefront.without_light_table()] {
+    let builds = super::isa::Isa::detected();
+    let every = builds.iter().flat_map(|&isa| {
+        let w = wavefront.with_isa(isa);
+        [w, w.without_light_table()]
+    });
+    for wavefront in every {
         let mut got = Vec::new();
         wavefront.render(work.iter().copied(), |x, y, i, r| got.push((x, y, i, r)));
         assert_eq!(got.len(), work.len(), "every sample is rendered once");

@@ -1,45 +1,55 @@
-//! The AVX-512F lanes. Every intrinsic needs its CPU feature, so every call is `unsafe`; the
-//! safety argument is the [`Avx512`] value itself, which only [`Avx512::detect`] makes.
+//! The x86-64 lanes: AVX-512F (a packet in one register) and AVX2 (a packet in two). Every
+//! intrinsic needs its CPU feature, so every call is `unsafe`; the safety argument is the
+//! [`Avx512`] or [`Avx2`] value itself, which only [`Backend::detect`] makes.
 
 use super::{any_with, closest_with, pair_with, Lanes, WidePacket, WIDE};
 use crate::geometry::{RayPrecomp, TriangleHit};
 use std::arch::x86_64::*;
 
-/// Proof that the processor has AVX-512F (the field is private: only `detect` makes one).
-/// Its [`Lanes`] operations are one 16-lane register each; compares give a 16-bit mask.
+/// The instruction set a flat mesh is tested in.
 #[derive(Clone, Copy, Debug)]
-pub(super) struct Avx512(());
+pub(super) enum Backend {
+    Avx512(Avx512),
+    Avx2(Avx2),
+}
 
-impl Avx512 {
-    pub fn detect() -> Option<Avx512> {
-        is_x86_feature_detected!("avx512f").then_some(Avx512(()))
+impl Backend {
+    /// The widest this processor has, if any.
+    pub fn detect() -> Option<Backend> {
+        Backend::detected().first().copied()
     }
 
-    /// [`closest_with`] compiled for AVX-512F. The whole loop is compiled with the feature, so
-    /// that the generic test and the `Lanes` operations inline into it (they are
-    /// `#[inline(always)]`; a function compiled without the feature could not inline the
-    /// intrinsics, and every operation would be a call).
-    ///
-    /// # Safety
-    /// None beyond `self`'s existence (the processor has AVX-512F); `unsafe` only because the
-    /// compiler requires it for calls into `#[target_feature]` functions.
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn closest(
+    /// Every one this processor has, widest first (tests check each).
+    pub fn detected() -> Vec<Backend> {
+        let mut found = Vec::new();
+        if is_x86_feature_detected!("avx512f") {
+            found.push(Backend::Avx512(Avx512(())));
+        }
+        if is_x86_feature_detected!("avx2") {
+            found.push(Backend::Avx2(Avx2(())));
+        }
+        found
+    }
+
+    /// [`closest_with`] in this instruction set.
+    #[inline]
+    pub fn closest(
         self,
         packets: &[WidePacket],
         pre: &RayPrecomp,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
-        closest_with(self, packets, pre, t_max, accept)
+        // SAFETY (each call): the value exists, so the processor has its features.
+        match self {
+            Backend::Avx512(l) => unsafe { l.closest(packets, pre, t_max, accept) },
+            Backend::Avx2(l) => unsafe { l.closest(packets, pre, t_max, accept) },
+        }
     }
 
-    /// [`pair_with`] compiled for AVX-512F.
-    ///
-    /// # Safety
-    /// As [`Avx512::closest`].
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn pair(
+    /// [`pair_with`] in this instruction set.
+    #[inline]
+    pub fn pair(
         self,
         packets: &[WidePacket],
         a: (&RayPrecomp, f32),
@@ -47,43 +57,110 @@ impl Avx512 {
         b: (&RayPrecomp, f32),
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
-        pair_with(self, packets, a, accept_a, b, accept_b)
+        // SAFETY (each call): as in `closest`.
+        match self {
+            Backend::Avx512(l) => unsafe { l.pair(packets, a, accept_a, b, accept_b) },
+            Backend::Avx2(l) => unsafe { l.pair(packets, a, accept_a, b, accept_b) },
+        }
     }
 
-    /// [`any_with`] compiled for AVX-512F.
-    ///
-    /// # Safety
-    /// As [`Avx512::closest`].
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn any(
+    /// [`any_with`] in this instruction set.
+    #[inline]
+    pub fn any(
         self,
         packets: &[WidePacket],
         pre: &RayPrecomp,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
-        any_with(self, packets, pre, t_max, accept)
+        // SAFETY (each call): as in `closest`.
+        match self {
+            Backend::Avx512(l) => unsafe { l.any(packets, pre, t_max, accept) },
+            Backend::Avx2(l) => unsafe { l.any(packets, pre, t_max, accept) },
+        }
     }
+}
+
+/// The three queries compiled with `$features`. The whole loop is compiled with the features, so
+/// that the generic test and the `Lanes` operations inline into it (they are `#[inline(always)]`;
+/// a function compiled without the features could not inline the intrinsics, and every operation
+/// would be a call). Each is `unsafe` only because the compiler requires it for calls into
+/// `#[target_feature]` functions: `self`'s existence proves the features.
+macro_rules! queries_compiled_for {
+    ($features:literal) => {
+        #[target_feature(enable = $features)]
+        unsafe fn closest(
+            self,
+            packets: &[WidePacket],
+            pre: &RayPrecomp,
+            t_max: f32,
+            accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        ) -> Option<(u32, TriangleHit)> {
+            closest_with(self, packets, pre, t_max, accept)
+        }
+
+        #[target_feature(enable = $features)]
+        unsafe fn pair(
+            self,
+            packets: &[WidePacket],
+            a: (&RayPrecomp, f32),
+            accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
+            b: (&RayPrecomp, f32),
+            accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        ) -> (Option<(u32, TriangleHit)>, bool) {
+            pair_with(self, packets, a, accept_a, b, accept_b)
+        }
+
+        #[target_feature(enable = $features)]
+        unsafe fn any(
+            self,
+            packets: &[WidePacket],
+            pre: &RayPrecomp,
+            t_max: f32,
+            accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+        ) -> bool {
+            any_with(self, packets, pre, t_max, accept)
+        }
+    };
+}
+
+/// Proof that the processor has AVX-512F (the field is private: only `Backend::detect` makes
+/// one). Its [`Lanes`] operations are one 16-lane register each; compares give a 16-bit mask.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Avx512(());
+
+impl Avx512 {
+    queries_compiled_for!("avx512f");
+}
+
+/// Proof that the processor has AVX2 (only `Backend::detect` makes one). Its [`Lanes`]
+/// operations are one 8-lane register each: a packet is two halves.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Avx2(());
+
+impl Avx2 {
+    queries_compiled_for!("avx2");
 }
 
 // SAFETY (every `unsafe` block of this impl): an `Avx512` exists, so the processor has
 // AVX-512F; the loads and stores go through references to 16 `f32`s, which the unaligned
 // forms accept at any address.
 impl Lanes for Avx512 {
+    const N: usize = WIDE;
     type F = __m512;
     #[inline(always)]
     fn splat(self, x: f32) -> __m512 {
         unsafe { _mm512_set1_ps(x) }
     }
     #[inline(always)]
-    fn load(self, x: &[f32; WIDE]) -> __m512 {
+    fn load(self, x: &[f32; WIDE], at: usize) -> __m512 {
+        let x: &[f32; 16] = x[at..][..16].try_into().expect("16 lanes");
         unsafe { _mm512_loadu_ps(x.as_ptr()) }
     }
     #[inline(always)]
-    fn store(self, x: __m512) -> [f32; WIDE] {
-        let mut out = [0.0f32; WIDE];
+    fn store(self, x: __m512, out: &mut [f32; WIDE], at: usize) {
+        let out: &mut [f32; 16] = (&mut out[at..][..16]).try_into().expect("16 lanes");
         unsafe { _mm512_storeu_ps(out.as_mut_ptr(), x) };
-        out
     }
     #[inline(always)]
     fn add(self, a: __m512, b: __m512) -> __m512 {
@@ -111,6 +188,72 @@ impl Lanes for Avx512 {
     }
     #[inline(always)]
     fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32 {
-        unsafe { _mm512_mask_reduce_min_ps(mask as __mmask16, self.load(x)) }
+        unsafe { _mm512_mask_reduce_min_ps(mask as __mmask16, self.load(x, 0)) }
+    }
+    #[inline(always)]
+    fn lanes_equal(self, x: &[f32; WIDE], value: f32) -> u32 {
+        self.eq(self.load(x, 0), self.splat(value))
+    }
+}
+
+// SAFETY (every `unsafe` block of this impl): an `Avx2` exists, so the processor has AVX2; the
+// loads and stores go through references to 8 `f32`s, which the unaligned forms accept at any
+// address.
+impl Lanes for Avx2 {
+    const N: usize = 8;
+    type F = __m256;
+    #[inline(always)]
+    fn splat(self, x: f32) -> __m256 {
+        unsafe { _mm256_set1_ps(x) }
+    }
+    #[inline(always)]
+    fn load(self, x: &[f32; WIDE], at: usize) -> __m256 {
+        let x: &[f32; 8] = x[at..][..8].try_into().expect("8 lanes");
+        unsafe { _mm256_loadu_ps(x.as_ptr()) }
+    }
+    #[inline(always)]
+    fn store(self, x: __m256, out: &mut [f32; WIDE], at: usize) {
+        let out: &mut [f32; 8] = (&mut out[at..][..8]).try_into().expect("8 lanes");
+        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), x) };
+    }
+    #[inline(always)]
+    fn add(self, a: __m256, b: __m256) -> __m256 {
+        unsafe { _mm256_add_ps(a, b) }
+    }
+    #[inline(always)]
+    fn sub(self, a: __m256, b: __m256) -> __m256 {
+        unsafe { _mm256_sub_ps(a, b) }
+    }
+    #[inline(always)]
+    fn mul(self, a: __m256, b: __m256) -> __m256 {
+        unsafe { _mm256_mul_ps(a, b) }
+    }
+    #[inline(always)]
+    fn div(self, a: __m256, b: __m256) -> __m256 {
+        unsafe { _mm256_div_ps(a, b) }
+    }
+    #[inline(always)]
+    fn lt(self, a: __m256, b: __m256) -> u32 {
+        (unsafe { _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(a, b)) }) as u32
+    }
+    #[inline(always)]
+    fn eq(self, a: __m256, b: __m256) -> u32 {
+        (unsafe { _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(a, b)) }) as u32
+    }
+    #[inline(always)]
+    fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32 {
+        // Hits are few (one or two lanes of a packet, mostly): one at a time.
+        let mut rest = mask;
+        let mut min = f32::INFINITY;
+        while rest != 0 {
+            min = min.min(x[rest.trailing_zeros() as usize]);
+            rest &= rest - 1;
+        }
+        min
+    }
+    #[inline(always)]
+    fn lanes_equal(self, x: &[f32; WIDE], value: f32) -> u32 {
+        let v = self.splat(value);
+        self.eq(self.load(x, 0), v) | self.eq(self.load(x, 8), v) << 8
     }
 }
