@@ -376,6 +376,9 @@ impl<'a> Lanes<'a> {
             go[i] = on && depths[i] < limit;
             ps.set(i, p);
             ngs.set(i, ng);
+        }
+        // The light sample's values in a loop of their own (see `scatter`).
+        for i in 0..LANES {
             let dim = |offset| bounce_dim(depths[i], offset);
             u_select[i] = owen_sobol_sample_lanewise(keys[i], revs[i], dim(dims::LIGHT_SELECT));
             u_light[0][i] = owen_sobol_sample_lanewise(keys[i], revs[i], dim(dims::LIGHT_POINT));
@@ -507,15 +510,25 @@ impl<'a> Lanes<'a> {
         let mut sampled_weight = V3::ZERO;
         let mut sampled_pdf = [0.0; LANES];
         let mut sampled_ok = [false; LANES];
+        // The sample values first, in a loop of their own: their table lookups are gathers, which
+        // the compiler does not use for AVX2, and they would keep the loop below scalar.
+        // The roulette's value is drawn for every lane, whether or not it plays: a pure function
+        // of the lane's sample, so drawing it changes nothing else.
+        let (mut u0, mut u1, mut u_rr) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+        for i in 0..LANES {
+            let sample1 = |offset| {
+                owen_sobol_sample_lanewise(keys[i], revs[i], bounce_dim(depths[i], offset))
+            };
+            u0[i] = sample1(dims::BSDF_DIR);
+            u1[i] = sample1(dims::BSDF_DIR + 1);
+            u_rr[i] = sample1(dims::ROULETTE);
+        }
         for i in 0..LANES {
             let ng = ngs.get(i);
             let wo = -ds.get(i);
             let albedo = albedos.get(i);
-            let depth = depths[i];
-            let sample1 =
-                |offset| owen_sobol_sample_lanewise(keys[i], revs[i], bounce_dim(depth, offset));
             // 3. The continuation: a cosine-weighted direction (one lobe, no lobe choice).
-            let u = Vec2::new(sample1(dims::BSDF_DIR), sample1(dims::BSDF_DIR + 1));
+            let u = Vec2::new(u0[i], u1[i]);
             let frame = Frame::from_z(ng);
             let bs =
                 lambert_at::sample_wi(&frame, ng, albedo, wo, u).filter(|bs| !is_black(bs.weight));
@@ -532,8 +545,6 @@ impl<'a> Lanes<'a> {
             let ng = ngs.get(i);
             let beta = betas.get(i);
             let depth = depths[i];
-            let sample1 =
-                |offset| owen_sobol_sample_lanewise(keys[i], revs[i], bounce_dim(depth, offset));
             let spawn = |wi: Vec3| {
                 let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
                 offset_unit_normal(p, side)
@@ -550,7 +561,7 @@ impl<'a> Lanes<'a> {
             // 4. Russian roulette.
             let survive = survival(rr, depth, beta_next);
             if survive < 1.0 {
-                cont &= sample1(dims::ROULETTE) < survive;
+                cont &= u_rr[i] < survive;
                 beta_next /= survive;
             }
             conts[i] = cont;

@@ -100,19 +100,23 @@ impl LightTable {
             front: V3::ZERO,
             back: V3::ZERO,
         };
-        for i in 0..LANES {
-            let j = k[i].min(last) as usize & (MAX_LIGHTS - 1);
-            let corners = [
-                get(&self.corners[0], j),
-                get(&self.corners[1], j),
-                get(&self.corners[2], j),
-            ];
-            let bary = sample_uniform_triangle(Vec2::new(u[0][i], u[1][i]));
-            out.point.set(i, point_on(corners, bary));
+        // The table's entries first, one lane at a time (AVX2 has no fast gather, and the
+        // compiler would not vectorise a loop holding one), then the point, in the lanes.
+        let mut corners = [V3::ZERO; 3];
+        for (i, &ki) in k.iter().enumerate() {
+            let j = ki.min(last) as usize & (MAX_LIGHTS - 1);
+            for (c, corner) in corners.iter_mut().enumerate() {
+                corner.set(i, get(&self.corners[c], j));
+            }
             out.normal.set(i, get(&self.normal, j));
             out.pdf_area[i] = self.pdf_area[j];
             out.front.set(i, get(&self.front, j));
             out.back.set(i, get(&self.back, j));
+        }
+        for (i, (&u0, &u1)) in u[0].iter().zip(&u[1]).enumerate() {
+            let bary = sample_uniform_triangle(Vec2::new(u0, u1));
+            let at = [corners[0].get(i), corners[1].get(i), corners[2].get(i)];
+            out.point.set(i, point_on(at, bary));
         }
         out
     }
