@@ -10,10 +10,10 @@
 //!   on the Cornell box and on the 330k scene. One fixed batch of 65,536 rays from random points in
 //!   the air inside the box: closest-hit rays in uniformly random directions, shadow rays towards
 //!   random points of the ceiling light (t_max = distance · (1 − 10⁻⁴), as the integrator does).
-//! - `flat_vs_tree`: the same rays against the Cornell box's 32 triangles through `Bvh` directly,
-//!   answered by the flat 16-lane test of every triangle (`geometry/bvh/flat.rs`, on a processor
-//!   with AVX-512F) and by the 4-wide tree (`Bvh::tree_only`): a closest-hit and a shadow query per
-//!   element.
+//! - `flat_vs_tree`: the same rays against the Cornell box's 32 triangles, and against the box
+//!   with a 20-triangle sphere, through `Bvh` directly, answered by the flat test of every triangle
+//!   (`geometry/bvh/flat.rs`, on a processor with AVX-512F or AVX2) and by the 4-wide tree
+//!   (`Bvh::tree_only`): a closest-hit and a shadow query per element.
 //! - `bsdf`: `Bsdf::sample` followed by `Bsdf::eval` of the sampled direction, for a batch of 1,024
 //!   random outgoing directions, for a diffuse, a rough-metal and a smooth-glass material.
 //! - `accumulation`: `Accumulation::merge` of one 256×256 accumulation into another.
@@ -224,18 +224,6 @@ fn rays(c: &mut Criterion) {
 
 fn flat_vs_tree(c: &mut Criterion) {
     let batch = ray_batch();
-    let mut mesh = scene_gen::cornell_parts().mesh;
-    let (bvh, order) = Bvh::build(&mesh);
-    mesh.reorder(&order);
-    eprintln!(
-        "flat_vs_tree: {} triangles, flat test {}",
-        mesh.len(),
-        if bvh.is_flat() {
-            "in use"
-        } else {
-            "not available (no AVX-512F): both rows are the tree"
-        }
-    );
     let queries: Vec<(RayPrecomp, Vec3, RayPrecomp, Vec3, f32)> = batch
         .closest
         .iter()
@@ -247,21 +235,43 @@ fn flat_vs_tree(c: &mut Criterion) {
         .collect();
     let mut group = c.benchmark_group("flat_vs_tree");
     group.throughput(Throughput::Elements(RAYS as u64));
-    for (name, bvh) in [("flat", bvh.clone()), ("tree", bvh.tree_only())] {
-        group.bench_function(format!("cornell/{name}"), |b| {
-            b.iter(|| {
-                let (mut sum, mut n) = (0.0f32, 0u32);
-                for (a, da, s, ds, t_max) in &queries {
-                    if let Some((_, hit)) =
-                        bvh.closest(black_box(a), *da, f32::INFINITY, |_, _| true)
-                    {
-                        sum += hit.t;
+    // The box alone (32 triangles), and with the coarsest sphere (20 more): where the flat test's
+    // cost, linear in the triangles, meets the tree's.
+    let meshes = [
+        ("cornell", scene_gen::cornell_parts().mesh),
+        (
+            "cornell_ico",
+            scene_gen::cornell_with(&scene_gen::bench_sphere(1)).mesh,
+        ),
+    ];
+    for (scene, mut mesh) in meshes {
+        let (bvh, order) = Bvh::build(&mesh);
+        mesh.reorder(&order);
+        eprintln!(
+            "flat_vs_tree: {scene}, {} triangles, flat test {}",
+            mesh.len(),
+            if bvh.is_flat() {
+                "in use"
+            } else {
+                "not available (no AVX2 or too many triangles): both rows are the tree"
+            }
+        );
+        for (name, bvh) in [("flat", bvh.clone()), ("tree", bvh.tree_only())] {
+            group.bench_function(format!("{scene}/{name}"), |b| {
+                b.iter(|| {
+                    let (mut sum, mut n) = (0.0f32, 0u32);
+                    for (a, da, s, ds, t_max) in &queries {
+                        if let Some((_, hit)) =
+                            bvh.closest(black_box(a), *da, f32::INFINITY, |_, _| true)
+                        {
+                            sum += hit.t;
+                        }
+                        n += bvh.any(black_box(s), *ds, *t_max, |_, _| true) as u32;
                     }
-                    n += bvh.any(black_box(s), *ds, *t_max, |_, _| true) as u32;
-                }
-                (sum, n)
-            })
-        });
+                    (sum, n)
+                })
+            });
+        }
     }
     group.finish();
 }

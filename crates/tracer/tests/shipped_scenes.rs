@@ -199,7 +199,8 @@ fn textured_has_color_normal_and_metallic_roughness_textures() {
 }
 
 /// A farm mixes processors: on one with AVX-512F a scene of at most 64 triangles is tested without
-/// its BVH (`geometry/bvh/flat.rs`), on one without it the tree answers. Both must render the same
+/// its BVH (`geometry/bvh/flat.rs`), on one with AVX2 a scene of at most 32, and elsewhere the tree
+/// answers. Both must render the same
 /// bits, for every direct-lighting strategy and sampler.
 #[test]
 fn small_scenes_render_the_same_bits_with_the_flat_test_and_with_the_tree() {
@@ -232,9 +233,17 @@ fn small_scenes_render_the_same_bits_with_the_flat_test_and_with_the_tree() {
         compared.push(name);
     }
     if compared.is_empty() {
-        eprintln!("SKIPPED: this processor has no AVX-512F, so every scene uses its tree");
+        eprintln!(
+            "SKIPPED: this processor has neither AVX-512F nor AVX2, so every scene uses its tree"
+        );
     } else {
-        // cornell.gltf (32 triangles), furnacebox.gltf (12), smalllight.gltf (34).
-        assert_eq!(compared.len(), 3, "flat scenes: {compared:?}");
+        // cornell.gltf (32 triangles) and furnacebox.gltf (12) everywhere, smalllight.gltf (34)
+        // with AVX-512F only.
+        let names: Vec<&str> = compared.iter().map(String::as_str).collect();
+        assert!(
+            names.contains(&"cornell.gltf") && names.contains(&"furnacebox.gltf"),
+            "flat scenes: {compared:?}"
+        );
+        assert!(compared.len() <= 3, "flat scenes: {compared:?}");
     }
 }

@@ -42,8 +42,8 @@ pub struct Bvh {
     packets: Vec<TriPacket>,
     root: Option<NodeRef>,
     depth: usize,
-    /// For a mesh of at most `flat::MAX_TRIANGLES` triangles on a processor with AVX-512F: every
-    /// triangle in 16-lane packets, tested without the tree (`flat.rs`).
+    /// For a mesh of at most `flat::MAX_TRIANGLES` triangles on a processor with AVX-512F (32
+    /// with AVX2): every triangle in 16-lane packets, tested without the tree (`flat.rs`).
     flat: Option<Flat>,
 }
 

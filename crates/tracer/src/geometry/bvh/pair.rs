@@ -92,10 +92,10 @@ mod tests {
             chain.material.push(0);
         }
         // Few enough triangles for the flat test (`flat.rs`), where the processor has it.
-        let small = crate::testing::triangle_soup(&mut rng, 50, 4, |rng| {
+        let small = crate::testing::triangle_soup(&mut rng, 24, 4, |rng| {
             Vec3::new(rng(), rng(), rng()) * 1.5 - 0.75
         });
-        assert!(small.len() <= super::super::flat::MAX_TRIANGLES);
+        assert!(small.len() <= super::super::flat::MAX_TRIANGLES_AVX2);
         for (name, mesh, scale) in [
             ("soup", soup, 12.0f32),
             ("chain", chain, 0.1),

@@ -31,6 +31,14 @@ impl Backend {
         found
     }
 
+    /// The largest mesh tested without a tree in this instruction set.
+    pub fn max_triangles(self) -> usize {
+        match self {
+            Backend::Avx512(_) => super::MAX_TRIANGLES,
+            Backend::Avx2(_) => super::MAX_TRIANGLES_AVX2,
+        }
+    }
+
     /// [`closest_with`] in this instruction set.
     #[inline]
     pub fn closest(
