@@ -21,6 +21,8 @@
 // Elsewhere than x86-64 no `Isa` exists, so the lanes are compiled but never run.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
+mod builds;
+
 use super::isa::{Isa, Kind};
 use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
@@ -198,30 +200,6 @@ impl<'a> Lanes<'a> {
         }
     }
 
-    /// [`Lanes::shade_hit`] compiled for `isa`.
-    #[inline(always)]
-    fn shade_hit_for(&mut self, isa: Isa) {
-        match isa.0 {
-            // SAFETY: an `Isa` exists only where its features were detected.
-            #[cfg(target_arch = "x86_64")]
-            Kind::Avx512 => unsafe { self.shade_hit_avx512() },
-            #[cfg(target_arch = "x86_64")]
-            Kind::Avx2 => unsafe { self.shade_hit_avx2() },
-        }
-    }
-
-    /// [`Lanes::scatter`] compiled for `isa`.
-    #[inline(always)]
-    fn scatter_for(&mut self, isa: Isa) {
-        match isa.0 {
-            // SAFETY: an `Isa` exists only where its features were detected.
-            #[cfg(target_arch = "x86_64")]
-            Kind::Avx512 => unsafe { self.scatter_avx512() },
-            #[cfg(target_arch = "x86_64")]
-            Kind::Avx2 => unsafe { self.scatter_avx2() },
-        }
-    }
-
     /// Gives every lane without a path the next sample of `work`, with its camera ray. A sample
     /// whose camera ray is not finite is handed on at once with a NaN radiance, as
     /// `render_sample` does.
@@ -315,20 +293,6 @@ impl<'a> Lanes<'a> {
             self.diffuse_on[i] = m.diffuse_on;
             self.light_density[i] = m.light_density;
         }
-    }
-
-    /// `shade_hit` compiled for AVX-512.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
-    unsafe fn shade_hit_avx512(&mut self) {
-        self.shade_hit();
-    }
-
-    /// `shade_hit` compiled for AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
-    unsafe fn shade_hit_avx2(&mut self) {
-        self.shade_hit();
     }
 
     /// The surface at each hit (`Scene::surface` without vertex normals), the emission the ray
@@ -425,20 +389,6 @@ impl<'a> Lanes<'a> {
             self.light_front.set(i, m.emission_front);
             self.light_back.set(i, m.emission_back);
         }
-    }
-
-    /// `scatter` compiled for AVX-512.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
-    unsafe fn scatter_avx512(&mut self) {
-        self.scatter_by_roulette();
-    }
-
-    /// `scatter` compiled for AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
-    unsafe fn scatter_avx2(&mut self) {
-        self.scatter_by_roulette();
     }
 
     /// [`Lanes::scatter`] with the roulette's variant a constant in each copy: a `match` on it

@@ -1,0 +1,59 @@
+//! The builds of the vector steps: `shade_hit` and `scatter` compiled once per instruction set
+//! (`#[target_feature]`), and the dispatch on the [`Isa`] that proves the processor runs them.
+
+use super::{Isa, Kind, Lanes};
+
+impl Lanes<'_> {
+    /// [`Lanes::shade_hit`] compiled for `isa`.
+    #[inline(always)]
+    pub(super) fn shade_hit_for(&mut self, isa: Isa) {
+        match isa.0 {
+            // SAFETY (each arm): an `Isa` exists only where its features were detected.
+            #[cfg(target_arch = "x86_64")]
+            Kind::Avx512 => unsafe { self.shade_hit_avx512() },
+            #[cfg(target_arch = "x86_64")]
+            Kind::Avx2 => unsafe { self.shade_hit_avx2() },
+        }
+    }
+
+    /// [`Lanes::scatter`] compiled for `isa`.
+    #[inline(always)]
+    pub(super) fn scatter_for(&mut self, isa: Isa) {
+        match isa.0 {
+            // SAFETY (each arm): an `Isa` exists only where its features were detected.
+            #[cfg(target_arch = "x86_64")]
+            Kind::Avx512 => unsafe { self.scatter_avx512() },
+            #[cfg(target_arch = "x86_64")]
+            Kind::Avx2 => unsafe { self.scatter_avx2() },
+        }
+    }
+
+    /// `shade_hit` compiled for AVX-512.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
+    unsafe fn shade_hit_avx512(&mut self) {
+        self.shade_hit();
+    }
+
+    /// `shade_hit` compiled for AVX2 (with BMI1/2, LZCNT and POPCNT; without FMA, whose fused
+    /// rounding would change the bits).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn shade_hit_avx2(&mut self) {
+        self.shade_hit();
+    }
+
+    /// `scatter` compiled for AVX-512.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
+    unsafe fn scatter_avx512(&mut self) {
+        self.scatter_by_roulette();
+    }
+
+    /// `scatter` compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn scatter_avx2(&mut self) {
+        self.scatter_by_roulette();
+    }
+}
