@@ -167,8 +167,19 @@ trait Lanes: Copy {
     fn eq(self, a: Self::F, b: Self::F) -> u32;
     /// The smallest of the lanes of `x` whose bits are set in `mask` (not 0; any of the `WIDE`).
     fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32;
+
     /// Bit k: lane k of `x` equals `value` (any of the `WIDE` lanes).
-    fn lanes_equal(self, x: &[f32; WIDE], value: f32) -> u32;
+    #[inline(always)]
+    fn lanes_equal(self, x: &[f32; WIDE], value: f32) -> u32 {
+        let v = self.splat(value);
+        let mut bits = 0;
+        let mut at = 0;
+        while at < WIDE {
+            bits |= self.eq(self.load(x, at), v) << at;
+            at += Self::N;
+        }
+        bits
+    }
 }
 
 /// The ray's constants of the watertight test, splatted across the lanes. (Functions, not closures:
@@ -222,15 +233,18 @@ fn test<L: Lanes>(l: L, pre: &RayPrecomp, p: &WidePacket, t_max: f32) -> WideHit
     let mut on_edge = 0;
     let mut at = 0;
     while at < WIDE {
-        on_edge |= test_lanes(l, &r, p, t_max, at, &mut hits) << at;
+        let (mask, edge) = test_lanes(l, &r, p, t_max, at, &mut hits);
+        hits.mask |= mask << at;
+        on_edge |= edge << at;
         at += L::N;
     }
     hits.decide_edges(on_edge, pre, t_max, |k| p.triangle(k));
     hits
 }
 
-/// Lanes `at .. at + N` of [`test`]: their hits go into `hits`; returns the lanes (bit k for lane
-/// `at + k`) whose edge function is exactly zero, left to the scalar test.
+/// Lanes `at .. at + N` of [`test`]: stores their distances and barycentrics in `hits` and returns
+/// (bit k for lane `at + k`) the lanes hit and the lanes whose edge function is exactly zero, left
+/// to the scalar test.
 #[inline(always)]
 fn test_lanes<L: Lanes>(
     l: L,
@@ -239,7 +253,7 @@ fn test_lanes<L: Lanes>(
     t_max: f32,
     at: usize,
     hits: &mut WideHits,
-) -> u32 {
+) -> (u32, u32) {
     let (ax, ay, az) = r.shear(l, &p.v[0], at);
     let (bx, by, bz) = r.shear(l, &p.v[1], at);
     let (cx, cy, cz) = r.shear(l, &p.v[2], at);
@@ -261,11 +275,10 @@ fn test_lanes<L: Lanes>(
     let in_range_neg = det_neg & l.lt(t_scaled, zero) & l.lt(limit, t_scaled);
     let mask = !outside & (in_range_pos | in_range_neg) & valid & !on_edge;
     let inv = l.div(l.splat(1.0), det);
-    hits.mask |= mask << at;
     l.store(l.mul(t_scaled, inv), &mut hits.t, at);
     l.store(l.mul(v, inv), &mut hits.b1, at);
     l.store(l.mul(w, inv), &mut hits.b2, at);
-    on_edge
+    (mask, on_edge)
 }
 
 #[inline(always)]
@@ -372,8 +385,8 @@ impl Backend {
         match self {}
     }
     #[cfg(test)]
-    fn detected() -> Vec<Backend> {
-        Vec::new()
+    fn detected() -> impl Iterator<Item = Backend> {
+        std::iter::empty()
     }
     fn closest(
         self,
@@ -440,7 +453,7 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn every_answer_is_the_scalar_tests_bit_for_bit() {
-        let backends = Backend::detected();
+        let backends: Vec<Backend> = Backend::detected().collect();
         if backends.is_empty() {
             eprintln!(
                 "SKIPPED: this processor has neither AVX-512F nor AVX2, so meshes use the tree"

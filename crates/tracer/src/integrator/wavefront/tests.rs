@@ -40,8 +40,7 @@ fn assert_same_bits(scene: &Scene, settings: &RenderSettings, samples: std::ops:
         .iter()
         .flat_map(|&(x, y)| samples.clone().map(move |i| (x, y, i)))
         .collect();
-    let builds = super::isa::Isa::detected();
-    let every = builds.iter().flat_map(|&isa| {
+    let every = super::isa::Isa::detected().flat_map(|isa| {
         let w = wavefront.with_isa(isa);
         [w, w.without_light_table()]
     });

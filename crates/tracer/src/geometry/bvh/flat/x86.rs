@@ -16,19 +16,14 @@ pub(super) enum Backend {
 impl Backend {
     /// The widest this processor has, if any.
     pub fn detect() -> Option<Backend> {
-        Backend::detected().first().copied()
+        Backend::detected().next()
     }
 
     /// Every one this processor has, widest first (tests check each).
-    pub fn detected() -> Vec<Backend> {
-        let mut found = Vec::new();
-        if is_x86_feature_detected!("avx512f") {
-            found.push(Backend::Avx512(Avx512(())));
-        }
-        if is_x86_feature_detected!("avx2") {
-            found.push(Backend::Avx2(Avx2(())));
-        }
-        found
+    pub fn detected() -> impl Iterator<Item = Backend> {
+        let avx512 = is_x86_feature_detected!("avx512f").then_some(Backend::Avx512(Avx512(())));
+        let avx2 = is_x86_feature_detected!("avx2").then_some(Backend::Avx2(Avx2(())));
+        [avx512, avx2].into_iter().flatten()
     }
 
     /// The largest mesh tested without a tree in this instruction set.
@@ -198,10 +193,6 @@ impl Lanes for Avx512 {
     fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32 {
         unsafe { _mm512_mask_reduce_min_ps(mask as __mmask16, self.load(x, 0)) }
     }
-    #[inline(always)]
-    fn lanes_equal(self, x: &[f32; WIDE], value: f32) -> u32 {
-        self.eq(self.load(x, 0), self.splat(value))
-    }
 }
 
 // SAFETY (every `unsafe` block of this impl): an `Avx2` exists, so the processor has AVX2; the
@@ -258,10 +249,5 @@ impl Lanes for Avx2 {
             rest &= rest - 1;
         }
         min
-    }
-    #[inline(always)]
-    fn lanes_equal(self, x: &[f32; WIDE], value: f32) -> u32 {
-        let v = self.splat(value);
-        self.eq(self.load(x, 0), v) | self.eq(self.load(x, 8), v) << 8
     }
 }
