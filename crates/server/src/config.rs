@@ -2,6 +2,10 @@
 
 use std::time::Duration;
 
+/// Largest body of the endpoints that take JSON (a worker registration, a heartbeat, a release,
+/// a job patch are all far below it).
+pub const MAX_JSON_BODY_BYTES: usize = 64 << 10;
+
 /// Limits on requests, each enforced with a clear 4xx.
 #[derive(Clone, Debug)]
 pub struct Limits {
@@ -14,7 +18,13 @@ pub struct Limits {
     pub max_spp: u32,
     /// Most tiles per job.
     pub max_tiles: u64,
-    /// Largest slice body (bytes).
+    /// Most tasks per job (tiles × passes; see [`crate::scheduler`]). Every task is a row of the
+    /// store and is planned in memory at submission, so this bounds what one submission costs.
+    /// The default, 500,000, takes about 8 MB to plan; it allows for instance a 4K image at
+    /// 200,000 samples per pixel with the default tile size and `max_task_samples`.
+    pub max_tasks: u64,
+    /// Largest slice body (bytes). The slice upload route reads no more; JSON routes read at most
+    /// [`MAX_JSON_BODY_BYTES`], the job submission the scene limit plus 1 MiB.
     pub max_slice_bytes: usize,
     /// Most submitted scenes validated (loaded) at once; further submissions wait their turn.
     /// Loading takes memory up to a few times the scene's size (its triangles, its decoded
@@ -34,6 +44,7 @@ impl Default for Limits {
             max_dimension: 16384,
             max_spp: 1 << 20,
             max_tiles: 65536,
+            max_tasks: 500_000,
             max_slice_bytes: 64 << 20,
             scene_checks: 2,
             max_scene_triangles: 20_000_000,

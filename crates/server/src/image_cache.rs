@@ -3,6 +3,7 @@
 //! times a second decodes and encodes only when the image actually changed.
 
 use crate::error::{ApiError, ApiResult};
+use crate::merge::checked_merge;
 use crate::store::Store;
 use pathfarm_tracer::Accumulation;
 use pathfarm_wire::{decode_slice, SliceLimits};
@@ -123,7 +124,8 @@ fn assemble(
                 },
             )
             .map_err(|e| ApiError::internal(format!("stored tile {}: {e}", row.tile_index)))?;
-            acc.merge(&slice.acc)
+            // Checked (tiles do not overlap, so no pixel sum can overflow; the ray count saturates).
+            checked_merge(&mut acc, &slice.acc)
                 .map_err(|e| ApiError::internal(format!("stored tile {}: {e}", row.tile_index)))?;
         }
     }

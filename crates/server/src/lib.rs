@@ -11,6 +11,7 @@ pub mod dashboard;
 pub mod error;
 pub mod heatmap;
 pub mod image_cache;
+pub mod merge;
 pub mod metrics;
 pub mod monitor;
 pub mod routes;
@@ -65,15 +66,12 @@ impl AppState {
 
 /// The router: every route of [`routes::api_routes`], JSON errors for unknown paths and methods.
 pub fn app(state: AppState) -> Router {
-    let body_limit = state
-        .config
-        .limits
-        .max_scene_bytes
-        .max(state.config.limits.max_slice_bytes)
-        + (1 << 20);
+    // Each route reads at most its own limit (see `routes::body_limit`): a worker's heartbeat
+    // cannot send a scene-sized body, nor a slice upload more than the slice limit.
     let mut router = Router::new();
     for r in routes::api_routes() {
-        router = router.route(r.path, r.handler);
+        let limit = routes::body_limit(&r.method, r.path, &state.config.limits);
+        router = router.route(r.path, r.handler.layer(DefaultBodyLimit::max(limit)));
     }
     router
         .route_layer(axum::middleware::from_fn_with_state(
@@ -91,8 +89,9 @@ pub fn app(state: AppState) -> Router {
                 "method not allowed on this endpoint",
             )
         })
+        .layer(axum::middleware::from_fn(routes::nul_paths))
         .layer(axum::middleware::map_response(error::json_errors))
-        .layer(DefaultBodyLimit::max(body_limit))
+        .layer(DefaultBodyLimit::max(config::MAX_JSON_BODY_BYTES))
         .layer(tower_http::trace::TraceLayer::new_for_http())
         .with_state(state)
 }

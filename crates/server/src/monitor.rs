@@ -38,7 +38,15 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
             Ok(j) => j,
             Err(_) => continue, // deleted meanwhile
         };
-        let err = refresh_estimate(state, &job).await?;
+        // One job whose image cannot be estimated (a stored tile that does not decode, say) must
+        // not keep the monitor from every other job and from the time limits below.
+        let err = match refresh_estimate(state, &job).await {
+            Ok(err) => err,
+            Err(e) => {
+                tracing::warn!(job = %id, error = %e, "cannot estimate the job's error");
+                continue;
+            }
+        };
         if job.state == JobState::Running {
             if let (Some(target), Some(err)) = (job.settings.noise_target, err) {
                 if err <= target {

@@ -18,10 +18,12 @@
 //!
 //! Varints make a slice about a third of the 72 bytes per pixel the accumulation holds in memory,
 //! because the sums of a slice are far below the `u128` range. Decoding checks every length, range
-//! and the checksum, and never panics: the server feeds it untrusted bytes.
+//! and the checksum, and never panics: the server feeds it untrusted bytes. It also refuses pixel
+//! sums that no honest set of `count` samples can produce (see [`max_sample_sums`]), so that the
+//! server's merges of decoded slices stay far below the `u128` range.
 
 use crate::varint::{self, VarintError};
-use pathfarm_tracer::accumulation::{InvalidSample, MAX_RECORDED_INVALID};
+use pathfarm_tracer::accumulation::{InvalidSample, MAX_RECORDED_INVALID, MAX_SAMPLE_VALUE};
 use pathfarm_tracer::{Accumulation, PixelAccum};
 
 pub const SLICE_MAGIC: [u8; 4] = *b"PFSL";
@@ -69,6 +71,16 @@ pub enum SliceError {
     SampleRange { begin: u32, end: u32 },
     #[error("pixel {index} has {count} samples, more than the {range} in the sample range")]
     PixelCount { index: u64, count: u64, range: u32 },
+    #[error(
+        "pixel {index} holds sums that {count} samples cannot reach (a sample adds at most \
+         {channel} to a channel sum and {lum_sq} to the luminance² sum, in units of 2⁻³²)"
+    )]
+    PixelValues {
+        index: u64,
+        count: u64,
+        channel: u128,
+        lum_sq: u128,
+    },
     #[error("{0} recorded invalid samples (at most {MAX_RECORDED_INVALID})")]
     Recorded(u64),
     #[error("{count} invalid samples, more than the {max} samples the slice covers")]
@@ -158,10 +170,52 @@ impl Reader<'_> {
     }
 }
 
-/// Decodes and validates a slice body.
-pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceError> {
-    // The checksum covers everything before the last 8 bytes; check it first so corrupted bodies
-    // fail with the right reason.
+/// The most one valid sample adds to a pixel's sums, in the fixed-point units of the sums:
+/// `(channel, luminance²)`.
+///
+/// The tracer accumulates a sample only when every component is below
+/// [`MAX_SAMPLE_VALUE`] (larger ones are counted as invalid), and each sum only grows with each
+/// component, so the largest sample is every component at the largest `f32` below that value. Its
+/// sums are computed by the tracer's own accumulation code
+/// ([`PixelAccum::add_sample`](pathfarm_tracer::PixelAccum::add_sample)), so this bound follows the
+/// fixed-point scale and the luminance weights wherever they are defined.
+pub fn max_sample_sums() -> (u128, u128) {
+    // The largest accumulated component: the f32 just below MAX_SAMPLE_VALUE (2³² − 2⁸).
+    let largest = f32::from_bits(MAX_SAMPLE_VALUE.to_bits() - 1);
+    // `add_sample` takes the tracer's vector type; `T::default() + c` is the vector with every
+    // component `c`, built without naming that type here.
+    fn splat<T: Default + std::ops::Add<f32, Output = T>>(c: f32) -> T {
+        T::default() + c
+    }
+    let mut p = PixelAccum::default();
+    let accumulated = p.add_sample(splat(largest));
+    debug_assert!(accumulated, "the largest valid sample is accumulated");
+    (p.sum[0].max(p.sum[1]).max(p.sum[2]), p.sum_sq_lum)
+}
+
+/// The fixed-size start of a slice body: its tile and sample range, read without decoding (or
+/// checking) the rest, so that a server can see what an upload claims to be before it allocates
+/// anything for its pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SliceHeader {
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+    pub sample_begin: u32,
+    pub sample_end: u32,
+}
+
+impl SliceHeader {
+    /// `width × height`.
+    pub fn pixels(&self) -> u64 {
+        self.width as u64 * self.height as u64
+    }
+}
+
+/// Reads the header of a slice body (magic, version, flags, tile, sample range) without checking
+/// the checksum or anything after it: a body whose header reads may still fail [`decode_slice`].
+pub fn decode_slice_header(bytes: &[u8]) -> Result<SliceHeader, SliceError> {
     if bytes.len() < 4 || bytes[..4] != SLICE_MAGIC {
         return Err(SliceError::Magic);
     }
@@ -174,26 +228,44 @@ pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceEr
     if flags != 0 {
         return Err(SliceError::Flags(flags));
     }
+    // The fixed fields and the checksum.
     if bytes.len() < 8 + 32 {
         return Err(SliceError::Truncated("header"));
     }
+    Ok(SliceHeader {
+        x0: r.u32("tile")?,
+        y0: r.u32("tile")?,
+        width: r.u32("tile")?,
+        height: r.u32("tile")?,
+        sample_begin: r.u32("sample range")?,
+        sample_end: r.u32("sample range")?,
+    })
+}
+
+/// Decodes and validates a slice body.
+pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceError> {
+    let header = decode_slice_header(bytes)?;
+    // The checksum covers everything before the last 8 bytes; check it before the fields behind
+    // the header so corrupted bodies fail with the right reason.
     let body = &bytes[..bytes.len() - 8];
     let mut sum = [0u8; 8];
     sum.copy_from_slice(&bytes[bytes.len() - 8..]);
     if fnv1a64(body) != u64::from_le_bytes(sum) {
         return Err(SliceError::Checksum);
     }
+    let SliceHeader {
+        x0,
+        y0,
+        width,
+        height,
+        sample_begin: begin,
+        sample_end: end,
+    } = header;
     let mut r = Reader {
         bytes: body,
-        pos: 8,
+        pos: 8 + 24,
     };
-    let (x0, y0, width, height) = (
-        r.u32("tile")?,
-        r.u32("tile")?,
-        r.u32("tile")?,
-        r.u32("tile")?,
-    );
-    let pixels = width as u64 * height as u64;
+    let pixels = header.pixels();
     if pixels == 0 || pixels > limits.max_pixels {
         return Err(SliceError::TileSize {
             width,
@@ -201,7 +273,6 @@ pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceEr
             limit: limits.max_pixels,
         });
     }
-    let (begin, end) = (r.u32("sample range")?, r.u32("sample range")?);
     if begin >= end {
         return Err(SliceError::SampleRange { begin, end });
     }
@@ -250,6 +321,11 @@ pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceEr
     if (body.len() - r.pos) as u64 / 5 < pixels {
         return Err(SliceError::Truncated("pixels"));
     }
+    // A sample adds at most `max_channel` and `max_lum_sq` to the sums of its pixel: larger sums are
+    // a lie. Bounded so, a tile's merged sums stay below its sample count × these (2⁶⁴ and about
+    // 2⁹⁶), far below the u128 range for any job's samples per pixel; the server's merge checks
+    // its additions all the same.
+    let (max_channel, max_lum_sq) = max_sample_sums();
     let mut px = Vec::with_capacity(pixels as usize);
     for index in 0..pixels {
         let count = r.var(64, "pixel count")? as u64;
@@ -266,6 +342,18 @@ pub fn decode_slice(bytes: &[u8], limits: &SliceLimits) -> Result<Slice, SliceEr
             r.var(128, "pixel sum")?,
         ];
         let sum_sq_lum = r.var(128, "pixel sum")?;
+        // count < 2³² (it is at most the range), max_channel < 2⁶⁴: no overflow.
+        let channel_bound = count as u128 * max_channel;
+        if sum.iter().any(|&s| s > channel_bound)
+            || sum_sq_lum > (count as u128).saturating_mul(max_lum_sq)
+        {
+            return Err(SliceError::PixelValues {
+                index,
+                count,
+                channel: max_channel,
+                lum_sq: max_lum_sq,
+            });
+        }
         px.push(PixelAccum {
             sum,
             sum_sq_lum,
@@ -337,5 +425,75 @@ mod tests {
                 count: 0
             })
         );
+    }
+
+    #[test]
+    fn pixel_sums_are_bounded_by_what_their_samples_carry() {
+        let limits = SliceLimits::default();
+        let (channel, lum_sq) = max_sample_sums();
+        // Components below 2³² in units of 2⁻³²: below 2⁶⁴; luminance² about 2⁹⁶.
+        assert_eq!(channel, (1u128 << 64) - (1u128 << 40));
+        assert!(lum_sq > 1u128 << 95 && lum_sq < 1u128 << 97, "{lum_sq}");
+        // Pixel 0 holds 3 samples: 3 of the largest are accepted, one unit more is not.
+        let mut most = slice(3, vec![]);
+        most.acc.pixels[0].sum = [3 * channel; 3];
+        most.acc.pixels[0].sum_sq_lum = 3 * lum_sq;
+        assert_eq!(
+            decode_slice(&encode_slice(&most), &limits),
+            Ok(most.clone())
+        );
+        let lie = |f: &dyn Fn(&mut PixelAccum)| {
+            let mut s = most.clone();
+            f(&mut s.acc.pixels[0]);
+            decode_slice(&encode_slice(&s), &limits)
+        };
+        for f in [
+            &(|p: &mut PixelAccum| p.sum[1] += 1) as &dyn Fn(&mut PixelAccum),
+            &|p| p.sum_sq_lum += 1,
+            // The review's crafted pixel: one sample, a sum of u128::MAX.
+            &|p| {
+                p.count = 1;
+                p.sum[0] = u128::MAX
+            },
+        ] {
+            assert!(matches!(
+                lie(f),
+                Err(SliceError::PixelValues { index: 0, .. })
+            ));
+        }
+        // No sample, no sum.
+        let mut empty = slice(6, vec![]);
+        empty.acc.pixels[0].count = 0;
+        empty.acc.pixels[1].sum_sq_lum = 1;
+        assert!(matches!(
+            decode_slice(&encode_slice(&empty), &limits),
+            Err(SliceError::PixelValues {
+                index: 1,
+                count: 0,
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn the_header_reads_without_the_pixels() {
+        let s = slice(0, vec![]);
+        let bytes = encode_slice(&s);
+        let header = SliceHeader {
+            x0: 10,
+            y0: 20,
+            width: 2,
+            height: 1,
+            sample_begin: 5,
+            sample_end: 8,
+        };
+        assert_eq!(decode_slice_header(&bytes), Ok(header));
+        // Only the fixed part is read: a body cut after it still shows its header.
+        assert_eq!(decode_slice_header(&bytes[..40]), Ok(header));
+        assert_eq!(
+            decode_slice_header(&bytes[..39]),
+            Err(SliceError::Truncated("header"))
+        );
+        assert_eq!(decode_slice_header(b"PFSX"), Err(SliceError::Magic));
     }
 }

@@ -128,6 +128,35 @@ fn rejects_semantic_lies_with_a_valid_checksum() {
 }
 
 #[test]
+fn the_largest_valid_samples_decode_and_larger_sums_do_not() {
+    // The decoder's bound is what the tracer's accumulation adds for its largest valid sample.
+    let largest = f32::from_bits(pathfarm_tracer::accumulation::MAX_SAMPLE_VALUE.to_bits() - 1);
+    let mut p = pathfarm_tracer::PixelAccum::default();
+    for _ in 0..8 {
+        assert!(p.add_sample(Vec3::splat(largest)));
+    }
+    let (channel, lum_sq) = pathfarm_wire::max_sample_sums();
+    assert_eq!(p.sum, [8 * channel; 3]);
+    assert_eq!(p.sum_sq_lum, 8 * lum_sq);
+    let mut slice = sample_slice(); // range [4, 12): 8 samples a pixel
+    slice.acc.pixels[0] = p;
+    let bytes = encode_slice(&slice);
+    assert_eq!(
+        decode_slice(&bytes, &SliceLimits::default()),
+        Ok(slice.clone())
+    );
+    slice.acc.pixels[0].sum[2] += 1;
+    assert!(matches!(
+        decode_slice(&encode_slice(&slice), &SliceLimits::default()),
+        Err(SliceError::PixelValues {
+            index: 0,
+            count: 8,
+            ..
+        })
+    ));
+}
+
+#[test]
 fn random_garbage_never_panics() {
     let bytes = encode_slice(&sample_slice());
     let mut s = 0x1234_5678u64;

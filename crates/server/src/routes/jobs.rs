@@ -1,6 +1,6 @@
 //! Submitting and managing jobs.
 
-use super::json_body;
+use super::{json_body, json_bytes};
 use crate::auth::{ClientAuth, ReadAuth};
 use crate::error::{ApiError, ApiResult};
 use crate::scheduler;
@@ -9,6 +9,7 @@ use crate::store::{now_ms, JobRow, NewJob};
 use crate::AppState;
 use axum::body::Bytes;
 use axum::extract::multipart::{Multipart, MultipartError, MultipartRejection};
+use axum::extract::rejection::BytesRejection;
 use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::Json;
@@ -132,28 +133,26 @@ pub async fn submit(
         ));
     }
     let hash = hex::encode(Sha256::digest(&scene));
-    let (tiles, tasks) = scheduler::plan(
+    // `validate` checked the plan's size against the limits; a large plan still takes a while to
+    // build, so it is built off the async workers.
+    let (width, height, tile_size, spp) = (
         settings.width,
         settings.height,
         settings.tile_size,
         settings.spp,
-        state.config.max_task_samples,
     );
-    if tiles.len() as u64 > state.config.limits.max_tiles {
-        return Err(ApiError::unprocessable(
-            "limit",
-            format!(
-                "{} tiles exceed the limit of {}; use a larger tile_size",
-                tiles.len(),
-                state.config.limits.max_tiles
-            ),
-        ));
-    }
+    let max_task_samples = state.config.max_task_samples;
+    let (tiles, tasks) = tokio::task::spawn_blocking(move || {
+        scheduler::plan(width, height, tile_size, spp, max_task_samples)
+    })
+    .await
+    .map_err(|e| ApiError::internal(format!("job planning: {e}")))?;
     let id = uuid::Uuid::new_v4().simple().to_string();
+    // A file name with a NUL (possible with an RFC 5987 `filename*`) is not kept: no store takes it.
     let name = settings
         .name
         .clone()
-        .or(file_name)
+        .or(file_name.filter(|n| !n.contains('\0')))
         .unwrap_or_else(|| format!("job {}", &id[..8]));
     let samples_planned = settings.width as u64 * settings.height as u64 * settings.spp as u64;
     let task_count = tasks.len() as u64;
@@ -231,6 +230,40 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
     }
     if s.name.as_ref().is_some_and(|n| n.len() > 256) {
         return bad("name is longer than 256 bytes".into());
+    }
+    for (field, value) in [("name", &s.name), ("camera", &s.camera)] {
+        if value.as_deref().is_some_and(|v| v.contains('\0')) {
+            return bad(format!("{field} contains a NUL character"));
+        }
+    }
+    // The plan's size, computed before anything is planned: a submission cannot make the server
+    // allocate more than the limits allow.
+    let (tiles, tasks) = scheduler::plan_size(
+        s.width,
+        s.height,
+        s.tile_size,
+        s.spp,
+        state.config.max_task_samples,
+    );
+    if tiles > l.max_tiles {
+        return Err(ApiError::unprocessable(
+            "limit",
+            format!(
+                "{tiles} tiles exceed the limit of {} tiles per job (max_tiles); use a larger \
+                 tile_size",
+                l.max_tiles
+            ),
+        ));
+    }
+    if tasks > l.max_tasks {
+        return Err(ApiError::unprocessable(
+            "limit",
+            format!(
+                "{tasks} tasks exceed the limit of {} tasks per job (max_tasks); use fewer spp \
+                 or a smaller image",
+                l.max_tasks
+            ),
+        ));
     }
     Ok(())
 }
@@ -348,9 +381,9 @@ pub async fn patch_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
     headers: HeaderMap,
-    body: Bytes,
+    body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<Json<JobView>> {
-    let patch: JobPatch = json_body(&headers, &body)?;
+    let patch: JobPatch = json_body(&headers, &json_bytes(body)?)?;
     let job = state.store.set_priority(&id, patch.priority).await?;
     Ok(Json(view(job, None)))
 }

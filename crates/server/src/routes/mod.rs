@@ -8,9 +8,15 @@ pub(crate) mod metrics;
 mod tasks;
 mod workers;
 
+use crate::config::{Limits, MAX_JSON_BODY_BYTES};
 use crate::error::ApiError;
 use crate::AppState;
-use axum::http::{HeaderMap, Method};
+use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::Request;
+use axum::http::{HeaderMap, Method, StatusCode};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
 use axum::routing::{delete, get, patch, post, MethodRouter};
 use serde::de::DeserializeOwned;
 
@@ -105,4 +111,61 @@ pub(crate) fn json_body<T: DeserializeOwned>(
 /// A task id from the path.
 pub(crate) fn parse_id(s: &str, what: &str) -> Result<i64, ApiError> {
     s.parse().map_err(|_| ApiError::not_found(what, s))
+}
+
+/// A body the framework could not read: over the route's limit (413 `too_large`, saying which
+/// limit), or broken off.
+pub(crate) fn body_error(e: BytesRejection, what: &str, limit: usize) -> ApiError {
+    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too_large",
+            format!("{what} body exceeds the limit of {limit} bytes"),
+        )
+    } else {
+        ApiError::new(e.status(), "bad_request", e.body_text())
+    }
+}
+
+/// A JSON body, read within [`MAX_JSON_BODY_BYTES`] (the route's body limit, see [`crate::app`]).
+pub(crate) fn json_bytes(body: Result<Bytes, BytesRejection>) -> Result<Bytes, ApiError> {
+    body.map_err(|e| body_error(e, "JSON", MAX_JSON_BODY_BYTES))
+}
+
+/// Refuses a string of a request body that holds a NUL character, with 422 `code` naming the
+/// field. SQLite stores such a string but PostgreSQL's `text` cannot (the query fails), so it is
+/// refused here, before the store, and both stores answer alike.
+pub(crate) fn no_nul(code: &'static str, fields: &[(&str, &str)]) -> Result<(), ApiError> {
+    match fields.iter().find(|(_, v)| v.contains('\0')) {
+        Some((field, _)) => Err(ApiError::unprocessable(
+            code,
+            format!("{field} contains a NUL character"),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Middleware: a path with a NUL character (`%00`) names nothing (no id holds one, and
+/// PostgreSQL could not even look it up), so it is answered 404 `not_found` before any handler.
+pub(crate) async fn nul_paths(req: Request, next: Next) -> Response {
+    if req.uri().path().contains("%00") {
+        return ApiError::new(
+            StatusCode::NOT_FOUND,
+            "not_found",
+            "nothing has a NUL character in its path",
+        )
+        .into_response();
+    }
+    next.run(req).await
+}
+
+/// The body limit of a route: the scene limit (plus room for the multipart framing and the
+/// settings) for a job submission, the slice limit for a slice upload, and
+/// [`MAX_JSON_BODY_BYTES`] for the rest (JSON, or no body at all).
+pub fn body_limit(method: &Method, path: &str, limits: &Limits) -> usize {
+    match (method.as_str(), path) {
+        ("POST", "/api/v1/jobs") => limits.max_scene_bytes.saturating_add(1 << 20),
+        ("POST", "/api/v1/tasks/{id}/slices") => limits.max_slice_bytes,
+        _ => MAX_JSON_BODY_BYTES,
+    }
 }

@@ -1,10 +1,11 @@
 //! Worker registration, heartbeats and leases.
 
-use super::json_body;
+use super::{json_body, json_bytes, no_nul};
 use crate::auth::{ReadAuth, WorkerAuth};
 use crate::error::{ApiError, ApiResult};
 use crate::AppState;
 use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -17,9 +18,9 @@ pub async fn register(
     _: WorkerAuth,
     State(state): State<AppState>,
     headers: HeaderMap,
-    body: Bytes,
+    body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<(StatusCode, Json<WorkerRegistered>)> {
-    let reg: WorkerRegistration = json_body(&headers, &body)?;
+    let reg: WorkerRegistration = json_body(&headers, &json_bytes(body)?)?;
     if reg.name.is_empty() || reg.name.len() > 128 || reg.host.len() > 256 || reg.version.len() > 64
     {
         return Err(ApiError::unprocessable(
@@ -27,6 +28,14 @@ pub async fn register(
             "name must be 1..=128 bytes, host at most 256, version at most 64",
         ));
     }
+    no_nul(
+        "invalid_worker",
+        &[
+            ("name", &reg.name),
+            ("host", &reg.host),
+            ("version", &reg.version),
+        ],
+    )?;
     let id = state.store.register_worker(&reg).await?;
     tracing::info!(worker = %id, name = %reg.name, host = %reg.host, threads = reg.threads, "worker registered");
     let lease_ms = state.config.lease_duration.as_millis() as u64;
@@ -61,8 +70,9 @@ pub async fn heartbeat(
     State(state): State<AppState>,
     Path(id): Path<String>,
     headers: HeaderMap,
-    body: Bytes,
+    body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<Json<HeartbeatReply>> {
+    let body = json_bytes(body)?;
     let hb: Heartbeat = if body.is_empty() {
         Heartbeat::default()
     } else {
@@ -70,7 +80,10 @@ pub async fn heartbeat(
     };
     let lease_ms = state.config.lease_duration.as_millis() as u64;
     let lease = match (hb.task_id, hb.lease_token.as_deref()) {
-        (Some(t), Some(tok)) => Some((t, tok)),
+        (Some(t), Some(tok)) => {
+            no_nul("invalid_heartbeat", &[("lease_token", tok)])?;
+            Some((t, tok))
+        }
         (None, None) => None,
         _ => {
             return Err(ApiError::unprocessable(

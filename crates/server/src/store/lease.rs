@@ -180,7 +180,8 @@ async fn pick_sqlite(
 
 /// PostgreSQL, where other servers claim tasks concurrently: the candidates, then per candidate
 /// its next task not locked by another transaction (`SKIP LOCKED`), then that task's job row
-/// locked, in the documented order.
+/// locked, in the documented order; a candidate whose locked row is no longer leasable (paused
+/// or ended meanwhile) is skipped.
 async fn pick_postgres(
     tx: &mut sqlx::Transaction<'static, sqlx::Any>,
     worker_id: &str,
@@ -219,6 +220,14 @@ async fn pick_postgres(
         .bind(task.try_get::<i64, _>("tile_index")?)
         .fetch_one(&mut **tx)
         .await?;
+        // The candidates were read without a lock: the job may have been paused (or ended) since,
+        // by a transaction that committed before this one locked the job's row. The row read
+        // under the lock is current; a job that can no longer be leased is passed over (its task
+        // stays queued, unlocked when this transaction ends).
+        let state = job_state(&job.try_get::<String, _>("job_state")?)?;
+        if job_transition(state, JobEvent::Leased).is_err() {
+            continue;
+        }
         return Ok(Some(Picked {
             job_id,
             task,

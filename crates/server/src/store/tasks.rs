@@ -8,8 +8,9 @@ use super::jobs::job_state;
 use super::statements::Statements;
 use super::{now_ms, Dialect, Store};
 use crate::error::{ApiError, ApiResult};
+use crate::merge::{checked_merge, CheckedMergeError};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState};
-use pathfarm_tracer::Accumulation;
+use pathfarm_tracer::{Accumulation, Tile};
 use pathfarm_wire::api::{JobState, SliceAck};
 use pathfarm_wire::{decode_slice, encode_slice, Slice, SliceLimits};
 use sqlx::Row;
@@ -26,11 +27,49 @@ pub(super) fn task_state(s: &str) -> Result<TaskState, sqlx::Error> {
     TaskState::parse(s).ok_or_else(|| sqlx::Error::Protocol(format!("unknown task state {s:?}")))
 }
 
+fn stale_lease(task_id: i64) -> ApiError {
+    ApiError::conflict(
+        "stale_lease",
+        format!(
+            "the lease token does not hold task {task_id} (the lease expired or was given back)"
+        ),
+    )
+}
+
 pub(super) fn new_token() -> String {
     uuid::Uuid::new_v4().simple().to_string()
 }
 
 impl Store {
+    /// The tile of task `task_id` when `token` holds its lease: 404 `not_found` without such a
+    /// task, 409 `stale_lease` when the token does not hold it (as [`Store::merge_slice`] answers).
+    /// An upload is checked with this before its pixels are decoded, so that only a lease holder
+    /// makes the server allocate for a slice, and no more than its tile takes. The merge checks
+    /// the lease again in its own transaction.
+    pub async fn leased_tile(&self, task_id: i64, token: &str) -> ApiResult<Tile> {
+        let row = sqlx::query(
+            "SELECT t.lease_token, ti.x0, ti.y0, ti.width, ti.height FROM tasks t JOIN tiles ti \
+             ON ti.job_id = t.job_id AND ti.tile_index = t.tile_index WHERE t.id = $1",
+        )
+        .bind(task_id)
+        .fetch_optional(self.pool())
+        .await?;
+        let Some(row) = row else {
+            return Err(ApiError::not_found("task", task_id));
+        };
+        let lease_token: Option<String> = row.try_get("lease_token")?;
+        if lease_token.as_deref() != Some(token) {
+            return Err(stale_lease(task_id));
+        }
+        let g = |c: &str| row.try_get::<i64, _>(c).map(|v| v as u32);
+        Ok(Tile {
+            x0: g("x0")?,
+            y0: g("y0")?,
+            width: g("width")?,
+            height: g("height")?,
+        })
+    }
+
     /// Merges one uploaded slice of a task, exactly once.
     ///
     /// A task's slices are merged in order: an upload must start where the merged part ends
@@ -108,10 +147,7 @@ impl Store {
         let lease_token: Option<String> = task.try_get("lease_token")?;
         let worker_id: Option<String> = task.try_get("worker_id")?;
         if lease_token.as_deref() != Some(token) {
-            return Err(ApiError::conflict(
-                "stale_lease",
-                format!("the lease token does not hold task {task_id} (the lease expired or was given back)"),
-            ));
+            return Err(stale_lease(task_id));
         }
         let (s_begin, s_end) = (slice.sample_begin, slice.sample_end);
         if s_begin < t_begin || s_end > t_end {
@@ -199,9 +235,15 @@ impl Store {
             }
             None => Accumulation::new(x0, y0, tw, th),
         };
-        merged
-            .merge(a)
-            .map_err(|e| ApiError::internal(format!("merge: {e}")))?;
+        // Checked: an overflow refuses this slice (before any write, so a batch goes on) and
+        // leaves the tile as it was, so honest slices still merge into it.
+        checked_merge(&mut merged, a).map_err(|e| match e {
+            CheckedMergeError::Shape(e) => ApiError::internal(format!("merge: {e}")),
+            e => ApiError::unprocessable(
+                "slice_values",
+                format!("slice refused: merging it into task {task_id}'s tile: {e}"),
+            ),
+        })?;
         let new_samples = tile_samples + n as u64;
         // The stored tile is the union of sample ranges that may not be contiguous yet (a later
         // pass can be merged before an earlier one), so its recorded invalid samples can lie beyond
