@@ -500,6 +500,123 @@ fn indexed_and_non_indexed_agree() {
     assert_eq!(pa.mesh.positions, pb.mesh.positions);
 }
 
+/// A document with one mesh of two primitives over the given vertex arrays (POSITION, NORMAL,
+/// TEXCOORD_0, TANGENT on the first only) and index lists, with a normal-mapped material, on two
+/// nodes (one mirrored, rotated and scaled).
+fn two_primitive_doc(
+    pos: &[[f32; 3]],
+    nrm: &[[f32; 3]],
+    uv: &[[f32; 2]],
+    tan: &[[f32; 4]],
+    idx: [&[u32]; 2],
+) -> Doc {
+    let mut d = Doc::new();
+    let p = d.positions(pos);
+    let n = d.floats(nrm);
+    let u = d.floats(uv);
+    let t = d.floats(tan);
+    let i0 = d.indices(idx[0], 5125);
+    let i1 = d.indices(idx[1], 5123);
+    d.mesh(
+        "Pair",
+        j(&format!(
+            r#"[{{"attributes":{{"POSITION":{p},"NORMAL":{n},"TEXCOORD_0":{u},"TANGENT":{t}}},
+                  "indices":{i0},"material":0}},
+                {{"attributes":{{"POSITION":{p},"NORMAL":{n},"TEXCOORD_0":{u}}},"indices":{i1},
+                  "material":0}}]"#
+        )),
+    );
+    let image = png(1, 1, &[128, 128, 255, 255]);
+    d.push(
+        "images",
+        j(&format!(
+            r#"{{"uri":"data:image/png;base64,{}"}}"#,
+            b64(&image)
+        )),
+    );
+    d.push("textures", j(r#"{"source":0}"#));
+    d.push(
+        "materials",
+        j(r#"{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"normalTexture":{"index":0}}"#),
+    );
+    let a = d.node(j(
+        r#"{"mesh":0,"translation":[0.5,-2,3],"rotation":[0.18257419,0.36514837,0.54772256,0.73029674],
+            "scale":[-1.5,2,0.7]}"#,
+    ));
+    d.root(a);
+    let b = d.node(j(r#"{"mesh":0,"scale":[3,0.25,1]}"#));
+    d.root(b);
+    d
+}
+
+#[test]
+fn primitives_keep_only_the_vertices_they_use_with_identical_triangles() {
+    // 30 vertices; the first primitive uses 5 of them (a dense renumbering), the second 4 (6
+    // corners, under a quarter of 30: a hashed one). The same triangles from arrays holding only
+    // the vertices used must give bit-identical results: positions, normals, UVs, given and
+    // generated tangents, under a mirrored and a plain transform.
+    let n = 30;
+    let f = |i: usize, k: f32| ((i as f32 + 1.0) * k).sin();
+    let pos: Vec<[f32; 3]> = (0..n)
+        .map(|i| [2.0 * f(i, 1.3), f(i, 0.7), 0.1 * i as f32])
+        .collect();
+    let nrm: Vec<[f32; 3]> = (0..n)
+        .map(|i| Vec3::new(f(i, 0.3), f(i, 0.9), 1.5).normalize().to_array())
+        .collect();
+    let uv: Vec<[f32; 2]> = (0..n).map(|i| [f(i, 2.1), f(i, 0.4)]).collect();
+    let tan: Vec<[f32; 4]> = (0..n)
+        .map(|i| {
+            let w = if i % 3 == 0 { -1.0 } else { 1.0 };
+            Vec3::new(1.0, f(i, 1.7), 0.2)
+                .normalize()
+                .extend(w)
+                .to_array()
+        })
+        .collect();
+    let idx0 = [7u32, 2, 5, 5, 2, 9, 9, 0, 7];
+    let idx1 = [23u32, 8, 11, 11, 8, 26];
+    let full = two_primitive_doc(&pos, &nrm, &uv, &tan, [&idx0, &idx1]);
+
+    // The same, each attribute array cut down to the vertices used and the indices renumbered.
+    let used: Vec<u32> = [7, 2, 5, 9, 0, 23, 8, 11, 26].to_vec();
+    let renumber = |idx: &[u32]| -> Vec<u32> {
+        idx.iter()
+            .map(|v| used.iter().position(|u| u == v).unwrap() as u32)
+            .collect()
+    };
+    let pos_c: Vec<[f32; 3]> = used.iter().map(|&u| pos[u as usize]).collect();
+    let nrm_c: Vec<[f32; 3]> = used.iter().map(|&u| nrm[u as usize]).collect();
+    let uv_c: Vec<[f32; 2]> = used.iter().map(|&u| uv[u as usize]).collect();
+    let tan_c: Vec<[f32; 4]> = used.iter().map(|&u| tan[u as usize]).collect();
+    let cut = two_primitive_doc(
+        &pos_c,
+        &nrm_c,
+        &uv_c,
+        &tan_c,
+        [&renumber(&idx0), &renumber(&idx1)],
+    );
+
+    let (a, b) = (parts(&full.gltf()), parts(&cut.glb()));
+    assert_eq!(a.mesh.len(), 10, "5 triangles on each of 2 nodes");
+    assert_eq!(a.mesh.positions, b.mesh.positions);
+    assert_eq!(a.mesh.material, b.mesh.material);
+    assert_eq!(a.mesh.normals, b.mesh.normals);
+    assert_eq!(a.mesh.uv0, b.mesh.uv0);
+    assert_eq!(a.mesh.tangents, b.mesh.tangents);
+    assert!(a.mesh.normals.is_some() && a.mesh.uv0.is_some() && a.mesh.tangents.is_some());
+    // And the corners are the vertices the indices name, transformed (two swapped: mirrored).
+    let world = glam::Mat4::from_scale_rotation_translation(
+        Vec3::new(-1.5, 2.0, 0.7),
+        glam::Quat::from_xyzw(0.18257419, 0.36514837, 0.5477226, 0.73029674),
+        Vec3::new(0.5, -2.0, 3.0),
+    );
+    let at = |v: usize| world.transform_point3(Vec3::from(pos[v]));
+    assert_tri(
+        a.mesh.positions[0],
+        [at(7).to_array(), at(5).to_array(), at(2).to_array()],
+    );
+}
+
 #[test]
 fn index_component_types() {
     let quad = [

@@ -3,17 +3,99 @@
 //! read; components are decoded little-endian without alignment assumptions. Sparse accessors are
 //! supported. Integer components of vertex attributes (KHR_mesh_quantization) are converted to float,
 //! honouring `normalized`.
+//!
+//! The mesh builder reads through a cache: each accessor is decoded once however many primitives
+//! use it (and accessors defined alike, the same bytes of the same view, share one decode), so what
+//! a load decodes is bounded by the distinct accessors, not by the primitives that name them. Many
+//! distinct accessors can still overlap the same bytes; `MAX_READ_OVERLAP` bounds that.
 
+use super::components::{
+    component, component_name, component_size, index_at, type_components, type_name,
+};
 use super::error::{label, GltfError};
 use super::resources::Resources;
+use glam::{Vec2, Vec3, Vec4};
 use gltf::json;
 use json::accessor::{ComponentType, Type};
 use json::validation::Checked;
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
+use std::collections::HashMap;
+use std::rc::Rc;
 
 /// Accessors without a buffer view are zero-filled from nothing in the file; more elements than this
 /// (over the whole load) would let a tiny file claim gigabytes.
 const MAX_ZERO_FILLED: u64 = 1 << 24;
+
+/// The vertex data read (the bytes of the file's encoding, each distinct accessor once) may total at
+/// most this many times the bytes of the buffers fetched, plus [`READ_ALLOWANCE`]. A file reads each
+/// byte once, or a few times where accessors share data; twenty thousand accessors over the same
+/// megabyte would otherwise decode twenty gigabytes.
+const MAX_READ_OVERLAP: u64 = 4;
+
+/// Vertex data bytes every load may read beyond [`MAX_READ_OVERLAP`] × its buffers.
+const READ_ALLOWANCE: u64 = 64 << 20;
+
+/// What an accessor is read as.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Kind {
+    Vec2,
+    Vec3,
+    Vec4,
+    Indices,
+}
+
+/// A cache key: the accessor, or for an accessor with a buffer view and no sparse part, what it reads.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+enum Key {
+    Accessor(usize, Kind),
+    Data {
+        view: usize,
+        offset: u64,
+        count: u64,
+        ty: &'static str,
+        ct: &'static str,
+        normalized: bool,
+        kind: Kind,
+    },
+}
+
+/// A decoded accessor, shared by the primitives that use it.
+#[derive(Clone)]
+enum Decoded {
+    Vec2(Rc<[Vec2]>),
+    Vec3(Rc<[Vec3]>),
+    Vec4(Rc<[Vec4]>),
+    Indices(Rc<[u32]>),
+}
+
+/// Element types the cache holds.
+trait Element: Sized {
+    const KIND: Kind;
+    fn wrap(v: Rc<[Self]>) -> Decoded;
+    fn unwrap(d: &Decoded) -> Option<Rc<[Self]>>;
+}
+
+macro_rules! element {
+    ($t:ty, $variant:ident) => {
+        impl Element for $t {
+            const KIND: Kind = Kind::$variant;
+            fn wrap(v: Rc<[Self]>) -> Decoded {
+                Decoded::$variant(v)
+            }
+            fn unwrap(d: &Decoded) -> Option<Rc<[Self]>> {
+                match d {
+                    Decoded::$variant(v) => Some(v.clone()),
+                    _ => None,
+                }
+            }
+        }
+    };
+}
+
+element!(Vec2, Vec2);
+element!(Vec3, Vec3);
+element!(Vec4, Vec4);
+element!(u32, Indices);
 
 /// Reads accessors of one document.
 pub(crate) struct Accessors<'r, 'a> {
@@ -21,101 +103,11 @@ pub(crate) struct Accessors<'r, 'a> {
     res: &'r Resources<'a>,
     /// Zero-filled elements read so far.
     zero_filled: Cell<u64>,
-}
-
-fn component_size(ct: ComponentType) -> usize {
-    match ct {
-        ComponentType::I8 | ComponentType::U8 => 1,
-        ComponentType::I16 | ComponentType::U16 => 2,
-        ComponentType::U32 | ComponentType::F32 => 4,
-    }
-}
-
-fn type_components(ty: Type) -> usize {
-    match ty {
-        Type::Scalar => 1,
-        Type::Vec2 => 2,
-        Type::Vec3 => 3,
-        Type::Vec4 | Type::Mat2 => 4,
-        Type::Mat3 => 9,
-        Type::Mat4 => 16,
-    }
-}
-
-fn type_name(ty: Type) -> &'static str {
-    match ty {
-        Type::Scalar => "SCALAR",
-        Type::Vec2 => "VEC2",
-        Type::Vec3 => "VEC3",
-        Type::Vec4 => "VEC4",
-        Type::Mat2 => "MAT2",
-        Type::Mat3 => "MAT3",
-        Type::Mat4 => "MAT4",
-    }
-}
-
-fn component_name(ct: ComponentType) -> &'static str {
-    match ct {
-        ComponentType::I8 => "BYTE",
-        ComponentType::U8 => "UNSIGNED_BYTE",
-        ComponentType::I16 => "SHORT",
-        ComponentType::U16 => "UNSIGNED_SHORT",
-        ComponentType::U32 => "UNSIGNED_INT",
-        ComponentType::F32 => "FLOAT",
-    }
-}
-
-/// One component at `at`, as f32 (normalized integers per the glTF rules). `None` if out of bounds.
-#[inline]
-fn component(bytes: &[u8], at: usize, ct: ComponentType, normalized: bool) -> Option<f32> {
-    let b = bytes.get(at..at.checked_add(component_size(ct))?)?;
-    Some(match ct {
-        ComponentType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-        ComponentType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
-        ComponentType::I8 => {
-            let v = b[0] as i8 as f32;
-            if normalized {
-                (v / 127.0).max(-1.0)
-            } else {
-                v
-            }
-        }
-        ComponentType::U8 => {
-            let v = b[0] as f32;
-            if normalized {
-                v / 255.0
-            } else {
-                v
-            }
-        }
-        ComponentType::I16 => {
-            let v = i16::from_le_bytes([b[0], b[1]]) as f32;
-            if normalized {
-                (v / 32767.0).max(-1.0)
-            } else {
-                v
-            }
-        }
-        ComponentType::U16 => {
-            let v = u16::from_le_bytes([b[0], b[1]]) as f32;
-            if normalized {
-                v / 65535.0
-            } else {
-                v
-            }
-        }
-    })
-}
-
-#[inline]
-fn index_at(bytes: &[u8], at: usize, ct: ComponentType) -> Option<u32> {
-    let b = bytes.get(at..at.checked_add(component_size(ct))?)?;
-    match ct {
-        ComponentType::U8 => Some(b[0] as u32),
-        ComponentType::U16 => Some(u16::from_le_bytes([b[0], b[1]]) as u32),
-        ComponentType::U32 => Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-        _ => None,
-    }
+    /// Bytes of vertex data read from buffer views so far (see [`MAX_READ_OVERLAP`]).
+    read_bytes: Cell<u64>,
+    /// Elements decoded so far (vertex attributes and indices).
+    decoded: Cell<u64>,
+    cache: RefCell<HashMap<Key, Decoded>>,
 }
 
 /// A located, bounds-checked accessor.
@@ -136,6 +128,86 @@ impl<'r, 'a> Accessors<'r, 'a> {
             root,
             res,
             zero_filled: Cell::new(0),
+            read_bytes: Cell::new(0),
+            decoded: Cell::new(0),
+            cache: RefCell::new(HashMap::new()),
+        }
+    }
+
+    /// Elements decoded so far (each cached accessor once).
+    #[cfg(test)]
+    pub fn decoded(&self) -> u64 {
+        self.decoded.get()
+    }
+
+    /// Accessor `index` as 2-vectors (see [`Self::read_vec`]), decoded once and shared.
+    pub fn vec2(&self, index: usize, usage: &str) -> Result<Rc<[Vec2]>, GltfError> {
+        self.cached(index, || {
+            Ok(self
+                .read_vec::<2>(index, usage)?
+                .into_iter()
+                .map(Vec2::from)
+                .collect())
+        })
+    }
+
+    /// Accessor `index` as 3-vectors (see [`Self::read_vec`]), decoded once and shared.
+    pub fn vec3(&self, index: usize, usage: &str) -> Result<Rc<[Vec3]>, GltfError> {
+        self.cached(index, || {
+            Ok(self
+                .read_vec::<3>(index, usage)?
+                .into_iter()
+                .map(Vec3::from)
+                .collect())
+        })
+    }
+
+    /// Accessor `index` as 4-vectors (see [`Self::read_vec`]), decoded once and shared.
+    pub fn vec4(&self, index: usize, usage: &str) -> Result<Rc<[Vec4]>, GltfError> {
+        self.cached(index, || {
+            Ok(self
+                .read_vec::<4>(index, usage)?
+                .into_iter()
+                .map(Vec4::from)
+                .collect())
+        })
+    }
+
+    /// Index accessor `index` (see [`Self::read_indices`]), decoded once and shared.
+    pub fn indices(&self, index: usize, usage: &str) -> Result<Rc<[u32]>, GltfError> {
+        self.cached(index, || Ok(self.read_indices(index, usage)?.into()))
+    }
+
+    fn cached<T: Element>(
+        &self,
+        index: usize,
+        read: impl FnOnce() -> Result<Rc<[T]>, GltfError>,
+    ) -> Result<Rc<[T]>, GltfError> {
+        let key = self.key(index, T::KIND);
+        if let Some(v) = self.cache.borrow().get(&key).and_then(T::unwrap) {
+            return Ok(v);
+        }
+        // Only successful reads are cached: a failed one ends the load.
+        let v = read()?;
+        self.cache.borrow_mut().insert(key, T::wrap(v.clone()));
+        Ok(v)
+    }
+
+    fn key(&self, index: usize, kind: Kind) -> Key {
+        let Some(acc) = self.root.accessors.get(index) else {
+            return Key::Accessor(index, kind);
+        };
+        match (acc.buffer_view, &acc.sparse, acc.type_, acc.component_type) {
+            (Some(view), None, Checked::Valid(ty), Checked::Valid(ct)) => Key::Data {
+                view: view.value(),
+                offset: acc.byte_offset.map_or(0, |o| o.0),
+                count: acc.count.0,
+                ty: type_name(ty),
+                ct: component_name(ct.0),
+                normalized: acc.normalized,
+                kind,
+            },
+            _ => Key::Accessor(index, kind),
         }
     }
 
@@ -296,6 +368,27 @@ impl<'r, 'a> Accessors<'r, 'a> {
                 ),
             ));
         }
+        if loc.has_view {
+            let elem = (N * component_size(loc.ct)) as u64;
+            let read = self
+                .read_bytes
+                .get()
+                .saturating_add(elem.saturating_mul(loc.count as u64));
+            let fetched = self.res.fetched_bytes();
+            let allowed = fetched
+                .saturating_mul(MAX_READ_OVERLAP)
+                .saturating_add(READ_ALLOWANCE);
+            if read > allowed {
+                return Err(GltfError::Limit(format!(
+                    "{}: the accessors read for vertex data total {read} bytes, more than \
+                     {MAX_READ_OVERLAP} × the {fetched} bytes of the buffers + {READ_ALLOWANCE} \
+                     (too many accessors over the same data)",
+                    self.label(index, usage)
+                )));
+            }
+            self.read_bytes.set(read);
+        }
+        self.decoded.set(self.decoded.get() + loc.count as u64);
         let mut out = vec![[0.0f32; N]; loc.count];
         if loc.has_view {
             let csize = component_size(loc.ct);
@@ -411,6 +504,7 @@ impl<'r, 'a> Accessors<'r, 'a> {
                 ),
             ));
         }
+        self.decoded.set(self.decoded.get() + loc.count as u64);
         let mut out = vec![0u32; loc.count];
         if loc.has_view {
             for (i, v) in out.iter_mut().enumerate() {

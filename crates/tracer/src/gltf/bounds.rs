@@ -8,15 +8,11 @@
 //! unrelated entry, i.e. a corrupt tree or an out-of-bounds panic (found by the `gltf_load` fuzz
 //! target, see docs/fuzzing.md). Bounding coordinates keeps every area and cost finite.
 
-use super::accessors::Accessors;
 use super::error::GltfError;
 use super::mesh::primitive_label;
-use super::nodes::{node_label, Instance};
-use crate::geometry::Mesh;
+use super::nodes::node_label;
 use glam::Vec3;
 use gltf::json;
-use json::mesh::{Mode, Semantic};
-use json::validation::Checked;
 
 /// Largest absolute world-space vertex coordinate (in scene units, metres in glTF): a million
 /// kilometres. The scene's half surface area is then at most 3·(2·10¹²)² ≈ 1.2·10²⁵, and a BVH over
@@ -24,66 +20,36 @@ use json::validation::Checked;
 /// `f32::MAX` (3.4·10³⁸). `f32` has no precision left for ray tracing at this scale long before.
 pub const MAX_COORDINATE: f32 = 1e12;
 
-fn outside(v: Vec3) -> bool {
+pub(crate) fn outside(v: Vec3) -> bool {
     v.abs().max_element() > MAX_COORDINATE
 }
 
-/// Refuses a scene whose triangles reach beyond ±[`MAX_COORDINATE`], naming the node and primitive.
-pub(crate) fn check(
-    root: &json::Root,
-    acc: &Accessors,
-    instances: &[Instance],
-    mesh: &Mesh,
-) -> Result<(), GltfError> {
-    let Some(corner) = mesh.positions.iter().flatten().find(|v| outside(**v)) else {
+/// A triangle corner beyond ±[`MAX_COORDINATE`], and the node and primitive that put it there (the
+/// mesh builder records the first one it keeps).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Far {
+    pub node: usize,
+    pub mesh: usize,
+    pub primitive: usize,
+    pub corner: Vec3,
+}
+
+/// Refuses a scene with a triangle reaching beyond ±[`MAX_COORDINATE`], naming the node and
+/// primitive.
+pub(crate) fn check(root: &json::Root, far: Option<Far>) -> Result<(), GltfError> {
+    let Some(far) = far else {
         return Ok(());
     };
-    let limit = |object: String, v: Vec3| {
-        GltfError::Limit(format!(
-            "{object}: a vertex lies at ({:e}, {:e}, {:e}) in world space, beyond ±{MAX_COORDINATE:e} \
-             (scale the scene down)",
-            v.x, v.y, v.z
-        ))
-    };
-    // Only on failure: find the instance and primitive that put this corner there. The mesh keeps no
-    // record of where its triangles came from, so re-read the positions as the mesh builder does.
-    for inst in instances {
-        let Some(m) = root.nodes.get(inst.node).and_then(|n| n.mesh) else {
-            continue;
-        };
-        let Some(prims) = root.meshes.get(m.value()).map(|m| &m.primitives) else {
-            continue;
-        };
-        for (p, prim) in prims.iter().enumerate() {
-            let triangles = matches!(
-                prim.mode,
-                Checked::Valid(Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan)
-            );
-            let Some(pos) = prim.attributes.get(&Checked::Valid(Semantic::Positions)) else {
-                continue;
-            };
-            if !triangles {
-                continue;
-            }
-            let Ok(points) = acc.read_vec::<3>(pos.value(), "POSITION") else {
-                continue;
-            };
-            let far = points.iter().map(|v| {
-                inst.world
-                    .transform_point3(Vec3::from(*v).as_dvec3())
-                    .as_vec3()
-            });
-            if let Some(v) = far.into_iter().find(|v| outside(*v)) {
-                let object = format!(
-                    "{}, {}",
-                    node_label(root, inst.node),
-                    primitive_label(root, m.value(), p)
-                );
-                return Err(limit(object, v));
-            }
-        }
-    }
-    Err(limit("the scene".to_string(), *corner))
+    let v = far.corner;
+    Err(GltfError::Limit(format!(
+        "{}, {}: a vertex lies at ({:e}, {:e}, {:e}) in world space, beyond ±{MAX_COORDINATE:e} \
+         (scale the scene down)",
+        node_label(root, far.node),
+        primitive_label(root, far.mesh, far.primitive),
+        v.x,
+        v.y,
+        v.z
+    )))
 }
 
 #[cfg(test)]

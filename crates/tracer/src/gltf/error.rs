@@ -2,6 +2,9 @@
 //! has one, its name) and says what is wrong with it.
 
 use crate::scene::SceneError;
+use std::collections::hash_map::DefaultHasher;
+use std::collections::HashSet;
+use std::hash::{Hash, Hasher};
 
 /// Why a glTF file could not be loaded.
 #[derive(Debug, thiserror::Error)]
@@ -66,20 +69,79 @@ pub(crate) fn label(kind: &str, index: usize, name: Option<&str>) -> String {
     }
 }
 
-/// Warnings collected during a load, each reported once (and logged with `tracing::warn!`).
+/// The most distinct warnings a load reports one by one; the rest are counted and summed up in one
+/// last warning. (A file of a million primitives can make a million distinct warnings.)
+pub(crate) const MAX_WARNINGS: usize = 100;
+
+/// Warnings collected during a load, each reported once (and logged with `tracing::warn!`): the
+/// first [`MAX_WARNINGS`] distinct messages, then one "… and N more warnings" for the rest.
 #[derive(Debug, Default)]
-pub(crate) struct Warnings(Vec<String>);
+pub(crate) struct Warnings {
+    /// The reported messages, in order.
+    kept: Vec<String>,
+    /// The same messages, for de-duplication.
+    seen: HashSet<String>,
+    /// Hashes of the distinct messages past the cap (not kept, only counted).
+    more: HashSet<u64>,
+}
 
 impl Warnings {
     pub fn once(&mut self, message: impl Into<String>) {
         let message = message.into();
-        if !self.0.contains(&message) {
+        if self.seen.contains(&message) {
+            return;
+        }
+        if self.kept.len() < MAX_WARNINGS {
             tracing::warn!("glTF: {message}");
-            self.0.push(message);
+            self.seen.insert(message.clone());
+            self.kept.push(message);
+        } else {
+            let mut h = DefaultHasher::new();
+            message.hash(&mut h);
+            self.more.insert(h.finish());
         }
     }
 
     pub fn into_vec(self) -> Vec<String> {
-        self.0
+        let mut out = self.kept;
+        if !self.more.is_empty() {
+            let n = self.more.len();
+            let message = format!(
+                "… and {n} more warning{} (not shown)",
+                if n == 1 { "" } else { "s" }
+            );
+            tracing::warn!("glTF: {message}");
+            out.push(message);
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn warnings_are_deduplicated_and_capped() {
+        let mut w = Warnings::default();
+        for _ in 0..2 {
+            for i in 0..100_000 {
+                w.once(format!("primitive {i}: something ignored"));
+            }
+            w.once("the same warning");
+        }
+        let v = w.into_vec();
+        assert_eq!(v.len(), MAX_WARNINGS + 1);
+        assert_eq!(v[0], "primitive 0: something ignored");
+        assert_eq!(v[MAX_WARNINGS - 1], "primitive 99: something ignored");
+        // 99,900 further distinct primitives plus "the same warning", each counted once.
+        assert_eq!(v[MAX_WARNINGS], "… and 99901 more warnings (not shown)");
+
+        let mut w = Warnings::default();
+        for _ in 0..3 {
+            w.once("a");
+            w.once("b");
+        }
+        assert_eq!(w.into_vec(), ["a", "b"]);
     }
 }

@@ -8,12 +8,20 @@
 //! non-finite corners after the transform) are dropped and counted as they are emitted, so a file of
 //! millions of them costs no memory per triangle beyond its own index data.
 //!
+//! Work is bounded by the distinct accessors and the triangles, not vertices × primitives ×
+//! instances: accessors are decoded once however many primitives share them (see `accessors`), and
+//! a primitive whose indices use only some of its accessor's vertices keeps only those (renumbered in
+//! the order its triangles first use them; the triangles, their order and their values are the same),
+//! so each instance transforms only the vertices its triangles use.
+//!
 //! Tangents: a primitive whose material has a normal map but no TANGENT attribute gets a per-triangle
 //! tangent from its UVs (the standard dP/du, with the sign chosen so that cross(N, T)·w points to
 //! decreasing v, "up" in the image, as glTF specifies). This is not MikkTSpace: normal maps baked
 //! against MikkTSpace tangents show small differences across smooth-shaded edges.
 
 use super::accessors::Accessors;
+use super::bounds::{outside, Far};
+use super::compact::{compact, gather};
 use super::error::{label, GltfError, Warnings};
 use crate::geometry::{renderable, Mesh};
 use glam::{DMat3, DMat4, Vec2, Vec3, Vec4};
@@ -134,15 +142,17 @@ pub(crate) fn declared_triangles(root: &json::Root, mesh: usize) -> u64 {
         .fold(0u64, u64::saturating_add)
 }
 
-/// One primitive's local data.
+/// One primitive's local data: the vertices its triangles use (the decoded accessors themselves,
+/// shared, when they use all of them).
 #[derive(Debug)]
 struct Primitive {
     info: PrimitiveInfo,
+    /// Corners as indices into the arrays below.
     triangles: Vec<[u32; 3]>,
-    positions: Vec<Vec3>,
-    normals: Option<Vec<Vec3>>,
-    uv: [Option<Vec<Vec2>>; 2],
-    tangents: Option<Vec<Vec4>>,
+    positions: Rc<[Vec3]>,
+    normals: Option<Rc<[Vec3]>>,
+    uv: [Option<Rc<[Vec2]>>; 2],
+    tangents: Option<Rc<[Vec4]>>,
 }
 
 /// Accumulates the scene's triangles.
@@ -152,6 +162,11 @@ pub(crate) struct MeshBuilder<'r, 'a> {
     mesh: Mesh,
     /// Triangles dropped as degenerate.
     dropped: usize,
+    /// Vertices transformed so far (positions, counted once per vertex and instance).
+    transformed: u64,
+    /// The first kept triangle corner beyond ±`MAX_COORDINATE`, and where it came from.
+    far: Option<Far>,
+    /// Each mesh's primitives that have triangles.
     cache: HashMap<usize, Rc<Vec<Primitive>>>,
 }
 
@@ -169,18 +184,28 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             needs,
             mesh,
             dropped: 0,
+            transformed: 0,
+            far: None,
             cache: HashMap::new(),
         }
     }
 
-    /// The triangles, and how many were dropped as degenerate.
-    pub fn finish(self) -> (Mesh, usize) {
-        (self.mesh, self.dropped)
+    /// Vertices transformed so far (one per vertex a primitive uses, per instance).
+    #[cfg(test)]
+    pub fn transformed(&self) -> u64 {
+        self.transformed
     }
 
-    /// Adds every triangle primitive of mesh `mesh` under the world transform `world`.
+    /// The triangles, how many were dropped as degenerate, and the first kept corner beyond
+    /// ±`MAX_COORDINATE` (with the node and primitive it came from).
+    pub fn finish(self) -> (Mesh, usize, Option<Far>) {
+        (self.mesh, self.dropped, self.far)
+    }
+
+    /// Adds every triangle primitive of mesh `mesh` under the world transform `world` of node `node`.
     pub fn add_instance(
         &mut self,
+        node: usize,
         mesh: usize,
         world: &DMat4,
         material: &dyn Fn(Option<usize>) -> PrimitiveMaterial,
@@ -193,7 +218,11 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 let infos = scan_mesh(self.acc.root(), mesh, &mut scratch);
                 let mut prims = Vec::with_capacity(infos.len());
                 for info in infos {
-                    prims.push(self.read_primitive(mesh, info, warnings)?);
+                    let p = self.read_primitive(mesh, info, warnings)?;
+                    // One with no triangles costs nothing per instance.
+                    if !p.triangles.is_empty() {
+                        prims.push(p);
+                    }
                 }
                 let prims = Rc::new(prims);
                 self.cache.insert(mesh, prims.clone());
@@ -209,7 +238,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 )));
             }
             let m = material(p.info.material);
-            self.emit(p, world, m, mesh, warnings);
+            self.emit(p, world, m, node, mesh, warnings);
         }
         Ok(())
     }
@@ -237,12 +266,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         let Some(pos_index) = attr(Semantic::Positions) else {
             return Err(perr("has no POSITION attribute".into()));
         };
-        let positions: Vec<Vec3> = self
-            .acc
-            .read_vec::<3>(pos_index, &format!("POSITION of {plabel}"))?
-            .into_iter()
-            .map(Vec3::from)
-            .collect();
+        let positions = self.acc.vec3(pos_index, &format!("POSITION of {plabel}"))?;
         let n = positions.len();
         let same_count = |index: usize, name: &str, got: usize| -> Result<(), GltfError> {
             if got == n {
@@ -258,50 +282,60 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         };
         let mut normals = None;
         if let (true, Some(i)) = (self.needs.normals, attr(Semantic::Normals)) {
-            let v = self.acc.read_vec::<3>(i, &format!("NORMAL of {plabel}"))?;
+            let v = self.acc.vec3(i, &format!("NORMAL of {plabel}"))?;
             same_count(i, "NORMAL", v.len())?;
-            normals = Some(v.into_iter().map(Vec3::from).collect());
+            normals = Some(v);
         }
-        let mut uv: [Option<Vec<Vec2>>; 2] = [None, None];
+        let mut uv: [Option<Rc<[Vec2]>>; 2] = [None, None];
         for (set, slot) in uv.iter_mut().enumerate() {
             if let (true, Some(i)) = (self.needs.uv[set], attr(Semantic::TexCoords(set as u32))) {
                 let name = format!("TEXCOORD_{set}");
-                let v = self.acc.read_vec::<2>(i, &format!("{name} of {plabel}"))?;
+                let v = self.acc.vec2(i, &format!("{name} of {plabel}"))?;
                 same_count(i, &name, v.len())?;
-                *slot = Some(v.into_iter().map(Vec2::from).collect());
+                *slot = Some(v);
             }
         }
         let mut tangents = None;
         if let (true, Some(i)) = (self.needs.tangents, attr(Semantic::Tangents)) {
-            let v = self.acc.read_vec::<4>(i, &format!("TANGENT of {plabel}"))?;
+            let v = self.acc.vec4(i, &format!("TANGENT of {plabel}"))?;
             same_count(i, "TANGENT", v.len())?;
-            tangents = Some(v.into_iter().map(Vec4::from).collect());
+            tangents = Some(v);
         }
         let Ok(n32) = u32::try_from(n) else {
             return Err(perr(format!("{n} vertices are too many")));
         };
-        let indices: Vec<u32> = match prim.indices {
+        let mut triangles = match prim.indices {
             Some(i) => {
                 let i = i.value();
-                let idx = self.acc.read_indices(i, &format!("indices of {plabel}"))?;
+                let idx = self.acc.indices(i, &format!("indices of {plabel}"))?;
                 if let Some(&bad) = idx.iter().find(|&&v| v >= n32) {
                     return Err(perr(format!(
                         "index {bad} out of range (accessor {pos_index} has {n} vertices)"
                     )));
                 }
-                idx
+                assemble(&idx, prim.mode, &plabel, warnings)
             }
-            None => (0..n32).collect(),
+            None => {
+                let idx: Vec<u32> = (0..n32).collect();
+                assemble(&idx, prim.mode, &plabel, warnings)
+            }
         };
-        let triangles = assemble(&indices, prim.mode, &plabel, warnings);
-        Ok(Primitive {
+        let mut p = Primitive {
             info,
-            triangles,
+            triangles: Vec::new(),
             positions,
             normals,
             uv,
             tangents,
-        })
+        };
+        if let Some(used) = compact(&mut triangles, n) {
+            p.positions = gather(&p.positions, &used);
+            p.normals = p.normals.map(|v| gather(&v, &used));
+            p.uv = p.uv.map(|v| v.map(|v| gather(&v, &used)));
+            p.tangents = p.tangents.map(|v| gather(&v, &used));
+        }
+        p.triangles = triangles;
+        Ok(p)
     }
 
     fn emit(
@@ -309,9 +343,11 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         p: &Primitive,
         world: &DMat4,
         mat: PrimitiveMaterial,
+        node: usize,
         mesh: usize,
         warnings: &mut Warnings,
     ) {
+        self.transformed += p.positions.len() as u64;
         let m3 = DMat3::from_mat4(*world);
         let det = m3.determinant();
         let flip = det < 0.0;
@@ -358,6 +394,16 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             if !renderable(&pos) {
                 self.dropped += 1;
                 continue;
+            }
+            if self.far.is_none() {
+                if let Some(&corner) = pos.iter().find(|v| outside(**v)) {
+                    self.far = Some(Far {
+                        node,
+                        mesh,
+                        primitive: p.info.primitive,
+                        corner,
+                    });
+                }
             }
             self.mesh.positions.push(pos);
             self.mesh.material.push(mat.index);

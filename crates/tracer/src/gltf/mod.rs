@@ -40,6 +40,11 @@
 //! - `extensionsRequired` naming anything outside [`SUPPORTED_EXTENSIONS`] is an error.
 //! - Triangles reaching beyond ±[`MAX_COORDINATE`] in world space are an error (the BVH's `f32`
 //!   surface-area arithmetic would overflow).
+//! - Vertex accessors are decoded once each, however many primitives share them; distinct accessors
+//!   that together read more than 4 × the bytes of the buffers + 64 MiB (many accessors over the
+//!   same data) are an error naming the accessor and primitive. Each instance transforms only the
+//!   vertices its triangles use. The loader's warnings stop after the first 100 distinct ones, with
+//!   one "… and N more warnings" for the rest.
 //! - Ignored with one warning each (in `SceneParts::warnings` and through `tracing::warn!`):
 //!   unsupported `extensionsUsed` (e.g. KHR_materials_clearcoat, _sheen, _unlit, KHR_draco as
 //!   optional), skins (bind pose), morph targets (base geometry), animations (rest pose), COLOR_0,
@@ -55,6 +60,8 @@
 mod accessors;
 mod bounds;
 mod camera;
+mod compact;
+mod components;
 mod document;
 mod error;
 mod glb;
@@ -275,14 +282,19 @@ fn load_parts_unguarded(
     let mut punctual_lights = Vec::new();
     for inst in &instances {
         if let Some(m) = mesh_of(inst.node) {
-            builder.add_instance(m, &inst.world, &material_of, &mut warnings)?;
+            builder.add_instance(inst.node, m, &inst.world, &material_of, &mut warnings)?;
         }
         if let Some(light) = lights::node_light(root, inst.node, &inst.world, &mut warnings)? {
             punctual_lights.push(light);
         }
     }
-    let (mesh, degenerate_dropped) = builder.finish();
-    bounds::check(root, &acc, &instances, &mesh)?;
+    #[cfg(test)]
+    tests::LAST_WORK.set(Work {
+        decoded: acc.decoded(),
+        transformed: builder.transformed(),
+    });
+    let (mesh, degenerate_dropped, far) = builder.finish();
+    bounds::check(root, far)?;
     let camera = camera::choose(root, &instances, options.camera.as_deref())?;
     Ok(SceneParts {
         mesh,
@@ -293,4 +305,180 @@ fn load_parts_unguarded(
         warnings: warnings.into_vec(),
         degenerate_dropped,
     })
+}
+
+/// What a load did, for tests: elements decoded and vertices transformed.
+#[cfg(test)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Work {
+    decoded: u64,
+    transformed: u64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use base64::Engine as _;
+    use std::cell::Cell;
+
+    thread_local! {
+        /// The work of the last load on this thread that got as far as building its mesh.
+        pub(super) static LAST_WORK: Cell<Work> = const { Cell::new(Work { decoded: 0, transformed: 0 }) };
+    }
+
+    /// `n` positions (the first three a unit right triangle) and the u16 indices [0, 1, 2], then a
+    /// document from `rest` (accessors 0 = POSITION, 1 = indices; `rest` adds meshes, nodes, scenes
+    /// and maybe more accessors over bufferView 0).
+    fn doc(n: usize, extra_accessors: &str, rest: &str) -> Vec<u8> {
+        let extra_accessors = extra_accessors.replace("MINMAX", MINMAX);
+        let mut buf = Vec::new();
+        for i in 0..n {
+            let p = match i {
+                0 => [0.0, 0.0, 0.0],
+                1 => [1.0, 0.0, 0.0],
+                2 => [0.0, 1.0, 0.0],
+                _ => [i as f32, 1.0, 2.0],
+            };
+            for v in p {
+                buf.extend(f32::to_le_bytes(v));
+            }
+        }
+        let pos_len = buf.len();
+        for i in [0u16, 1, 2, 0] {
+            buf.extend(i.to_le_bytes());
+        }
+        let uri = base64::engine::general_purpose::STANDARD.encode(&buf);
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},
+            "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{uri}"}}],
+            "bufferViews":[{{"buffer":0,"byteLength":{pos_len}}},
+                {{"buffer":0,"byteOffset":{pos_len},"byteLength":6}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":{n},"type":"VEC3",{MINMAX}}},
+                {{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}}{extra_accessors}],
+            {rest}}}"#,
+            buf.len()
+        )
+        .into_bytes()
+    }
+
+    /// The min and max every POSITION accessor must have (for `n` ≥ 4 positions as `doc` makes).
+    const MINMAX: &str = r#""min":[0,0,0],"max":[1e6,1,2]"#;
+
+    fn load_with_work(bytes: &[u8]) -> (SceneParts, Work) {
+        LAST_WORK.set(Work::default());
+        let parts = load_parts(bytes, &NoExternalResources, &LoadOptions::default())
+            .unwrap_or_else(|e| panic!("{e}"));
+        (parts, LAST_WORK.get())
+    }
+
+    fn list(n: usize, item: impl Fn(usize) -> String) -> String {
+        (0..n).map(item).collect::<Vec<_>>().join(",")
+    }
+
+    #[test]
+    fn primitives_sharing_accessors_decode_them_once() {
+        // 2,000 primitives over one POSITION accessor of 20,000 vertices and one index accessor of
+        // one triangle: each was decoded (and transformed) in full for every primitive, 40 million
+        // vertices; now once, and three transformed per primitive.
+        let (n, prims) = (20_000, 2_000);
+        let primitives = list(prims, |_| {
+            r#"{"attributes":{"POSITION":0},"indices":1}"#.into()
+        });
+        let bytes = doc(
+            n,
+            "",
+            &format!(
+                r#""meshes":[{{"primitives":[{primitives}]}}],"nodes":[{{"mesh":0}}],
+                "scenes":[{{"nodes":[0]}}]"#
+            ),
+        );
+        let (parts, work) = load_with_work(&bytes);
+        assert_eq!(parts.mesh.len(), prims);
+        assert!(parts
+            .mesh
+            .positions
+            .iter()
+            .all(|t| *t == [glam::Vec3::ZERO, glam::Vec3::X, glam::Vec3::Y]));
+        assert_eq!(
+            work,
+            Work {
+                decoded: n as u64 + 3,
+                transformed: 3 * prims as u64
+            }
+        );
+    }
+
+    #[test]
+    fn instances_transform_only_the_vertices_their_triangles_use() {
+        // One mesh of 20,000 vertices and one triangle on 1,000 nodes: 20 million transforms before.
+        let (n, nodes) = (20_000, 1_000);
+        let node_list = list(nodes, |i| {
+            format!(r#"{{"mesh":0,"translation":[{i},0,0]}}"#)
+        });
+        let roots = list(nodes, |i| i.to_string());
+        let bytes = doc(
+            n,
+            "",
+            &format!(
+                r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+                "nodes":[{node_list}],"scenes":[{{"nodes":[{roots}]}}]"#
+            ),
+        );
+        let (parts, work) = load_with_work(&bytes);
+        assert_eq!(parts.mesh.len(), nodes);
+        for (i, t) in parts.mesh.positions.iter().enumerate() {
+            let o = glam::Vec3::new(i as f32, 0.0, 0.0);
+            assert_eq!(*t, [o, o + glam::Vec3::X, o + glam::Vec3::Y]);
+        }
+        assert_eq!(
+            work,
+            Work {
+                decoded: n as u64 + 3,
+                transformed: 3 * nodes as u64
+            }
+        );
+    }
+
+    #[test]
+    fn accessors_over_the_same_data_are_bounded() {
+        // Distinct accessors defined alike (the same bytes) share one decode.
+        let n = 100_000;
+        let alike = list(200, |_| {
+            format!(r#"{{"bufferView":0,"componentType":5126,"count":{n},"type":"VEC3",MINMAX}}"#)
+        });
+        let primitives = list(200, |k| {
+            format!(r#"{{"attributes":{{"POSITION":{}}},"indices":1}}"#, k + 2)
+        });
+        let rest = format!(
+            r#""meshes":[{{"name":"many","primitives":[{primitives}]}}],"nodes":[{{"mesh":0}}],
+            "scenes":[{{"nodes":[0]}}]"#
+        );
+        let (parts, work) = load_with_work(&doc(n, &format!(",{alike}"), &rest));
+        assert_eq!(parts.mesh.len(), 200);
+        assert_eq!(work.decoded, n as u64 + 3);
+
+        // Accessors over the same 1.2 MB at different offsets are each decoded, until they have
+        // read more than 4 × the buffer + 64 MiB: then a clear error naming the primitive.
+        let shifted = list(200, |k| {
+            format!(
+                r#"{{"bufferView":0,"byteOffset":{},"componentType":5126,"count":{},"type":"VEC3",MINMAX}}"#,
+                12 * k,
+                n - 200
+            )
+        });
+        let e = load_parts(
+            &doc(n, &format!(",{shifted}"), &rest),
+            &NoExternalResources,
+            &LoadOptions::default(),
+        )
+        .unwrap_err();
+        assert!(matches!(e, GltfError::Limit(_)), "{e:?}");
+        let e = e.to_string();
+        // 1,197,600 bytes per accessor: the 61st (primitive 60) passes 4 × 1,200,008 + 64 MiB.
+        assert!(
+            e.contains("(POSITION of mesh 0 \"many\", primitive 60)")
+                && e.contains("too many accessors over the same data"),
+            "{e}"
+        );
+    }
 }

@@ -7,7 +7,7 @@ use super::ResourceResolver;
 use base64::Engine as _;
 use gltf::json;
 use std::borrow::Cow;
-use std::cell::OnceCell;
+use std::cell::{Cell, OnceCell};
 
 type Fetched<'a> = Result<Cow<'a, [u8]>, (String, String)>;
 
@@ -17,6 +17,8 @@ pub(crate) struct Resources<'a> {
     bin: Option<&'a [u8]>,
     resolver: &'a dyn ResourceResolver,
     buffers: Vec<OnceCell<Fetched<'a>>>,
+    /// Bytes of the buffers fetched so far.
+    fetched: Cell<u64>,
 }
 
 pub(crate) fn buffer_label(root: &json::Root, index: usize) -> String {
@@ -55,6 +57,7 @@ impl<'a> Resources<'a> {
             bin,
             resolver,
             buffers,
+            fetched: Cell::new(0),
         }
     }
 
@@ -69,7 +72,14 @@ impl<'a> Resources<'a> {
                 ),
             });
         };
-        match cell.get_or_init(|| self.fetch_buffer(index)) {
+        let fetched = cell.get_or_init(|| {
+            let f = self.fetch_buffer(index);
+            if let Ok(bytes) = &f {
+                self.fetched.set(self.fetched.get() + bytes.len() as u64);
+            }
+            f
+        });
+        match fetched {
             Ok(bytes) => Ok(bytes),
             Err((object, reason)) => Err(GltfError::Resource {
                 object: object.clone(),
@@ -111,6 +121,11 @@ impl<'a> Resources<'a> {
                 Cow::Owned(v)
             }
         })
+    }
+
+    /// The bytes of the buffers fetched so far (each once).
+    pub fn fetched_bytes(&self) -> u64 {
+        self.fetched.get()
     }
 
     /// The bytes of buffer view `index`, after checking that the view lies inside its buffer.

@@ -118,11 +118,15 @@ impl Texture {
     /// of the image), decoded to linear values.
     #[inline]
     pub fn sample(&self, uv: Vec2, cs: ColorSpace) -> Vec4 {
-        if !uv.is_finite() {
-            return self.texel(0, 0, cs);
-        }
         let x = uv.x * self.width as f32 - 0.5;
         let y = uv.y * self.height as f32 - 0.5;
+        // After the scaling: a finite but huge UV (1e36, or a texture transform's huge scale) can
+        // overflow to infinity here, and an infinite coordinate gives NaN weights below. (A
+        // non-finite UV gives a non-finite coordinate too.) Every finite coordinate gives a finite
+        // texel and finite weights: `as i64` saturates, and x − floor(x) of a huge float is 0.
+        if !(x.is_finite() && y.is_finite()) {
+            return self.texel(0, 0, cs);
+        }
         if self.sampler.nearest {
             let xi = wrap((x + 0.5).floor() as i64, self.width, self.sampler.wrap_s);
             let yi = wrap((y + 0.5).floor() as i64, self.height, self.sampler.wrap_t);
@@ -202,5 +206,40 @@ mod tests {
         assert_eq!(wrap(-1, 4, WrapMode::MirroredRepeat), 0);
         assert_eq!(wrap(4, 4, WrapMode::MirroredRepeat), 3);
         assert_eq!(wrap(9, 4, WrapMode::ClampToEdge), 3);
+    }
+
+    #[test]
+    fn huge_finite_uvs_give_finite_texels() {
+        let texels: Vec<[u8; 4]> = (0..16u8).map(|i| [i * 16, 255 - i * 16, 7, 255]).collect();
+        for nearest in [false, true] {
+            for mode in [
+                WrapMode::Repeat,
+                WrapMode::MirroredRepeat,
+                WrapMode::ClampToEdge,
+            ] {
+                let sampler = TextureSampler {
+                    wrap_s: mode,
+                    wrap_t: mode,
+                    nearest,
+                };
+                let tex = Texture::new(None, 4, 4, texels.clone(), sampler).unwrap();
+                // 1e38 × 4 overflows f32 (the old guard ran before the scaling: NaN out).
+                for u in [1e36, 1e38, -1e38, f32::MAX, f32::MIN, 3.0e38, -1e30] {
+                    for uv in [Vec2::new(u, 0.5), Vec2::new(0.5, u), Vec2::splat(u)] {
+                        for cs in [ColorSpace::Srgb, ColorSpace::Linear] {
+                            let c = tex.sample(uv, cs);
+                            assert!(c.is_finite(), "{uv} {sampler:?} {cs:?}: {c}");
+                        }
+                    }
+                }
+                // Non-finite UVs still read texel (0, 0).
+                for uv in [Vec2::new(f32::NAN, 0.5), Vec2::new(0.5, f32::INFINITY)] {
+                    assert_eq!(
+                        tex.sample(uv, ColorSpace::Linear),
+                        tex.texel(0, 0, ColorSpace::Linear)
+                    );
+                }
+            }
+        }
     }
 }
