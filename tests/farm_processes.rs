@@ -316,6 +316,113 @@ async fn up_runs_a_job_end_to_end() {
     assert_eq!(jobs.jobs[0].samples_done, 48 * 48 * 16, "{jobs:?}");
 }
 
+/// `pathfarm up` killed outright (SIGKILL: no chance to stop anything) takes its worker processes
+/// with it instead of leaving them orphaned.
+#[tokio::test(flavor = "multi_thread")]
+async fn killed_up_takes_its_workers_with_it() {
+    let farm = Farm::new("up-killed");
+    let port = farm.port.to_string();
+    let db = farm.dir.arg("up.db");
+    let mut up = Proc::start(
+        "up",
+        &farm.dir,
+        &["up", "--workers", "2", "--port", &port, "--db", &db],
+    );
+    wait_healthy(farm.port, &mut up).await;
+    let worker_args = ["worker", "--server", farm.url.as_str()];
+    poll("two worker processes", Duration::from_secs(30), || async {
+        (processes_with_args(&worker_args).len() == 2).then_some(())
+    })
+    .await;
+    up.kill_now();
+    let left = poll_until_gone(&worker_args, Duration::from_secs(10)).await;
+    for (pid, _) in &left {
+        // SAFETY: kill(2) on a leftover worker of this test's own farm (its command line names
+        // this test's port); no memory-safety preconditions.
+        unsafe {
+            libc::kill(*pid, libc::SIGKILL);
+        }
+    }
+    assert!(left.is_empty(), "worker processes outlived `up`: {left:?}");
+}
+
+/// The processes with `needles` in their command line still alive after `timeout` (none, once
+/// they are all gone).
+async fn poll_until_gone(needles: &[&str], timeout: Duration) -> Vec<(i32, String)> {
+    let deadline = std::time::Instant::now() + timeout;
+    loop {
+        let left = processes_with_args(needles);
+        if left.is_empty() || std::time::Instant::now() > deadline {
+            return left;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// `submit --wait --out`: a bad `--out` is refused before anything is submitted; a server restart
+/// while waiting does not end the wait (the job goes on, the client retries), and the image is
+/// written once the job completes.
+#[tokio::test(flavor = "multi_thread")]
+async fn submit_wait_rides_out_a_server_restart() {
+    let farm = Farm::new("submit-wait-restart");
+    let mut server = farm.serve("server-1", &[]).await;
+    let api = farm.api();
+    let settings = [
+        "--width", "16", "--height", "16", "--spp", "4", "--wait", "--server",
+    ];
+
+    let mut args = vec!["submit", SCENE];
+    args.extend_from_slice(&settings);
+    args.extend_from_slice(&[farm.url.as_str(), "--out", "image.jpg"]);
+    let out = run_cli(&farm.dir, &args, Duration::from_secs(30)).await;
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--out must end in .exr or .png"), "{err}");
+    let jobs = api.jobs(None, 1, 10).await.expect("GET /api/v1/jobs");
+    assert!(jobs.jobs.is_empty(), "submitted anyway: {jobs:?}");
+
+    // No worker yet: the job waits in the queue while the server goes away and comes back.
+    let png = farm.dir.arg("image.png");
+    let mut args = vec!["submit", SCENE];
+    args.extend_from_slice(&settings);
+    args.extend_from_slice(&[farm.url.as_str(), "--out", &png]);
+    let mut cmd = tokio::process::Command::from(command(&farm.dir));
+    cmd.args(&args).kill_on_drop(true);
+    let client = tokio::spawn(async move { cmd.output().await });
+    poll("the job", Duration::from_secs(30), || async {
+        let jobs = api.jobs(None, 1, 10).await.ok()?;
+        (jobs.jobs.len() == 1).then_some(())
+    })
+    .await;
+    server.signal(libc::SIGTERM);
+    let status = server.wait_exit(Duration::from_secs(15)).await;
+    assert!(status.success(), "the server exited {status} on SIGTERM");
+    drop(server);
+    // Several polls (every 0.2 s) find no server.
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    assert!(
+        !client.is_finished(),
+        "submit --wait gave up while the server was down"
+    );
+    let _server = farm.serve("server-2", &[]).await;
+    let _worker = farm.worker("w", 4);
+
+    let out = tokio::time::timeout(Duration::from_secs(60), client)
+        .await
+        .expect("submit --wait did not finish within 60 s")
+        .expect("join")
+        .expect("run pathfarm submit");
+    assert_success(&out, "pathfarm submit --wait across a server restart");
+    let bytes = std::fs::read(&png).expect("read image.png");
+    assert!(bytes.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
+    let names: Vec<String> = std::fs::read_dir(&farm.dir.0)
+        .expect("list the test directory")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp"))
+        .collect();
+    assert!(names.is_empty(), "temporary files left: {names:?}");
+}
+
 /// `--config FILE`: a server configured only by its TOML file listens where the file says, with the
 /// file's tokens; a flag wins over the file; a worker reads its own table; a typo is an error that
 /// names the file and the key, and nothing starts.
@@ -337,7 +444,12 @@ async fn configuration_file_flags_win_over_it() {
     .expect("write the configuration");
     let config_arg = config.to_string_lossy().into_owned();
 
-    let mut server = Proc::start("serve", &dir, &["serve", "--config", &config_arg]);
+    // Global options before the command, one with a value (not to be taken for the command).
+    let mut server = Proc::start(
+        "serve",
+        &dir,
+        &["--log-format", "json", "serve", "--config", &config_arg],
+    );
     wait_healthy(port, &mut server).await;
     let url = format!("http://127.0.0.1:{port}");
     // The file's tokens hold: no token is refused, the client token reads.

@@ -38,7 +38,14 @@ pub const KEYS: &[(&str, &str, &str)] = &[
     ("client", "token", "PATHFARM_TOKEN"),
 ];
 
-/// Which tables a command reads: `up` runs a server too, so it reads `[serve]` as well.
+/// Whether `command` reads `key` of `[table]`.
+fn reads(command: &str, table: &str, key: &str) -> bool {
+    // `up` listens where its own `host` and `port` say.
+    tables_for(command).contains(&table) && !(command == "up" && key == "listen")
+}
+
+/// Which tables a command reads: `up` runs a server too, so it reads `[serve]` as well (all but
+/// `listen`).
 fn tables_for(command: &str) -> &'static [&'static str] {
     match command {
         "serve" => &["serve"],
@@ -84,7 +91,7 @@ pub fn settings(text: &str, origin: &Path, command: &str) -> Result<Vec<(&'stati
             };
             let text = scalar_or_list(value)
                 .with_context(|| format!("{}: [{table}] {key}", origin.display()))?;
-            if tables_for(command).contains(&table.as_str()) {
+            if reads(command, table, key) {
                 out.push((var, text));
             }
         }
@@ -115,25 +122,47 @@ fn scalar_or_list(v: &toml::Value) -> Result<String> {
     })
 }
 
+/// The subcommands (as `main.rs` names them).
+pub(crate) const COMMANDS: &[&str] = &[
+    "render", "serve", "worker", "up", "submit", "jobs", "job", "cancel", "bench", "help",
+];
+
+/// The global options that take a value (as `main.rs` declares them).
+pub(crate) const GLOBAL_VALUE_OPTIONS: &[&str] = &["--log", "--log-format", "--config"];
+
+/// What `apply` needs from the raw arguments (without the program name): the `--config` value,
+/// if any, and the subcommand: the first argument that names one, where an argument that is the
+/// value of a global option (`--log-format json`) does not count. `--` ends the options.
+fn scan(args: &[String]) -> (Option<std::path::PathBuf>, Option<String>) {
+    let mut config = None;
+    let mut command = None;
+    let mut i = 0;
+    while i < args.len() {
+        let a = args[i].as_str();
+        if a == "--" {
+            break;
+        }
+        if let Some(p) = a.strip_prefix("--config=") {
+            config = Some(p.into());
+        } else if GLOBAL_VALUE_OPTIONS.contains(&a) {
+            if a == "--config" {
+                config = args.get(i + 1).map(Into::into);
+            }
+            i += 1; // its value
+        } else if command.is_none() && COMMANDS.contains(&a) {
+            command = Some(a.to_string());
+        }
+        i += 1;
+    }
+    (config, command)
+}
+
 /// Finds `--config FILE` (or `PATHFARM_CONFIG`) and the command in the raw arguments, and exports
 /// the file's settings for that command as environment variables that are not set already. Runs
 /// first thing in `main`, while the process has one thread.
 pub fn apply(args: &[String]) -> Result<()> {
-    let mut path = std::env::var_os("PATHFARM_CONFIG").map(std::path::PathBuf::from);
-    let mut command = None;
-    let mut i = 1;
-    while i < args.len() {
-        let a = &args[i];
-        if a == "--config" {
-            path = args.get(i + 1).map(Into::into);
-            i += 1;
-        } else if let Some(p) = a.strip_prefix("--config=") {
-            path = Some(p.into());
-        } else if command.is_none() && !a.starts_with('-') {
-            command = Some(a.clone());
-        }
-        i += 1;
-    }
+    let (flag, command) = scan(args.get(1..).unwrap_or_default());
+    let path = flag.or_else(|| std::env::var_os("PATHFARM_CONFIG").map(std::path::PathBuf::from));
     let Some(path) = path else { return Ok(()) };
     let text = std::fs::read_to_string(&path)
         .with_context(|| format!("cannot read the configuration file {}", path.display()))?;
@@ -181,6 +210,7 @@ server = "http://farm:9000"
         let up = vars("up");
         assert!(up.contains(&("PATHFARM_WORKERS", "3".into())));
         assert!(up.contains(&("PATHFARM_DB", "postgres://farm@db/farm".into())));
+        assert!(!up.iter().any(|(v, _)| *v == "PATHFARM_LISTEN"), "{up:?}");
         assert_eq!(
             vars("worker"),
             vec![
@@ -193,6 +223,42 @@ server = "http://farm:9000"
             vec![("PATHFARM_SERVER", "http://farm:9000".to_string())]
         );
         assert!(vars("render").is_empty());
+    }
+
+    fn scanned(line: &str) -> (Option<String>, Option<String>) {
+        let args: Vec<String> = line.split_whitespace().map(str::to_string).collect();
+        let (config, command) = scan(&args);
+        (config.map(|p| p.to_string_lossy().into_owned()), command)
+    }
+
+    #[test]
+    fn the_command_is_found_past_the_values_of_global_options() {
+        let both = |c: &str, cmd: &str| (Some(c.to_string()), Some(cmd.to_string()));
+        assert_eq!(
+            scanned("--log-format json serve --config farm.toml"),
+            both("farm.toml", "serve")
+        );
+        assert_eq!(
+            scanned("--log debug --log-format=json worker --config=w.toml"),
+            both("w.toml", "worker")
+        );
+        assert_eq!(
+            scanned("--log=pathfarm=debug --config farm.toml up --workers 2"),
+            both("farm.toml", "up")
+        );
+        // A global option's value that happens to be a command's name is still its value.
+        assert_eq!(
+            scanned("--config serve submit scene.glb --wait"),
+            both("serve", "submit")
+        );
+        // After the command, an argument that names another command is only an argument.
+        assert_eq!(scanned("job serve --config c.toml"), both("c.toml", "job"));
+        assert_eq!(scanned("--log-format json"), (None, None));
+        assert_eq!(
+            scanned("render scene.glb -- --config x"),
+            (None, Some("render".into()))
+        );
+        assert_eq!(scanned(""), (None, None));
     }
 
     #[test]

@@ -99,3 +99,34 @@ fn main() -> ExitCode {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    /// `config_file` finds the command in the raw arguments before clap runs, from its own lists of
+    /// the commands and of the global options that take a value: they must match the parser.
+    #[test]
+    fn the_configuration_scanner_knows_every_command_and_global_option() {
+        let cli = Cli::command();
+        let mut commands: Vec<&str> = cli.get_subcommands().map(|c| c.get_name()).collect();
+        commands.push("help");
+        commands.sort_unstable();
+        let mut known = config_file::COMMANDS.to_vec();
+        known.sort_unstable();
+        assert_eq!(commands, known);
+        let mut globals: Vec<String> = cli
+            .get_arguments()
+            .filter(|a| a.is_global_set() && a.get_action().takes_values())
+            .filter_map(|a| a.get_long().map(|l| format!("--{l}")))
+            .collect();
+        globals.sort_unstable();
+        let mut known: Vec<String> = config_file::GLOBAL_VALUE_OPTIONS
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        known.sort_unstable();
+        assert_eq!(globals, known);
+    }
+}

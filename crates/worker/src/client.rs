@@ -1,14 +1,65 @@
 //! A typed HTTP client of the pathfarm API (`openapi.yaml`), used by the worker daemon and by the
 //! command-line client (`pathfarm submit`, `jobs`, …).
+//!
+//! Timeouts: connecting gives up after [`CONNECT_TIMEOUT`]. An API call must finish within
+//! [`API_TIMEOUT`] (or what [`ApiClient::with_timeout`] sets, e.g. the worker's heartbeats). Bulk
+//! transfers have no short total limit, since their time grows with their size: downloads (scenes,
+//! images) go through a second connection pool with a read timeout instead — they fail once the
+//! server sends nothing for [`STALL_TIMEOUT`] (also while it prepares the answer), and in any case
+//! after [`BULK_TIMEOUT`]; a scene upload (`submit`) is limited by [`BULK_TIMEOUT`] alone.
 
 use pathfarm_wire::api::{
     Convergence, ErrorBody, Heartbeat, HeartbeatReply, JobCreated, JobList, JobSettings, JobView,
     Lease, PreviewView, Release, SliceAck, WorkerList, WorkerRegistered, WorkerRegistration,
     LEASE_TOKEN_HEADER, SCALE_MAX_HEADER, SCALE_MIN_HEADER, SLICE_CONTENT_TYPE,
 };
-use reqwest::{Method, RequestBuilder, Response, StatusCode};
+use reqwest::{Method, RequestBuilder, Response, StatusCode, Url};
 use serde::de::DeserializeOwned;
 use std::time::Duration;
+
+/// Longest wait for a connection to the server.
+pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+/// Longest an API call (request and answer) may take, bulk transfers aside.
+pub const API_TIMEOUT: Duration = Duration::from_secs(120);
+/// A download fails when no byte of it arrives for this long.
+pub const STALL_TIMEOUT: Duration = Duration::from_secs(60);
+/// Longest a bulk transfer (scene upload or download, image download) may take in all.
+pub const BULK_TIMEOUT: Duration = Duration::from_secs(3600);
+
+/// `ApiClient::new` refused its arguments: a configuration mistake, not worth retrying.
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
+    #[error(
+        "invalid server URL `{url}` (--server or PATHFARM_SERVER): {reason}; \
+         expected e.g. http://farm.internal:8080"
+    )]
+    Url { url: String, reason: String },
+    #[error("cannot set up the HTTP client: {0}")]
+    Http(#[source] reqwest::Error),
+}
+
+/// Checks a server URL: http or https, a host, no query or fragment. Returns it without the
+/// trailing slash.
+pub fn check_server_url(url: &str) -> Result<String, SetupError> {
+    let bad = |reason: &str| SetupError::Url {
+        url: url.to_string(),
+        reason: reason.to_string(),
+    };
+    let parsed = Url::parse(url.trim()).map_err(|e| bad(&e.to_string()))?;
+    if !matches!(parsed.scheme(), "http" | "https") {
+        return Err(bad(&format!(
+            "the scheme must be http:// or https://, not `{}:`",
+            parsed.scheme()
+        )));
+    }
+    if parsed.host_str().is_none_or(str::is_empty) {
+        return Err(bad("no host"));
+    }
+    if parsed.query().is_some() || parsed.fragment().is_some() {
+        return Err(bad("a query or fragment cannot be part of it"));
+    }
+    Ok(url.trim().trim_end_matches('/').to_string())
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
@@ -33,36 +84,58 @@ impl ClientError {
             _ => None,
         }
     }
-    /// Worth trying again later: no answer, or a server-side failure.
+    /// Worth trying again later: no answer, or a server-side failure. A request that could not
+    /// even be built (a bad URL or header) fails the same way every time, so it is not transient.
     pub fn is_transient(&self) -> bool {
         match self {
-            ClientError::Transport(_) => true,
+            ClientError::Transport(e) => !e.is_builder(),
             ClientError::Api { status, .. } => status.is_server_error(),
             ClientError::Protocol(_) => false,
         }
     }
 }
 
+/// See the module's documentation for the timeouts.
 #[derive(Clone)]
 pub struct ApiClient {
     http: reqwest::Client,
+    /// For downloads: a read timeout instead of a total one.
+    bulk: reqwest::Client,
     base: String,
     token: Option<String>,
+    timeout: Duration,
 }
 
 impl ApiClient {
-    pub fn new(base: &str, token: Option<String>) -> Result<ApiClient, ClientError> {
+    /// Fails at once on a URL that cannot work (see [`check_server_url`]).
+    pub fn new(base: &str, token: Option<String>) -> Result<ApiClient, SetupError> {
+        let base = check_server_url(base)?;
         let http = reqwest::Client::builder()
-            .connect_timeout(Duration::from_secs(5))
-            .timeout(Duration::from_secs(120))
+            .connect_timeout(CONNECT_TIMEOUT)
             .pool_idle_timeout(Duration::from_secs(30))
             .build()
-            .map_err(ClientError::Transport)?;
+            .map_err(SetupError::Http)?;
+        let bulk = reqwest::Client::builder()
+            .connect_timeout(CONNECT_TIMEOUT)
+            .read_timeout(STALL_TIMEOUT)
+            .pool_idle_timeout(Duration::from_secs(30))
+            .build()
+            .map_err(SetupError::Http)?;
         Ok(ApiClient {
             http,
-            base: base.trim_end_matches('/').to_string(),
+            bulk,
+            base,
             token: token.filter(|t| !t.is_empty()),
+            timeout: API_TIMEOUT,
         })
+    }
+
+    /// The same client (and connections) with another limit for its API calls.
+    pub fn with_timeout(&self, timeout: Duration) -> ApiClient {
+        ApiClient {
+            timeout,
+            ..self.clone()
+        }
     }
 
     pub fn base(&self) -> &str {
@@ -70,7 +143,21 @@ impl ApiClient {
     }
 
     fn request(&self, method: Method, path: &str) -> RequestBuilder {
-        let rb = self.http.request(method, format!("{}{}", self.base, path));
+        self.authorized(self.http.request(method, self.url(path)))
+            .timeout(self.timeout)
+    }
+
+    /// A download: its own limits (see the module's documentation).
+    fn download(&self, path: &str) -> RequestBuilder {
+        self.authorized(self.bulk.get(self.url(path)))
+            .timeout(BULK_TIMEOUT)
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("{}{}", self.base, path)
+    }
+
+    fn authorized(&self, rb: RequestBuilder) -> RequestBuilder {
         match &self.token {
             Some(t) => rb.bearer_auth(t),
             None => rb,
@@ -174,7 +261,7 @@ impl ApiClient {
     }
 
     pub async fn scene(&self, hash: &str) -> Result<Vec<u8>, ClientError> {
-        let resp = Self::send(self.request(Method::GET, &format!("/api/v1/scenes/{hash}"))).await?;
+        let resp = Self::send(self.download(&format!("/api/v1/scenes/{hash}"))).await?;
         Ok(resp.bytes().await.map_err(ClientError::Transport)?.to_vec())
     }
 
@@ -202,7 +289,12 @@ impl ApiClient {
                     .mime_str("application/json")
                     .map_err(ClientError::Transport)?,
             );
-        Self::json(self.request(Method::POST, "/api/v1/jobs").multipart(form)).await
+        Self::json(
+            self.request(Method::POST, "/api/v1/jobs")
+                .timeout(BULK_TIMEOUT)
+                .multipart(form),
+        )
+        .await
     }
 
     pub async fn jobs(
@@ -245,13 +337,13 @@ impl ApiClient {
             "/api/v1/jobs/{id}/image.exr{}",
             if extra { "?extra=true" } else { "" }
         );
-        let resp = Self::send(self.request(Method::GET, &path)).await?;
+        let resp = Self::send(self.download(&path)).await?;
         Ok(resp.bytes().await.map_err(ClientError::Transport)?.to_vec())
     }
 
     pub async fn preview_png(&self, id: &str, exposure: f32) -> Result<Vec<u8>, ClientError> {
         let path = format!("/api/v1/jobs/{id}/preview.png?exposure={exposure}");
-        let resp = Self::send(self.request(Method::GET, &path)).await?;
+        let resp = Self::send(self.download(&path)).await?;
         Ok(resp.bytes().await.map_err(ClientError::Transport)?.to_vec())
     }
 
@@ -273,5 +365,63 @@ impl ApiClient {
     /// The job's convergence history.
     pub async fn convergence(&self, id: &str) -> Result<Convergence, ClientError> {
         Self::json(self.request(Method::GET, &format!("/api/v1/jobs/{id}/convergence"))).await
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_bad_server_url_is_refused_at_once_naming_the_flag_and_the_value() {
+        for bad in [
+            "farm.internal:8080",
+            "127.0.0.1:8080",
+            "ftp://farm.internal",
+            "http://",
+            "http://farm/?x=1",
+            "",
+        ] {
+            let e = ApiClient::new(bad, None)
+                .err()
+                .unwrap_or_else(|| panic!("{bad} accepted"));
+            let text = e.to_string();
+            assert!(
+                text.contains(&format!("`{bad}`")) && text.contains("--server"),
+                "{bad}: {text}"
+            );
+        }
+        let e = ApiClient::new("farm.internal:8080", None).err().unwrap();
+        assert!(e.to_string().contains("http:// or https://"), "{e}");
+        for good in [
+            "http://127.0.0.1:8080",
+            "https://farm.internal/",
+            "http://[::1]:1/farm",
+        ] {
+            let c = ApiClient::new(good, None).unwrap_or_else(|e| panic!("{good}: {e}"));
+            assert!(!c.base().ends_with('/'), "{}", c.base());
+        }
+    }
+
+    /// A request that cannot be built fails at once, and is not retried as if the server were
+    /// unreachable.
+    #[tokio::test]
+    async fn a_request_that_cannot_be_built_is_not_transient() {
+        let c = ApiClient::new("http://127.0.0.1:1", None).unwrap();
+        let rb = c
+            .request(Method::GET, "/api/v1/jobs")
+            .header("x-bad", "line\nbreak");
+        let e = ApiClient::send(rb).await.expect_err("a builder error");
+        assert!(
+            matches!(&e, ClientError::Transport(t) if t.is_builder()),
+            "{e:?}"
+        );
+        assert!(!e.is_transient(), "{e:?}");
+        // Connection refused is transient.
+        let e = c
+            .jobs(None, 1, 1)
+            .await
+            .expect_err("nothing listens on port 1");
+        assert!(e.is_transient(), "{e:?}");
     }
 }

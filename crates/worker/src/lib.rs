@@ -6,12 +6,22 @@
 //! it, gives the lease back and signs off. Killed, it loses only the slice in hand: the server
 //! queues the task's unmerged samples again when the lease expires.
 //!
-//! [`client`] is the typed HTTP client of the API, shared with the command-line client.
+//! A task it cannot work on (its scene cannot be fetched or loaded, its uploads fail) is given back,
+//! and the worker waits before leasing again: [`ABANDON_BACKOFF`], doubling with each further such
+//! task up to [`ABANDON_BACKOFF_MAX`], back to the start once a slice is uploaded. A scene that
+//! failed is not fetched again for a while either (see `scene_cache`): its tasks are given back at
+//! once.
+//!
+//! [`client`] is the typed HTTP client of the API, shared with the command-line client; [`files`]
+//! writes files atomically.
 
+mod backoff;
 pub mod client;
+pub mod files;
+use backoff::Backoff;
 mod scene_cache;
 
-use client::{ApiClient, ClientError};
+use client::{ApiClient, ClientError, SetupError};
 use pathfarm_tracer::{render_tile, Tile};
 use pathfarm_wire::api::{Heartbeat, Lease, WorkerRegistration};
 use pathfarm_wire::{encode_slice, Slice};
@@ -72,7 +82,14 @@ pub enum WorkerError {
     Threads(String),
     #[error(transparent)]
     Client(#[from] ClientError),
+    #[error(transparent)]
+    Setup(#[from] SetupError),
 }
+
+/// The first wait after a task was given back unfinished (see the crate's documentation).
+pub const ABANDON_BACKOFF: Duration = Duration::from_millis(200);
+/// The longest wait after tasks given back unfinished.
+pub const ABANDON_BACKOFF_MAX: Duration = Duration::from_secs(30);
 
 /// What a worker did before it stopped.
 #[derive(Clone, Debug, Default)]
@@ -121,6 +138,7 @@ pub async fn run(
     let mut report = WorkerReport::default();
     let mut rate = Rate::default();
     let mut idle = Duration::from_millis(20);
+    let mut abandoned = Backoff::new(ABANDON_BACKOFF, ABANDON_BACKOFF_MAX);
     while !*stop.borrow() {
         let lease = match session.client.lease(&session.worker_id).await {
             Ok(l) => l,
@@ -142,6 +160,7 @@ pub async fn run(
         idle = Duration::from_millis(20);
         *lock(&current) = Some((lease.task_id, lease.lease_token.clone()));
         lease_lost.store(false, std::sync::atomic::Ordering::SeqCst);
+        let slices_before = report.slices;
         let outcome = work_on(
             &session,
             &config,
@@ -155,9 +174,21 @@ pub async fn run(
         )
         .await;
         *lock(&current) = None;
+        if report.slices > slices_before {
+            abandoned.reset();
+        }
         match outcome {
-            Ok(()) => report.tasks += 1,
-            Err(e) => tracing::warn!(task = lease.task_id, error = %e, "task abandoned"),
+            Ok(()) => {
+                report.tasks += 1;
+                abandoned.reset();
+            }
+            Err(e) => {
+                // Whatever went wrong may well go wrong again with the next lease (often the same
+                // task): wait before asking, longer each time nothing could be done.
+                let delay = abandoned.next_delay();
+                tracing::warn!(task = lease.task_id, error = %e, retry_in = ?delay, "task abandoned");
+                wait(&mut stop, delay).await;
+            }
         }
     }
     heartbeat.abort();
@@ -177,8 +208,9 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
+/// Waits `d`, or less if asked to stop.
 async fn wait(stop: &mut watch::Receiver<bool>, d: Duration) {
-    let _ = tokio::time::timeout(d, stop.changed()).await;
+    let _ = tokio::time::timeout(d, stop.wait_for(|s| *s)).await;
 }
 
 async fn register(
@@ -224,6 +256,9 @@ async fn heartbeat_loop(
     current: CurrentLease,
     lease_lost: Arc<std::sync::atomic::AtomicBool>,
 ) {
+    // A heartbeat that gets no answer within an interval is given up, so the next one goes out
+    // on time: one stalled request must not outlast the lease it should extend.
+    let client = client.with_timeout(heartbeat_timeout(interval));
     loop {
         tokio::time::sleep(interval).await;
         let held = lock(&current).clone();
@@ -241,6 +276,12 @@ async fn heartbeat_loop(
             Err(e) => tracing::warn!(error = %e, "heartbeat failed"),
         }
     }
+}
+
+/// The limit of one heartbeat request: about the heartbeat interval, but at least 250 ms (very
+/// short leases, in tests, still get an answer on a loaded machine).
+fn heartbeat_timeout(interval: Duration) -> Duration {
+    interval.max(Duration::from_millis(250))
 }
 
 /// Render speed, samples (camera paths) per second, for sizing slices.
@@ -381,5 +422,194 @@ async fn upload(
             }
             Err(e) => return Err(e.into()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeMap;
+    use std::io::{BufRead, BufReader, Read, Write};
+    use std::net::{TcpListener, TcpStream};
+
+    #[test]
+    fn heartbeats_time_out_after_their_interval_with_a_floor() {
+        assert_eq!(
+            heartbeat_timeout(Duration::from_millis(7500)),
+            Duration::from_millis(7500)
+        );
+        assert_eq!(
+            heartbeat_timeout(Duration::from_millis(50)),
+            Duration::from_millis(250)
+        );
+    }
+
+    /// A minimal real HTTP/1.1 server whose one task has a scene that never arrives intact: it
+    /// counts the requests each route gets.
+    struct BrokenSceneServer {
+        url: String,
+        hits: Arc<Mutex<BTreeMap<String, u32>>>,
+    }
+
+    impl BrokenSceneServer {
+        fn start() -> BrokenSceneServer {
+            let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+            let url = format!("http://{}", listener.local_addr().unwrap());
+            let hits: Arc<Mutex<BTreeMap<String, u32>>> = Arc::default();
+            let h = hits.clone();
+            std::thread::spawn(move || {
+                for conn in listener.incoming().flatten() {
+                    let h = h.clone();
+                    std::thread::spawn(move || Self::serve(conn, &h));
+                }
+            });
+            BrokenSceneServer { url, hits }
+        }
+
+        fn serve(conn: TcpStream, hits: &Mutex<BTreeMap<String, u32>>) {
+            let mut out = conn.try_clone().unwrap();
+            let mut r = BufReader::new(conn);
+            loop {
+                let mut line = String::new();
+                if r.read_line(&mut line).unwrap_or(0) == 0 {
+                    return;
+                }
+                let mut len = 0;
+                loop {
+                    let mut h = String::new();
+                    if r.read_line(&mut h).unwrap_or(0) == 0 {
+                        return;
+                    }
+                    if h.trim().is_empty() {
+                        break;
+                    }
+                    if let Some((k, v)) = h.split_once(':') {
+                        if k.eq_ignore_ascii_case("content-length") {
+                            len = v.trim().parse().unwrap_or(0);
+                        }
+                    }
+                }
+                let mut body = vec![0; len];
+                if r.read_exact(&mut body).is_err() {
+                    return;
+                }
+                let mut parts = line.split_whitespace();
+                let (method, path) = (parts.next().unwrap_or(""), parts.next().unwrap_or(""));
+                let route = match (method, path) {
+                    ("POST", "/api/v1/workers") => "register",
+                    ("POST", p) if p.ends_with("/lease") => "lease",
+                    ("POST", p) if p.ends_with("/heartbeat") => "heartbeat",
+                    ("POST", p) if p.ends_with("/release") => "release",
+                    ("GET", p) if p.starts_with("/api/v1/scenes/") => "scene",
+                    ("DELETE", _) => "deregister",
+                    _ => "other",
+                };
+                *lock(hits).entry(route.to_string()).or_default() += 1;
+                let (status, body) = match route {
+                    "register" => (
+                        "200 OK",
+                        r#"{"worker_id":"w1","lease_duration_ms":30000,"heartbeat_interval_ms":60000}"#
+                            .to_string(),
+                    ),
+                    "lease" => {
+                        let lease = Lease {
+                            task_id: 7,
+                            job_id: "j1".into(),
+                            lease_token: "t".into(),
+                            lease_expires_in_ms: 30000,
+                            scene_hash: "ab".repeat(32),
+                            settings: pathfarm_wire::api::JobSettings::new(8, 8, 4),
+                            tile: pathfarm_wire::api::TileRect {
+                                x0: 0,
+                                y0: 0,
+                                width: 8,
+                                height: 8,
+                            },
+                            sample_begin: 0,
+                            sample_end: 4,
+                        };
+                        ("200 OK", serde_json::to_string(&lease).unwrap())
+                    }
+                    "heartbeat" => (
+                        "200 OK",
+                        r#"{"lease_valid":true,"lease_expires_in_ms":30000}"#.to_string(),
+                    ),
+                    // Bytes that do not hash to the scene's hash.
+                    "scene" => ("200 OK", "not the scene".to_string()),
+                    "release" | "deregister" => ("204 No Content", String::new()),
+                    _ => ("404 Not Found", String::new()),
+                };
+                let head = format!(
+                    "HTTP/1.1 {status}\r\ncontent-type: application/json\r\ncontent-length: {}\r\n\r\n",
+                    body.len()
+                );
+                if out.write_all(head.as_bytes()).is_err()
+                    || out.write_all(body.as_bytes()).is_err()
+                {
+                    return;
+                }
+            }
+        }
+
+        fn hits(&self, route: &str) -> u32 {
+            lock(&self.hits).get(route).copied().unwrap_or(0)
+        }
+    }
+
+    /// A task whose scene cannot be fetched is given back, and the worker waits longer and longer
+    /// before leasing again instead of fetching the scene in a hot loop; it fetches the failed
+    /// scene once per cooldown, and a stop request cuts the wait short.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn an_unfetchable_scene_backs_off_instead_of_looping() {
+        let server = BrokenSceneServer::start();
+        let mut config = WorkerConfig::new(server.url.clone());
+        config.threads = 1;
+        let (tx, rx) = watch::channel(false);
+        let worker = tokio::spawn(run(config, rx));
+        // Backoffs of 0.2, 0.4, 0.8 and 1.6 s: leases at about 0, 0.2, 0.6 and 1.4 s.
+        tokio::time::sleep(Duration::from_millis(1700)).await;
+        let (leases, scenes, releases) = (
+            server.hits("lease"),
+            server.hits("scene"),
+            server.hits("release"),
+        );
+        assert!((2..=5).contains(&leases), "{leases} leases in 1.7 s");
+        assert_eq!(
+            scenes, 1,
+            "the scene was fetched {scenes} times in its cooldown"
+        );
+        assert_eq!(releases, leases, "every lease is given back");
+        // The worker now waits 1.6 s; asked to stop, it stops at once and signs off.
+        let t = Instant::now();
+        tx.send(true).unwrap();
+        let report = tokio::time::timeout(Duration::from_secs(5), worker)
+            .await
+            .expect("the worker stops")
+            .unwrap()
+            .unwrap();
+        assert!(
+            t.elapsed() < Duration::from_millis(800),
+            "{:?}",
+            t.elapsed()
+        );
+        assert_eq!(report.tasks, 0);
+        assert_eq!(server.hits("deregister"), 1);
+    }
+
+    /// A server URL without a scheme stops the worker at once with an error naming it, instead of
+    /// retrying a request that can never be sent.
+    #[tokio::test]
+    async fn a_bad_server_url_stops_the_worker_at_once() {
+        let (_tx, rx) = watch::channel(false);
+        let mut config = WorkerConfig::new("farm.internal:8080");
+        config.threads = 1;
+        let e = tokio::time::timeout(Duration::from_secs(5), run(config, rx))
+            .await
+            .expect("no retrying")
+            .unwrap_err();
+        assert!(
+            matches!(e, WorkerError::Setup(_)) && e.to_string().contains("`farm.internal:8080`"),
+            "{e}"
+        );
     }
 }

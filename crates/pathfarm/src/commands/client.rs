@@ -5,9 +5,14 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pathfarm_wire::api::{JobSettings, JobView};
-use pathfarm_worker::client::ApiClient;
-use std::path::PathBuf;
-use std::time::Duration;
+use pathfarm_worker::client::{ApiClient, ClientError};
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// How long `submit --wait` keeps retrying while the server cannot answer (no connection, 5xx):
+/// the job goes on without the client, so a server restart must not end the wait.
+pub const WAIT_PATIENCE: Duration = Duration::from_secs(300);
 
 /// Where the server is and how to authenticate.
 #[derive(Args, Clone, Debug)]
@@ -59,10 +64,62 @@ pub struct SubmitArgs {
     pub client: ClientArgs,
 }
 
+/// What `--out` asks for, from its extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum OutFormat {
+    Exr,
+    Png,
+}
+
+fn out_format(out: &Path) -> Result<OutFormat> {
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("png") => Ok(OutFormat::Png),
+        Some("exr") => Ok(OutFormat::Exr),
+        _ => bail!("--out must end in .exr or .png (got {})", out.display()),
+    }
+}
+
+/// Runs `call` until it succeeds or fails for good: a transient failure (no answer, 5xx) is retried
+/// with a growing delay (0.2 s to 5 s) while the failures in a row have lasted less than `patience`.
+/// `on_retry` hears of each failure retried.
+async fn patiently<T, F, Fut>(
+    patience: Duration,
+    mut call: F,
+    mut on_retry: impl FnMut(&ClientError),
+) -> Result<T, ClientError>
+where
+    F: FnMut() -> Fut,
+    Fut: Future<Output = Result<T, ClientError>>,
+{
+    let mut first_failure = None;
+    let mut delay = Duration::from_millis(200);
+    loop {
+        match call().await {
+            Ok(v) => return Ok(v),
+            Err(e) if e.is_transient() => {
+                let since = *first_failure.get_or_insert_with(Instant::now);
+                if since.elapsed() + delay > patience {
+                    return Err(e);
+                }
+                on_retry(&e);
+                tokio::time::sleep(delay).await;
+                delay = (delay * 2).min(Duration::from_secs(5));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
 pub async fn submit(args: SubmitArgs) -> Result<()> {
     if args.out.is_some() && !args.wait {
         bail!("--out needs --wait");
     }
+    // Before anything is submitted: a job must not run only for its image to be refused.
+    let format = args.out.as_deref().map(out_format).transpose()?;
     let client = args.client.client()?;
     let bytes = std::fs::read(&args.scene)
         .with_context(|| format!("cannot read {}", args.scene.display()))?;
@@ -97,8 +154,18 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent}% {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
+    let retry_message = |e: &ClientError| {
+        bar.set_message(format!("no answer from the server ({e}); retrying"));
+    };
     let job = loop {
-        let j = client.job(&created.id).await?;
+        let j = patiently(WAIT_PATIENCE, || client.job(&created.id), retry_message)
+            .await
+            .with_context(|| {
+                format!(
+                    "waiting for job {} (it goes on; `pathfarm job {}` shows it)",
+                    created.id, created.id
+                )
+            })?;
         bar.set_position(j.samples_done);
         bar.set_message(format!(
             "{} · {:.2} M samples/s · error {}",
@@ -114,17 +181,24 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
     };
     bar.finish_and_clear();
     print_summary(&job);
-    if let Some(out) = &args.out {
-        let ext = out
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase);
-        let bytes = match ext.as_deref() {
-            Some("png") => client.preview_png(&job.id, args.exposure).await?,
-            Some("exr") => client.image_exr(&job.id, false).await?,
-            _ => bail!("--out must end in .exr or .png"),
-        };
-        std::fs::write(out, bytes).with_context(|| format!("cannot write {}", out.display()))?;
+    if let (Some(out), Some(format)) = (&args.out, format) {
+        let quiet = |e: &ClientError| eprintln!("no answer from the server ({e}); retrying");
+        let bytes = match format {
+            OutFormat::Png => {
+                patiently(
+                    WAIT_PATIENCE,
+                    || client.preview_png(&job.id, args.exposure),
+                    quiet,
+                )
+                .await
+            }
+            OutFormat::Exr => {
+                patiently(WAIT_PATIENCE, || client.image_exr(&job.id, false), quiet).await
+            }
+        }
+        .with_context(|| format!("fetching the image of job {}", job.id))?;
+        pathfarm_worker::files::write_atomic(out, &bytes)
+            .with_context(|| format!("cannot write {}", out.display()))?;
         println!("wrote {}", out.display());
     }
     if job.state.as_str() != "completed" {
@@ -218,4 +292,66 @@ pub async fn cancel(args: JobArgs) -> Result<()> {
     let j = args.client.client()?.job_action(&args.id, "cancel").await?;
     print_summary(&j);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn out_format_is_known_from_the_extension() {
+        assert_eq!(out_format(Path::new("a/b.PNG")).unwrap(), OutFormat::Png);
+        assert_eq!(out_format(Path::new("b.exr")).unwrap(), OutFormat::Exr);
+        for bad in ["b.jpg", "b", "exr", "dir/.png.txt"] {
+            let e = out_format(Path::new(bad)).unwrap_err().to_string();
+            assert!(e.contains("--out must end in .exr or .png"), "{bad}: {e}");
+        }
+    }
+
+    /// Against a real port nothing listens on: transient failures are retried until the patience
+    /// runs out, then the last error is returned; a lasting failure is not retried.
+    #[tokio::test]
+    async fn transient_failures_are_retried_for_a_bounded_time() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let client = ApiClient::new(&format!("http://127.0.0.1:{port}"), None).unwrap();
+        let mut calls = 0;
+        let mut retries = 0;
+        let t = Instant::now();
+        let e = patiently(
+            Duration::from_millis(700),
+            || {
+                calls += 1;
+                client.job("x")
+            },
+            |_| retries += 1,
+        )
+        .await
+        .unwrap_err();
+        assert!(e.is_transient(), "{e}");
+        // Delays of 0.2 and 0.4 s fit in 0.7 s; 0.8 more would not.
+        assert_eq!((calls, retries), (3, 2));
+        assert!(
+            t.elapsed() < Duration::from_millis(1500),
+            "{:?}",
+            t.elapsed()
+        );
+
+        let mut calls = 0;
+        let e = patiently(
+            Duration::from_secs(60),
+            || {
+                calls += 1;
+                async { Err::<(), _>(ClientError::Protocol("bad".into())) }
+            },
+            |_| {},
+        )
+        .await
+        .unwrap_err();
+        assert!(!e.is_transient());
+        assert_eq!(calls, 1);
+    }
 }

@@ -214,7 +214,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
             },
         )?,
     };
-    std::fs::write(&out, bytes).with_context(|| format!("cannot write {}", out.display()))?;
+    pathfarm_worker::files::write_atomic(&out, &bytes)
+        .with_context(|| format!("cannot write {}", out.display()))?;
     if acc.invalid_count > 0 {
         tracing::warn!(count = acc.invalid_count, first = ?acc.invalid.first(), "invalid samples were dropped; re-render one with --debug-sample X,Y,INDEX");
     }

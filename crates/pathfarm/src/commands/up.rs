@@ -1,5 +1,7 @@
 //! `pathfarm up`: the embedded default in one command — a server on SQLite and N local worker
 //! processes. Ctrl-C stops the workers cleanly (they hand back their leases), then the server.
+//! The workers never outlive `up`: they are killed if it fails while starting them, and on Linux
+//! (where the kernel can tell a child that its parent died) also if `up` itself is killed.
 
 use super::serve::{shutdown_signal, ServerArgs};
 use anyhow::{Context, Result};
@@ -50,7 +52,11 @@ pub async fn run(args: UpArgs) -> Result<()> {
             .arg(args.threads_per_worker.max(1).to_string())
             .arg("--name")
             .arg(format!("local-{}", i + 1))
-            .stdin(Stdio::null());
+            .stdin(Stdio::null())
+            // `up` failing (returning early) drops the workers started so far: killed with it.
+            .kill_on_drop(true);
+        #[cfg(target_os = "linux")]
+        die_with_parent(&mut cmd);
         match &worker_token {
             Some(t) => cmd.env("PATHFARM_WORKER_TOKEN", t),
             None => cmd.env_remove("PATHFARM_WORKER_TOKEN"),
@@ -81,4 +87,26 @@ pub async fn run(args: UpArgs) -> Result<()> {
     server.await.context("server task")??;
     println!("stopped");
     Ok(())
+}
+
+/// Asks the kernel to SIGKILL the child when this process dies (its server dies with it, so the
+/// worker could only retry in vain). The signal follows the thread that forks: `run` forks from the
+/// thread that `block_on` runs on, which lives as long as the process.
+#[cfg(target_os = "linux")]
+fn die_with_parent(cmd: &mut tokio::process::Command) {
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: the closure runs in the child between fork and exec, and only makes the
+    // async-signal-safe system calls prctl(2) and getppid(2); it allocates nothing.
+    unsafe {
+        cmd.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL, 0, 0, 0) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The parent died before the prctl: nobody will signal us.
+            if libc::getppid() != parent {
+                libc::_exit(1);
+            }
+            Ok(())
+        });
+    }
 }
