@@ -24,7 +24,10 @@ pub struct Limits {
     /// 200,000 samples per pixel with the default tile size and `max_task_samples`.
     pub max_tasks: u64,
     /// Largest slice body (bytes). The slice upload route reads no more; JSON routes read at most
-    /// [`MAX_JSON_BODY_BYTES`], the job submission the scene limit plus 1 MiB.
+    /// [`MAX_JSON_BODY_BYTES`], the job submission the scene limit plus 1 MiB. A job whose largest
+    /// tile's largest honest slice (`pathfarm_wire::max_slice_body_bytes`) would not fit is
+    /// refused at submission. The default, 256 MiB, is what the server read for any request
+    /// before each route had a limit of its own; it takes tiles of 2048² at any spp.
     pub max_slice_bytes: usize,
     /// Most submitted scenes validated (loaded) at once; further submissions wait their turn.
     /// Loading takes memory up to a few times the scene's size (its triangles, its decoded
@@ -45,7 +48,7 @@ impl Default for Limits {
             max_spp: 1 << 20,
             max_tiles: 65536,
             max_tasks: 500_000,
-            max_slice_bytes: 64 << 20,
+            max_slice_bytes: 256 << 20,
             scene_checks: 2,
             max_scene_triangles: 20_000_000,
         }

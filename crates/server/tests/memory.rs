@@ -131,6 +131,11 @@ async fn plans_over_the_limits_are_refused_before_they_are_built() {
             r#"{"width":8192,"height":8192,"spp":1048576,"tile_size":64}"#,
             "max_tasks",
         ),
+        (
+            // One tile whose slices could not be uploaded under the slice limit.
+            r#"{"width":4096,"height":4096,"spp":1,"tile_size":4096}"#,
+            "max_slice_bytes",
+        ),
     ] {
         LARGEST.store(0, Ordering::Relaxed);
         let (status, err) = submit(&state, &scene, settings).await;
@@ -156,7 +161,15 @@ async fn plans_over_the_limits_are_refused_before_they_are_built() {
     .await;
     assert_eq!(status, StatusCode::CREATED, "{job}");
     assert_eq!(job["tasks"], 4096 * 7);
-    assert_eq!(state.store.jobs(None, 0, 10).await.unwrap().1, 1);
+    // The largest tile whose largest slice fits the default slice limit is accepted.
+    let (status, job) = submit(
+        &state,
+        &scene,
+        r#"{"width":2048,"height":2048,"spp":1024,"tile_size":2048}"#,
+    )
+    .await;
+    assert_eq!(status, StatusCode::CREATED, "{job}");
+    assert_eq!(state.store.jobs(None, 0, 10).await.unwrap().1, 2);
     state.store.close().await;
 }
 

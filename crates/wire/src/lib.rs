@@ -12,6 +12,6 @@ pub mod slice;
 mod varint;
 
 pub use slice::{
-    decode_slice, decode_slice_header, encode_slice, max_sample_sums, Slice, SliceError,
-    SliceHeader, SliceLimits, SLICE_MAGIC, SLICE_VERSION,
+    decode_slice, decode_slice_header, encode_slice, max_sample_sums, max_slice_body_bytes, Slice,
+    SliceError, SliceHeader, SliceLimits, SLICE_MAGIC, SLICE_VERSION,
 };

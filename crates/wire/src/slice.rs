@@ -193,6 +193,23 @@ pub fn max_sample_sums() -> (u128, u128) {
     (p.sum[0].max(p.sum[1]).max(p.sum[2]), p.sum_sq_lum)
 }
 
+/// The largest body an honest slice of `pixels` pixels can take when each pixel holds at most
+/// `samples` samples: every pixel's count and sums at their largest ([`max_sample_sums`] times
+/// `samples`), the header, the invalid-sample count and the most invalid samples a slice records,
+/// and the checksum. A server that accepts tiles of `pixels` pixels must accept bodies this large.
+pub fn max_slice_body_bytes(pixels: u64, samples: u64) -> u64 {
+    let (sum, sum_sq) = max_sample_sums();
+    let n = u128::from(samples);
+    let pixel = varint::len(n)
+        + 3 * varint::len(sum.saturating_mul(n))
+        + varint::len(sum_sq.saturating_mul(n));
+    let invalid = MAX_RECORDED_INVALID * 3 * varint::len(u128::from(u32::MAX));
+    let fixed = 8 + 6 * 4 + 2 * varint::len(u128::from(u64::MAX)) + varint::len(64) + invalid + 8;
+    pixels
+        .saturating_mul(pixel as u64)
+        .saturating_add(fixed as u64)
+}
+
 /// The fixed-size start of a slice body: its tile and sample range, read without decoding (or
 /// checking) the rest, so that a server can see what an upload claims to be before it allocates
 /// anything for its pixels.

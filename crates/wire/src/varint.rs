@@ -3,6 +3,12 @@
 
 /// Appends `v` to `out`.
 #[inline]
+/// How many bytes [`put`] writes for `v`.
+pub fn len(v: u128) -> usize {
+    let bits = 128 - v.leading_zeros() as usize;
+    bits.div_ceil(7).max(1)
+}
+
 pub fn put(out: &mut Vec<u8>, mut v: u128) {
     loop {
         let byte = (v & 0x7f) as u8;

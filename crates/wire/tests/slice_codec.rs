@@ -190,3 +190,35 @@ fn fnv1a64(bytes: &[u8]) -> u64 {
     }
     h
 }
+
+#[test]
+fn the_largest_honest_slice_fits_its_bound() {
+    // Every pixel at the largest sums its 8 samples can carry, the most recorded invalid samples
+    // and the largest counters: the body a server must accept for this tile and sample count.
+    let largest = f32::from_bits(pathfarm_tracer::accumulation::MAX_SAMPLE_VALUE.to_bits() - 1);
+    let mut p = pathfarm_tracer::PixelAccum::default();
+    for _ in 0..8 {
+        assert!(p.add_sample(Vec3::splat(largest)));
+    }
+    let mut slice = sample_slice(); // range [4, 12): 8 samples a pixel
+    for pixel in &mut slice.acc.pixels {
+        *pixel = p;
+    }
+    slice.acc.rays = u64::MAX;
+    slice.acc.invalid_count = u64::MAX;
+    slice.acc.invalid = (0..pathfarm_tracer::accumulation::MAX_RECORDED_INVALID as u32)
+        .map(|i| pathfarm_tracer::accumulation::InvalidSample {
+            x: u32::MAX - i,
+            y: u32::MAX,
+            index: u32::MAX,
+        })
+        .collect();
+    let pixels = slice.acc.pixels.len() as u64;
+    let bytes = encode_slice(&slice).len() as u64;
+    let bound = pathfarm_wire::max_slice_body_bytes(pixels, 8);
+    assert!(bytes <= bound, "{bytes} bytes over the bound {bound}");
+    // The bound is the encoding's own size, not a loose multiple of it.
+    assert!(bound - bytes < 64, "{bytes} bytes, bound {bound}");
+    // More samples a pixel can only need more room.
+    assert!(pathfarm_wire::max_slice_body_bytes(pixels, 1 << 20) > bound);
+}

@@ -182,6 +182,11 @@ pub async fn run(
                 report.tasks += 1;
                 abandoned.reset();
             }
+            Err(e) if e.is_farm_decision() => {
+                // The farm took the task back (a cancel, an early stop, an expired lease): nothing
+                // is wrong here, so the next lease is asked for at once.
+                tracing::info!(task = lease.task_id, reason = %e, "task taken back");
+            }
             Err(e) => {
                 // Whatever went wrong may well go wrong again with the next lease (often the same
                 // task): wait before asking, longer each time nothing could be done.
@@ -321,6 +326,21 @@ enum TaskError {
     Join(String),
 }
 
+impl TaskError {
+    /// The server took the lease back (the job was cancelled, stopped early or its lease expired):
+    /// a decision of the farm's, not a failure of this worker's that would repeat.
+    fn is_farm_decision(&self) -> bool {
+        match self {
+            TaskError::LeaseLost => true,
+            TaskError::Client(ClientError::Api { status, .. }) => {
+                *status == reqwest::StatusCode::CONFLICT
+                    || *status == reqwest::StatusCode::NOT_FOUND
+            }
+            _ => false,
+        }
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 async fn work_on(
     session: &Session,
@@ -383,7 +403,17 @@ async fn work_on(
             sample_end: range.end,
             acc,
         });
-        let ack = upload(session, lease, body).await?;
+        let ack = match upload(session, lease, body).await {
+            Ok(ack) => ack,
+            Err(e) => {
+                // Given back at once, so that the task is queued again now rather than when the
+                // lease expires (unless the farm already took it back).
+                if !e.is_farm_decision() {
+                    let _ = client.release(lease.task_id, &lease.lease_token).await;
+                }
+                return Err(e);
+            }
+        };
         report.slices += 1;
         report.samples += samples;
         begin = ack.task_samples_done.max(range.end);
@@ -431,6 +461,25 @@ mod tests {
     use std::collections::BTreeMap;
     use std::io::{BufRead, BufReader, Read, Write};
     use std::net::{TcpListener, TcpStream};
+
+    #[test]
+    fn only_failures_of_the_workers_own_make_it_wait() {
+        let api = |status: u16| {
+            TaskError::Client(ClientError::Api {
+                status: reqwest::StatusCode::from_u16(status).unwrap(),
+                code: "x".into(),
+                message: "x".into(),
+            })
+        };
+        // Taken back by the farm (a cancel, an early stop, an expired lease): lease again at once.
+        assert!(TaskError::LeaseLost.is_farm_decision());
+        assert!(api(409).is_farm_decision());
+        assert!(api(404).is_farm_decision());
+        // Failures that may well repeat with the next lease: back off.
+        assert!(!api(503).is_farm_decision());
+        assert!(!api(422).is_farm_decision());
+        assert!(!TaskError::Join("panicked".into()).is_farm_decision());
+    }
 
     #[test]
     fn heartbeats_time_out_after_their_interval_with_a_floor() {

@@ -218,6 +218,27 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
             s.tile_size
         ));
     }
+    // A slice always covers its whole tile: the largest tile's largest honest slice must fit the
+    // slice route's body limit, or its uploads would be refused and the job never finish.
+    let tile_pixels = u64::from(s.tile_size.min(s.width)) * u64::from(s.tile_size.min(s.height));
+    let slice_bytes = pathfarm_wire::max_slice_body_bytes(tile_pixels, u64::from(s.spp));
+    if slice_bytes > l.max_slice_bytes as u64 {
+        let per_pixel = pathfarm_wire::max_slice_body_bytes(1, u64::from(s.spp))
+            - pathfarm_wire::max_slice_body_bytes(0, u64::from(s.spp));
+        let fixed = pathfarm_wire::max_slice_body_bytes(0, u64::from(s.spp));
+        let largest = ((l.max_slice_bytes as u64).saturating_sub(fixed) / per_pixel).isqrt();
+        return Err(ApiError::unprocessable(
+            "limit",
+            format!(
+                "a slice of a {}x{} tile at {} spp may take {slice_bytes} bytes, over the slice \
+                 limit of {} bytes (max_slice_bytes); use a tile_size of at most {largest}",
+                s.tile_size.min(s.width),
+                s.tile_size.min(s.height),
+                s.spp,
+                l.max_slice_bytes
+            ),
+        ));
+    }
     if let Some(t) = s.noise_target {
         if !(t.is_finite() && t > 0.0) {
             return bad(format!("noise_target must be a positive number (got {t})"));
