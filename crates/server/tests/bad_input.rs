@@ -39,15 +39,6 @@ fn req(method: &str, uri: &str, ct: Option<&str>, body: impl Into<Body>) -> Requ
     b.body(body.into()).unwrap()
 }
 
-fn multipart(scene: &[u8], settings: &str) -> (String, Vec<u8>) {
-    let boundary = "XpathfarmX";
-    let mut body = Vec::new();
-    body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"s.gltf\"\r\nContent-Type: application/octet-stream\r\n\r\n").as_bytes());
-    body.extend_from_slice(scene);
-    body.extend_from_slice(format!("\r\n--{boundary}\r\nContent-Disposition: form-data; name=\"settings\"\r\nContent-Type: application/json\r\n\r\n{settings}\r\n--{boundary}--\r\n").as_bytes());
-    (format!("multipart/form-data; boundary={boundary}"), body)
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn malformed_requests_get_documented_errors() {
     for (store, url) in stores("bad-input").await {

@@ -87,15 +87,6 @@ async fn send(
     )
 }
 
-fn multipart(scene: &[u8], settings: &str) -> (String, Vec<u8>) {
-    let boundary = "XpathfarmX";
-    let mut body = Vec::new();
-    body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"s.gltf\"\r\nContent-Type: application/octet-stream\r\n\r\n").as_bytes());
-    body.extend_from_slice(scene);
-    body.extend_from_slice(format!("\r\n--{boundary}\r\nContent-Disposition: form-data; name=\"settings\"\r\nContent-Type: application/json\r\n\r\n{settings}\r\n--{boundary}--\r\n").as_bytes());
-    (format!("multipart/form-data; boundary={boundary}"), body)
-}
-
 async fn submit(state: &AppState, scene: &[u8], settings: &str) -> (StatusCode, Value) {
     let (ct, body) = multipart(scene, settings);
     send(

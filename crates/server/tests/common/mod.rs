@@ -207,3 +207,14 @@ pub fn assert_completed(j: &JobView) {
     assert_eq!(j.state, JobState::Completed, "{j:?}");
     assert_eq!(j.samples_done, j.samples_planned, "{j:?}");
 }
+
+/// A job submission body: the scene and the settings JSON as `multipart/form-data`, with its
+/// content type.
+pub fn multipart(scene: &[u8], settings: &str) -> (String, Vec<u8>) {
+    let boundary = "XpathfarmX";
+    let mut body = Vec::new();
+    body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"s.gltf\"\r\nContent-Type: application/octet-stream\r\n\r\n").as_bytes());
+    body.extend_from_slice(scene);
+    body.extend_from_slice(format!("\r\n--{boundary}\r\nContent-Disposition: form-data; name=\"settings\"\r\nContent-Type: application/json\r\n\r\n{settings}\r\n--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
