@@ -220,26 +220,33 @@ impl<L: Lanes> Sheared<L> {
     }
 }
 
-/// Tests the ray against the sixteen triangles of `p`: [`intersect_watertight`] lane by lane.
+/// No hits yet: the scratch space a query's packet tests write into.
 #[inline(always)]
-fn test<L: Lanes>(l: L, pre: &RayPrecomp, p: &WidePacket, t_max: f32) -> WideHits {
-    let r = Sheared::new(l, pre);
-    let mut hits = WideHits {
+fn no_hits() -> WideHits {
+    WideHits {
         mask: 0,
         t: [0.0; WIDE],
         b1: [0.0; WIDE],
         b2: [0.0; WIDE],
-    };
+    }
+}
+
+/// Tests the ray against the sixteen triangles of `p`: [`intersect_watertight`] lane by lane,
+/// into `hits` (one scratch space for a query's packets, not a value returned per packet, which
+/// the compiler copied: 3 × 64 bytes per packet).
+#[inline(always)]
+fn test<L: Lanes>(l: L, pre: &RayPrecomp, p: &WidePacket, t_max: f32, hits: &mut WideHits) {
+    let r = Sheared::new(l, pre);
+    hits.mask = 0;
     let mut on_edge = 0;
     let mut at = 0;
     while at < WIDE {
-        let (mask, edge) = test_lanes(l, &r, p, t_max, at, &mut hits);
+        let (mask, edge) = test_lanes(l, &r, p, t_max, at, hits);
         hits.mask |= mask << at;
         on_edge |= edge << at;
         at += L::N;
     }
     hits.decide_edges(on_edge, pre, t_max, |k| p.triangle(k));
-    hits
 }
 
 /// Lanes `at .. at + N` of [`test`]: stores their distances and barycentrics in `hits` and returns
@@ -290,8 +297,9 @@ fn closest_with<L: Lanes>(
     accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
 ) -> Option<(u32, TriangleHit)> {
     let mut best = Closest::new(t_max);
+    let mut hits = no_hits();
     for p in packets {
-        closest_in_packet(l, p, pre, &mut best, accept);
+        closest_in_packet(l, p, pre, &mut best, accept, &mut hits);
     }
     best.found()
 }
@@ -304,9 +312,10 @@ fn closest_in_packet<L: Lanes>(
     pre: &RayPrecomp,
     best: &mut Closest,
     accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    hits: &mut WideHits,
 ) {
     // Ties with the best so far are let through so that the index can break them.
-    let hits = test(l, pre, p, best.tie_limit());
+    test(l, pre, p, best.tie_limit(), hits);
     if hits.mask == 0 {
         return;
     }
@@ -339,10 +348,12 @@ fn pair_with<L: Lanes>(
 ) -> (Option<(u32, TriangleHit)>, bool) {
     let mut best = Closest::new(a.1);
     let mut blocked = false;
+    let (mut hits_a, mut hits_b) = (no_hits(), no_hits());
     for p in packets {
-        closest_in_packet(l, p, a.0, &mut best, accept_a);
+        closest_in_packet(l, p, a.0, &mut best, accept_a, &mut hits_a);
         if !blocked {
-            blocked = test(l, b.0, p, b.1).any_accepted(p.first_id, accept_b);
+            test(l, b.0, p, b.1, &mut hits_b);
+            blocked = hits_b.any_accepted(p.first_id, accept_b);
         }
     }
     (best.found(), blocked)
@@ -359,8 +370,10 @@ fn any_with<L: Lanes>(
     // A loop, not `Iterator::any` with a closure: a closure that is not inlined is compiled
     // without AVX-512F, and every lane operation in it becomes a call (seen when this was
     // inlined into a larger AVX-512F function: 3.5× slower).
+    let mut hits = no_hits();
     for p in packets {
-        if test(l, pre, p, t_max).any_accepted(p.first_id, accept) {
+        test(l, pre, p, t_max, &mut hits);
+        if hits.any_accepted(p.first_id, accept) {
             return true;
         }
     }
