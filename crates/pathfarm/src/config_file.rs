@@ -23,6 +23,7 @@ pub const KEYS: &[(&str, &str, &str)] = &[
         "max-scene-triangles",
         "PATHFARM_MAX_SCENE_TRIANGLES",
     ),
+    ("serve", "image-cache-mib", "PATHFARM_IMAGE_CACHE_MIB"),
     ("up", "workers", "PATHFARM_WORKERS"),
     ("up", "threads-per-worker", "PATHFARM_THREADS_PER_WORKER"),
     ("up", "port", "PATHFARM_PORT"),

@@ -6,6 +6,9 @@ use std::time::Duration;
 /// a job patch are all far below it).
 pub const MAX_JSON_BODY_BYTES: usize = 64 << 10;
 
+/// The default of [`ServerConfig::image_cache_bytes`]: 1 GiB.
+pub const DEFAULT_IMAGE_CACHE_BYTES: usize = 1 << 30;
+
 /// Limits on requests, each enforced with a clear 4xx.
 #[derive(Clone, Debug)]
 pub struct Limits {
@@ -71,6 +74,12 @@ pub struct ServerConfig {
     /// a few seconds of work.
     pub max_task_samples: u64,
     pub limits: Limits,
+    /// Most bytes the cache of job images holds (each image's pixels and its encoded PNGs and
+    /// EXRs; see [`crate::image_cache`]). The least recently used images go first; an image
+    /// larger than this is served but not kept, so it is assembled again for every request. A
+    /// job's image takes 80 bytes per pixel (1080p: 166 MB; 4K: 664 MB) plus its encodings
+    /// (an EXR up to 12 bytes per pixel): the default, 1 GiB, keeps one 4K image or five 1080p.
+    pub image_cache_bytes: usize,
 }
 
 impl ServerConfig {
@@ -83,6 +92,7 @@ impl ServerConfig {
             monitor_interval: Duration::from_millis(500),
             max_task_samples: 4 << 20,
             limits: Limits::default(),
+            image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
         }
     }
 

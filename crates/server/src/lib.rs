@@ -11,7 +11,6 @@ pub mod dashboard;
 pub mod error;
 pub mod heatmap;
 pub mod image_cache;
-pub mod merge;
 pub mod metrics;
 pub mod monitor;
 pub mod routes;
@@ -54,11 +53,12 @@ impl AppState {
     pub async fn open(config: ServerConfig) -> Result<AppState, store::StoreError> {
         let store = Store::connect(&config.db_url).await?;
         let scene_checks = tokio::sync::Semaphore::new(config.limits.scene_checks.max(1));
+        let images = image_cache::ImageCache::new(config.image_cache_bytes);
         Ok(AppState(Arc::new(Inner {
             store,
             scene_checks,
             config,
-            images: Default::default(),
+            images,
             metrics: Default::default(),
         })))
     }

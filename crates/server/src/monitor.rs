@@ -91,15 +91,20 @@ pub async fn refresh_estimate(
         .images
         .get(store, &job.id, job.settings.width, job.settings.height)
         .await?;
-    let err = if img.min_samples >= 2 {
-        img.acc.relative_error()
-    } else {
-        None
-    };
-    let samples = img.acc.total_samples();
+    let version = img.version;
+    // Passes over every pixel: off the runtime's threads.
+    let (err, samples) = crate::image_cache::blocking("error estimate", move || {
+        let err = if img.min_samples >= 2 {
+            img.acc.relative_error()
+        } else {
+            None
+        };
+        Ok((err, img.acc.total_samples()))
+    })
+    .await?;
     let target_reached = matches!((job.settings.noise_target, err), (Some(t), Some(e)) if e <= t);
     let estimate = Estimate {
-        version: img.version,
+        version,
         relative_error: err,
         samples,
         last: target_reached || samples >= job.samples_planned || job.state.is_final(),

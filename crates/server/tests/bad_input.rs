@@ -7,29 +7,9 @@ mod common;
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use common::*;
-use http_body_util::BodyExt;
 use pathfarm_server::{app, AppState};
 use pathfarm_wire::api::{ErrorBody, JobSettings};
 use tower::ServiceExt;
-
-async fn call(state: &AppState, req: Request<Body>) -> (StatusCode, ErrorBody) {
-    let resp = app(state.clone()).oneshot(req).await.unwrap();
-    let status = resp.status();
-    let ct = resp
-        .headers()
-        .get("content-type")
-        .map(|v| v.to_str().unwrap().to_string());
-    let bytes = resp.into_body().collect().await.unwrap().to_bytes();
-    assert_eq!(
-        ct.as_deref(),
-        Some("application/json"),
-        "{status}: {}",
-        String::from_utf8_lossy(&bytes)
-    );
-    let body: ErrorBody = serde_json::from_slice(&bytes)
-        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&bytes)));
-    (status, body)
-}
 
 fn req(method: &str, uri: &str, ct: Option<&str>, body: impl Into<Body>) -> Request<Body> {
     let mut b = Request::builder().method(method).uri(uri);
@@ -152,7 +132,7 @@ async fn malformed_requests_get_documented_errors() {
         ];
         for (r, status, code) in cases {
             let what = format!("{} {}", r.method(), r.uri());
-            let (s, body) = call(&state, r).await;
+            let (s, body) = call::<ErrorBody>(&state, r).await;
             assert_eq!(
                 (s, body.error.code.as_str()),
                 (status, code),
@@ -216,7 +196,8 @@ async fn malformed_requests_get_documented_errors() {
         ];
         for (scene, settings, status, code, mentions) in bad_submissions {
             let (ct, body) = multipart(&scene, &settings);
-            let (s, err) = call(&state, req("POST", "/api/v1/jobs", Some(&ct), body)).await;
+            let (s, err) =
+                call::<ErrorBody>(&state, req("POST", "/api/v1/jobs", Some(&ct), body)).await;
             assert_eq!(
                 (s, err.error.code.as_str()),
                 (status, code),
@@ -243,7 +224,8 @@ async fn malformed_requests_get_documented_errors() {
                 "buffers":[{{"uri":"{uri}","byteLength":36}}]}}"#
             );
             let (ct, body) = multipart(outside.as_bytes(), ok_settings);
-            let (s, err) = call(&state, req("POST", "/api/v1/jobs", Some(&ct), body)).await;
+            let (s, err) =
+                call::<ErrorBody>(&state, req("POST", "/api/v1/jobs", Some(&ct), body)).await;
             assert_eq!(
                 (s, err.error.code.as_str()),
                 (StatusCode::UNPROCESSABLE_ENTITY, "invalid_scene"),

@@ -8,16 +8,13 @@
 
 mod common;
 
-use axum::body::Body;
-use axum::http::{Request, StatusCode};
+use axum::http::StatusCode;
 use common::*;
-use http_body_util::BodyExt;
-use pathfarm_server::{app, AppState};
+use pathfarm_server::AppState;
 use pathfarm_wire::api::Lease;
 use serde_json::{json, Value};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use tower::ServiceExt;
 
 struct Recording;
 
@@ -64,27 +61,7 @@ async fn send(
     headers: &[(&str, &str)],
     body: Vec<u8>,
 ) -> (StatusCode, Value) {
-    let mut b = Request::builder().method(method).uri(uri);
-    for (k, v) in headers {
-        b = b.header(*k, *v);
-    }
-    let resp = app(state.clone())
-        .oneshot(b.body(Body::from(body)).unwrap())
-        .await
-        .unwrap();
-    let status = resp.status();
-    let ct = resp
-        .headers()
-        .get("content-type")
-        .map(|v| v.to_str().unwrap().to_string());
-    let bytes = resp.into_body().collect().await.unwrap().to_bytes();
-    if !status.is_success() {
-        assert_eq!(ct.as_deref(), Some("application/json"), "{status}");
-    }
-    (
-        status,
-        serde_json::from_slice(&bytes).unwrap_or(Value::Null),
-    )
+    call(state, request(method, uri, headers, body)).await
 }
 
 async fn submit(state: &AppState, scene: &[u8], settings: &str) -> (StatusCode, Value) {
@@ -188,16 +165,9 @@ async fn slice_uploads_allocate_no_more_than_their_tile() {
     .await;
     assert_eq!(status, StatusCode::CREATED);
     let worker = reg["worker_id"].as_str().unwrap().to_string();
-    let resp = app(state.clone())
-        .oneshot(
-            Request::post(format!("/api/v1/workers/{worker}/lease"))
-                .body(Body::empty())
-                .unwrap(),
-        )
-        .await
-        .unwrap();
-    let bytes = resp.into_body().collect().await.unwrap().to_bytes();
-    let lease: Lease = serde_json::from_slice(&bytes).unwrap();
+    let uri = format!("/api/v1/workers/{worker}/lease");
+    let (status, lease): (_, Lease) = call(&state, request("POST", &uri, &[], "")).await;
+    assert_eq!(status, StatusCode::OK);
     let uri = format!("/api/v1/tasks/{}/slices", lease.task_id);
     let token = lease.lease_token.as_str();
 

@@ -44,6 +44,22 @@ impl PixelAccum {
         true
     }
 
+    /// The sum of `self` and `o`, or `None` if a sum or the count would overflow.
+    #[inline]
+    pub fn checked_merge(&self, o: &PixelAccum) -> Option<PixelAccum> {
+        Some(PixelAccum {
+            sum: [
+                self.sum[0].checked_add(o.sum[0])?,
+                self.sum[1].checked_add(o.sum[1])?,
+                self.sum[2].checked_add(o.sum[2])?,
+            ],
+            sum_sq_lum: self.sum_sq_lum.checked_add(o.sum_sq_lum)?,
+            count: self.count.checked_add(o.count)?,
+        })
+    }
+
+    /// Adds `o` into `self`. Unchecked: callers that add sums from elsewhere check with
+    /// [`PixelAccum::checked_merge`] first (as [`Accumulation::merge`] does).
     #[inline]
     pub fn merge(&mut self, o: &PixelAccum) {
         self.sum[0] += o.sum[0];
@@ -135,20 +151,29 @@ pub struct Accumulation {
     pub invalid: Vec<InvalidSample>,
 }
 
-/// Why two accumulations could not be added.
+/// Why two accumulations could not be added. Nothing was changed.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
-#[error(
-    "accumulation of {got_w}x{got_h} at ({got_x},{got_y}) does not fit inside {w}x{h} at ({x},{y})"
-)]
-pub struct MergeError {
-    pub got_x: u32,
-    pub got_y: u32,
-    pub got_w: u32,
-    pub got_h: u32,
-    pub x: u32,
-    pub y: u32,
-    pub w: u32,
-    pub h: u32,
+pub enum MergeError {
+    #[error(
+        "accumulation of {got_w}x{got_h} at ({got_x},{got_y}) does not fit inside {w}x{h} at ({x},{y})"
+    )]
+    Shape {
+        got_x: u32,
+        got_y: u32,
+        got_w: u32,
+        got_h: u32,
+        x: u32,
+        y: u32,
+        w: u32,
+        h: u32,
+    },
+    /// A pixel's sums or count would leave `u128`/`u64`. Never for what the tracer renders (its
+    /// samples are bounded, see the module's notes); possible for sums that came from elsewhere,
+    /// such as an upload.
+    #[error("the sums of pixel ({x}, {y}) would overflow")]
+    Overflow { x: u32, y: u32 },
+    #[error("the invalid sample count would overflow")]
+    InvalidCount,
 }
 
 impl Accumulation {
@@ -173,13 +198,20 @@ impl Accumulation {
 
     /// Adds `other` (which must lie inside `self`) into `self`. Exact: the result does not depend on
     /// the order or grouping of merges.
+    ///
+    /// All or nothing: every addition is checked before any is made, so an error (the shape, or a
+    /// sum that would overflow) leaves `self` unchanged. A merge that panicked would leave a farm's
+    /// tile that can never merge again, and one that wrapped would break exactness; the checks cost
+    /// one read of the pixels, little beside rendering them. The ray count, a throughput statistic,
+    /// saturates.
     pub fn merge(&mut self, other: &Accumulation) -> Result<(), MergeError> {
         let fits = other.x0 >= self.x0
             && other.y0 >= self.y0
             && other.x0 as u64 + other.width as u64 <= self.x0 as u64 + self.width as u64
-            && other.y0 as u64 + other.height as u64 <= self.y0 as u64 + self.height as u64;
+            && other.y0 as u64 + other.height as u64 <= self.y0 as u64 + self.height as u64
+            && other.pixels.len() as u64 == other.width as u64 * other.height as u64;
         if !fits {
-            return Err(MergeError {
+            return Err(MergeError::Shape {
                 got_x: other.x0,
                 got_y: other.y0,
                 got_w: other.width,
@@ -190,25 +222,45 @@ impl Accumulation {
                 h: self.height,
             });
         }
-        for row in 0..other.height {
-            let src =
-                &other.pixels[(row * other.width) as usize..((row + 1) * other.width) as usize];
-            let start = ((other.y0 - self.y0 + row) * self.width + (other.x0 - self.x0)) as usize;
-            for (d, s) in self.pixels[start..start + other.width as usize]
-                .iter_mut()
+        let rows = other.pixels.chunks_exact(other.width.max(1) as usize);
+        for (row, src) in rows.clone().enumerate() {
+            let dst = &self.pixels[self.row_start(other, row)..][..src.len()];
+            if let Some(i) = dst
+                .iter()
                 .zip(src)
+                .position(|(d, s)| d.checked_merge(s).is_none())
             {
+                return Err(MergeError::Overflow {
+                    x: other.x0 + i as u32,
+                    y: other.y0 + row as u32,
+                });
+            }
+        }
+        let invalid_count = self
+            .invalid_count
+            .checked_add(other.invalid_count)
+            .ok_or(MergeError::InvalidCount)?;
+        for (row, src) in rows.enumerate() {
+            let start = self.row_start(other, row);
+            for (d, s) in self.pixels[start..start + src.len()].iter_mut().zip(src) {
                 d.merge(s);
             }
         }
-        self.rays += other.rays;
-        self.invalid_count += other.invalid_count;
+        self.rays = self.rays.saturating_add(other.rays);
+        self.invalid_count = invalid_count;
         self.invalid.extend_from_slice(&other.invalid);
         // Keep the recorded subset independent of merge order: the smallest coordinates win.
         self.invalid.sort_by_key(|s| (s.y, s.x, s.index));
         self.invalid.dedup();
         self.invalid.truncate(MAX_RECORDED_INVALID);
         Ok(())
+    }
+
+    /// Where row `row` of `other` (already checked to lie inside `self`) starts in `self.pixels`.
+    fn row_start(&self, other: &Accumulation, row: usize) -> usize {
+        (other.y0 - self.y0) as usize * self.width as usize
+            + row * self.width as usize
+            + (other.x0 - self.x0) as usize
     }
 
     /// Total number of valid samples.
@@ -307,8 +359,90 @@ mod tests {
     fn merging_outside_the_target_is_an_error() {
         let mut a = Accumulation::new(0, 0, 4, 4);
         let b = Accumulation::new(2, 2, 4, 1);
-        assert!(a.merge(&b).is_err());
+        assert!(matches!(a.merge(&b), Err(MergeError::Shape { .. })));
         let c = Accumulation::new(2, 3, 2, 1);
         assert!(a.merge(&c).is_ok());
+        // Pixels that do not match the stated size are a shape error too (never a panic).
+        let mut d = Accumulation::new(0, 0, 2, 2);
+        d.pixels.pop();
+        assert!(matches!(a.merge(&d), Err(MergeError::Shape { .. })));
+    }
+
+    /// An accumulation whose every field is distinct and non-zero.
+    fn filled(x0: u32, y0: u32, w: u32, h: u32, seed: u128) -> Accumulation {
+        let mut a = Accumulation::new(x0, y0, w, h);
+        for (i, p) in a.pixels.iter_mut().enumerate() {
+            let v = seed * 1_000 + i as u128;
+            p.sum = [v, 2 * v, 3 * v];
+            p.sum_sq_lum = v * v;
+            p.count = (seed as u64) + i as u64;
+        }
+        a.rays = 10 * seed as u64;
+        a.invalid_count = seed as u64;
+        a.invalid = vec![InvalidSample {
+            x: x0,
+            y: y0,
+            index: seed as u32,
+        }];
+        a
+    }
+
+    #[test]
+    fn merging_adds_every_field_of_the_pixels_it_covers() {
+        let mut a = filled(0, 0, 6, 5, 1);
+        let b = filled(2, 1, 3, 2, 7);
+        let before = a.clone();
+        a.merge(&b).unwrap();
+        for y in 0..5 {
+            for x in 0..6 {
+                let (old, new) = (before.pixel(x, y), a.pixel(x, y));
+                let inside = (2..5).contains(&x) && (1..3).contains(&y);
+                let expect = if inside {
+                    old.checked_merge(b.pixel(x, y)).unwrap()
+                } else {
+                    *old
+                };
+                assert_eq!(*new, expect, "pixel ({x}, {y})");
+            }
+        }
+        assert_eq!(a.rays, 80);
+        assert_eq!(a.invalid_count, 8);
+        assert_eq!(a.invalid.len(), 2);
+    }
+
+    #[test]
+    fn an_overflow_is_an_error_and_changes_nothing() {
+        let slice = filled(0, 0, 4, 4, 2);
+        let mut tile = filled(0, 0, 4, 4, 1);
+        tile.pixels[5].sum[2] = u128::MAX - 1;
+        let before = tile.clone();
+        assert_eq!(tile.merge(&slice), Err(MergeError::Overflow { x: 1, y: 1 }));
+        assert_eq!(tile, before);
+        let mut counts = filled(0, 0, 4, 4, 1);
+        counts.pixels[15].count = u64::MAX;
+        let before = counts.clone();
+        assert_eq!(
+            counts.merge(&slice),
+            Err(MergeError::Overflow { x: 3, y: 3 })
+        );
+        assert_eq!(counts, before);
+        let mut invalid = filled(0, 0, 4, 4, 1);
+        invalid.invalid_count = u64::MAX;
+        let before = invalid.clone();
+        assert_eq!(invalid.merge(&slice), Err(MergeError::InvalidCount));
+        assert_eq!(invalid, before);
+        // An overflow in a slice placed inside a larger tile names the tile's coordinates.
+        let mut big = filled(10, 20, 8, 8, 1);
+        let mut part = filled(12, 23, 2, 2, 3);
+        part.pixels[3].sum_sq_lum = u128::MAX;
+        assert_eq!(big.merge(&part), Err(MergeError::Overflow { x: 13, y: 24 }));
+    }
+
+    #[test]
+    fn rays_saturate() {
+        let mut tile = filled(0, 0, 2, 2, 1);
+        tile.rays = u64::MAX - 5;
+        tile.merge(&filled(0, 0, 2, 2, 2)).unwrap();
+        assert_eq!(tile.rays, u64::MAX);
     }
 }

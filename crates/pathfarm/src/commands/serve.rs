@@ -37,6 +37,10 @@ pub struct ServerArgs {
         default_value_t = 20_000_000
     )]
     pub max_scene_triangles: u64,
+    /// Most MiB the cache of job images holds (each image's pixels, 80 bytes each, and its
+    /// encoded PNGs and EXRs); the least recently viewed go first.
+    #[arg(long, env = "PATHFARM_IMAGE_CACHE_MIB", default_value_t = 1024)]
+    pub image_cache_mib: usize,
 }
 
 impl ServerArgs {
@@ -62,6 +66,7 @@ impl ServerArgs {
         c.limits.max_scene_bytes = self.max_scene_mib << 20;
         c.limits.scene_checks = usize::from(self.scene_checks);
         c.limits.max_scene_triangles = self.max_scene_triangles;
+        c.image_cache_bytes = self.image_cache_mib.saturating_mul(1 << 20);
         Ok(c)
     }
 }

@@ -1,9 +1,11 @@
 //! The current image of a job: EXR (float32, optionally with variance and sample-count channels)
-//! and a tone-mapped PNG preview, both rebuilt only when a slice was merged since the last request.
+//! and a tone-mapped PNG preview, both rebuilt only when a slice was merged since the last request
+//! (and the image cache still holds them), on blocking threads (see [`crate::image_cache`]).
 
 use crate::auth::ReadAuth;
 use crate::error::{ApiError, ApiResult};
 use crate::heatmap;
+use crate::image_cache::blocking;
 use crate::AppState;
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -80,16 +82,16 @@ pub async fn image_exr(
         return Ok(r);
     }
     let key = if q.extra { "exr+extra" } else { "exr" };
-    let bytes = img.encoded(key, |acc| {
-        encode_exr(
-            acc,
-            ExrChannels {
-                variance: q.extra,
-                samples: q.extra,
-            },
-        )
-        .map_err(|e| ApiError::internal(format!("EXR encoding: {e}")))
-    })?;
+    let channels = ExrChannels {
+        variance: q.extra,
+        samples: q.extra,
+    };
+    let bytes = state
+        .images
+        .encoded(&id, &img, key, move |acc| {
+            encode_exr(acc, channels).map_err(|e| ApiError::internal(format!("EXR encoding: {e}")))
+        })
+        .await?;
     Ok(image_response(bytes, "image/x-exr", img.version))
 }
 
@@ -115,24 +117,32 @@ pub async fn preview_png(
     if let Some(r) = not_modified(&request, img.version) {
         return Ok(r);
     }
-    let (w, h) = (img.acc.width, img.acc.height);
-    let png_error =
-        |e: pathfarm_tracer::output::ImageError| ApiError::internal(format!("PNG encoding: {e}"));
     let (key, scale) = match q.view {
         PreviewView::Image => (format!("png@{}", q.exposure), None),
-        PreviewView::Samples => (
-            "png:samples".to_string(),
-            Some(heatmap::samples_scale(&img.acc)),
-        ),
+        PreviewView::Samples => {
+            // A pass over every pixel: off the runtime's threads, like the encoding.
+            let src = img.clone();
+            let scale = blocking("heat map scale", move || {
+                Ok(heatmap::samples_scale(&src.acc))
+            })
+            .await?;
+            ("png:samples".to_string(), Some(scale))
+        }
         PreviewView::Noise => ("png:noise".to_string(), Some(heatmap::NOISE_SCALE)),
     };
-    let bytes = img.encoded(&key, |acc| match q.view {
-        PreviewView::Image => encode_png(acc, q.exposure).map_err(png_error),
-        PreviewView::Samples => {
-            encode_rgb8_png(w, h, &heatmap::samples(acc).rgb).map_err(png_error)
-        }
-        PreviewView::Noise => encode_rgb8_png(w, h, &heatmap::noise(acc).rgb).map_err(png_error),
-    })?;
+    let (view, exposure) = (q.view, q.exposure);
+    let bytes = state
+        .images
+        .encoded(&id, &img, &key, move |acc| {
+            let (w, h) = (acc.width, acc.height);
+            match view {
+                PreviewView::Image => encode_png(acc, exposure),
+                PreviewView::Samples => encode_rgb8_png(w, h, &heatmap::samples(acc).rgb),
+                PreviewView::Noise => encode_rgb8_png(w, h, &heatmap::noise(acc).rgb),
+            }
+            .map_err(|e| ApiError::internal(format!("PNG encoding: {e}")))
+        })
+        .await?;
     let mut resp = image_response(bytes, "image/png", img.version);
     if let Some((lo, hi)) = scale {
         let headers = resp.headers_mut();

@@ -8,8 +8,8 @@ use super::jobs::job_state;
 use super::statements::Statements;
 use super::{now_ms, Dialect, Store};
 use crate::error::{ApiError, ApiResult};
-use crate::merge::{checked_merge, CheckedMergeError};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState};
+use pathfarm_tracer::accumulation::MergeError;
 use pathfarm_tracer::{Accumulation, Tile};
 use pathfarm_wire::api::{JobState, SliceAck};
 use pathfarm_wire::{decode_slice, encode_slice, Slice, SliceLimits};
@@ -237,8 +237,8 @@ impl Store {
         };
         // Checked: an overflow refuses this slice (before any write, so a batch goes on) and
         // leaves the tile as it was, so honest slices still merge into it.
-        checked_merge(&mut merged, a).map_err(|e| match e {
-            CheckedMergeError::Shape(e) => ApiError::internal(format!("merge: {e}")),
+        merged.merge(a).map_err(|e| match e {
+            MergeError::Shape { .. } => ApiError::internal(format!("merge: {e}")),
             e => ApiError::unprocessable(
                 "slice_values",
                 format!("slice refused: merging it into task {task_id}'s tile: {e}"),

@@ -2,17 +2,22 @@
 //! SQLite and (when `PATHFARM_TEST_POSTGRES_URL` is set) PostgreSQL.
 #![allow(dead_code)]
 
-use pathfarm_server::{AppState, ServerConfig};
+use axum::body::{Body, Bytes};
+use axum::http::{Request, StatusCode};
+use http_body_util::BodyExt;
+use pathfarm_server::{app, AppState, ServerConfig};
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::output::{encode_exr, ExrChannels};
 use pathfarm_tracer::{render_image, Accumulation};
 use pathfarm_wire::api::{JobSettings, JobState, JobView};
 use pathfarm_worker::client::ApiClient;
 use pathfarm_worker::{WorkerConfig, WorkerReport};
+use serde::de::DeserializeOwned;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
+use tower::ServiceExt;
 
 pub fn cornell() -> Vec<u8> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cornell.gltf");
@@ -217,4 +222,49 @@ pub fn multipart(scene: &[u8], settings: &str) -> (String, Vec<u8>) {
     body.extend_from_slice(scene);
     body.extend_from_slice(format!("\r\n--{boundary}\r\nContent-Disposition: form-data; name=\"settings\"\r\nContent-Type: application/json\r\n\r\n{settings}\r\n--{boundary}--\r\n").as_bytes());
     (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+/// A request with these headers and body.
+pub fn request(
+    method: &str,
+    uri: &str,
+    headers: &[(&str, &str)],
+    body: impl Into<Body>,
+) -> Request<Body> {
+    let mut b = Request::builder().method(method).uri(uri);
+    for (k, v) in headers {
+        b = b.header(*k, *v);
+    }
+    b.body(body.into()).unwrap()
+}
+
+/// One request through the router, in process (`oneshot`): the status, the content type and the
+/// body.
+pub async fn call_raw(state: &AppState, req: Request<Body>) -> (StatusCode, Option<String>, Bytes) {
+    let resp = app(state.clone()).oneshot(req).await.unwrap();
+    let status = resp.status();
+    let ct = resp
+        .headers()
+        .get("content-type")
+        .map(|v| v.to_str().unwrap().to_string());
+    let bytes = resp.into_body().collect().await.unwrap().to_bytes();
+    (status, ct, bytes)
+}
+
+/// One request through the router, in process: the status and the body read as a `T` (an empty
+/// body reads as JSON `null`). Every error, and every body, must be `application/json`.
+pub async fn call<T: DeserializeOwned>(state: &AppState, req: Request<Body>) -> (StatusCode, T) {
+    let (status, ct, bytes) = call_raw(state, req).await;
+    let text = || String::from_utf8_lossy(&bytes).into_owned();
+    if !status.is_success() || !bytes.is_empty() {
+        assert_eq!(
+            ct.as_deref(),
+            Some("application/json"),
+            "{status}: {}",
+            text()
+        );
+    }
+    let json: &[u8] = if bytes.is_empty() { b"null" } else { &bytes };
+    let body = serde_json::from_slice(json).unwrap_or_else(|e| panic!("{status}: {e}: {}", text()));
+    (status, body)
 }
