@@ -43,10 +43,16 @@ impl RayPrecomp {
     /// A vertex's sheared coordinates.
     #[inline(always)]
     fn shear(&self, v: Vec3) -> Vec3 {
-        let d = (v - self.o).to_array();
         let [kx, ky, kz] = self.k;
+        // (v − o)[k] as v[k] − o[k] (the same operation), each component of `o` read by its
+        // index: one 4-byte load each where the caller stored them one at a time. A load of the
+        // whole of `o` spans two of those stores and cannot be forwarded from them (a stall that
+        // showed at the start of the flat queries, which hoist this for their edge cases).
+        let (v, o): ([f32; 3], &[f32; 3]) = (v.to_array(), self.o.as_ref());
+        let d = |k: usize| v[k] - o[k];
         let [sx, sy, sz] = self.s;
-        Vec3::new(d[kx] - sx * d[kz], d[ky] - sy * d[kz], sz * d[kz])
+        let dz = d(kz);
+        Vec3::new(d(kx) - sx * dz, d(ky) - sy * dz, sz * dz)
     }
 }
 

@@ -175,7 +175,7 @@ impl Bvh {
     fn closest_from(
         &self,
         root: NodeRef,
-        ray: &PacketRay,
+        ray: &PacketRay<'_>,
         boxes: &BoxRay,
         best: &mut Closest,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
@@ -194,7 +194,7 @@ impl Bvh {
     fn closest_recursive(
         &self,
         node: NodeRef,
-        ray: &PacketRay,
+        ray: &PacketRay<'_>,
         boxes: &BoxRay,
         best: &mut Closest,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
@@ -220,7 +220,7 @@ impl Bvh {
     fn any_recursive(
         &self,
         node: NodeRef,
-        ray: &PacketRay,
+        ray: &PacketRay<'_>,
         boxes: &BoxRay,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
@@ -247,7 +247,7 @@ impl Bvh {
     fn closest_in_leaf(
         &self,
         node: NodeRef,
-        ray: &PacketRay,
+        ray: &PacketRay<'_>,
         best: &mut Closest,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) {
@@ -263,7 +263,7 @@ impl Bvh {
     fn any_in_leaf(
         &self,
         node: NodeRef,
-        ray: &PacketRay,
+        ray: &PacketRay<'_>,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
@@ -298,7 +298,7 @@ impl Bvh {
     fn any_from(
         &self,
         root: NodeRef,
-        ray: &PacketRay,
+        ray: &PacketRay<'_>,
         boxes: &BoxRay,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,

@@ -13,21 +13,25 @@ use glam::{Vec3, Vec4};
 
 /// The per-ray constants of the test, splatted across lanes once per ray.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct PacketRay {
-    pub scalar: RayPrecomp,
+pub(crate) struct PacketRay<'a> {
+    /// The ray's own constants, by reference: a copy read them back in 16-byte loads across the
+    /// narrower stores that had just written them, which the processor cannot forward (a stall
+    /// per query).
+    pub scalar: &'a RayPrecomp,
     /// The origin's permuted coordinates (o[kx], o[ky], o[kz]).
     o: [Vec4; 3],
     /// The shear (sx, sy, sz).
     s: [Vec4; 3],
 }
 
-impl PacketRay {
+impl<'a> PacketRay<'a> {
     #[inline]
-    pub fn new(pre: &RayPrecomp) -> PacketRay {
+    pub fn new(pre: &'a RayPrecomp) -> PacketRay<'a> {
         let [kx, ky, kz] = pre.k;
-        let o = pre.o.to_array(); // indexed loads, not `Vec3[i]`'s match on a random axis
+        // Indexed loads (not `Vec3[i]`'s match on a random axis), one component each.
+        let o: &[f32; 3] = pre.o.as_ref();
         PacketRay {
-            scalar: *pre,
+            scalar: pre,
             o: [Vec4::splat(o[kx]), Vec4::splat(o[ky]), Vec4::splat(o[kz])],
             s: pre.s.map(Vec4::splat),
         }
@@ -134,7 +138,7 @@ impl<const N: usize> LaneHits<N> {
 }
 
 #[inline(always)]
-pub(super) fn intersect_packet(r: &PacketRay, p: &TriPacket, t_max: f32) -> PacketHits {
+pub(super) fn intersect_packet(r: &PacketRay<'_>, p: &TriPacket, t_max: f32) -> PacketHits {
     let [ax, ay, az] = r.shear(&p.v[0]);
     let [bx, by, bz] = r.shear(&p.v[1]);
     let [cx, cy, cz] = r.shear(&p.v[2]);
@@ -163,7 +167,7 @@ pub(super) fn intersect_packet(r: &PacketRay, p: &TriPacket, t_max: f32) -> Pack
     };
     // Lanes with an edge function exactly zero: the scalar test decides them in double precision.
     out.mask = mask;
-    out.decide_edges(on_edge, &r.scalar, t_max, |k| p.triangle(k));
+    out.decide_edges(on_edge, r.scalar, t_max, |k| p.triangle(k));
     out
 }
 

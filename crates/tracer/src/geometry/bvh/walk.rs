@@ -63,7 +63,7 @@ impl Bvh {
     pub(super) fn closest_step(
         &self,
         w: &mut ClosestWalk,
-        ray: &PacketRay,
+        ray: &PacketRay<'_>,
         boxes: &BoxRay,
         best: &mut Closest,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
@@ -105,7 +105,7 @@ impl Bvh {
     pub(super) fn any_step(
         &self,
         w: &mut AnyWalk,
-        ray: &PacketRay,
+        ray: &PacketRay<'_>,
         boxes: &BoxRay,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,

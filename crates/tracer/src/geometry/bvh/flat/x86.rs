@@ -2,7 +2,7 @@
 //! intrinsic needs its CPU feature, so every call is `unsafe`; the safety argument is the
 //! [`Avx512`] or [`Avx2`] value itself, which only [`Backend::detect`] makes.
 
-use super::{any_with, closest_with, pair_with, Lanes, WidePacket, WIDE};
+use super::{any_with, closest_with, pair_with, Lanes, Packed, WidePacket, WIDE};
 use crate::geometry::{RayPrecomp, TriangleHit};
 use std::arch::x86_64::*;
 
@@ -44,10 +44,11 @@ impl Backend {
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
         // SAFETY (each call): the value exists, so the processor has its features.
-        match self {
+        let packed = match self {
             Backend::Avx512(l) => unsafe { l.closest(packets, pre, t_max, accept) },
             Backend::Avx2(l) => unsafe { l.closest(packets, pre, t_max, accept) },
-        }
+        };
+        packed.found()
     }
 
     /// [`pair_with`] in this instruction set.
@@ -61,10 +62,11 @@ impl Backend {
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
         // SAFETY (each call): as in `closest`.
-        match self {
+        let packed = match self {
             Backend::Avx512(l) => unsafe { l.pair(packets, a, accept_a, b, accept_b) },
             Backend::Avx2(l) => unsafe { l.pair(packets, a, accept_a, b, accept_b) },
-        }
+        };
+        (packed.found(), packed.blocked())
     }
 
     /// [`any_with`] in this instruction set.
@@ -88,7 +90,8 @@ impl Backend {
 /// that the generic test and the `Lanes` operations inline into it (they are `#[inline(always)]`;
 /// a function compiled without the features could not inline the intrinsics, and every operation
 /// would be a call). Each is `unsafe` only because the compiler requires it for calls into
-/// `#[target_feature]` functions: `self`'s existence proves the features.
+/// `#[target_feature]` functions: `self`'s existence proves the features. They answer in a
+/// [`Packed`], which comes back in registers.
 macro_rules! queries_compiled_for {
     ($features:literal) => {
         #[target_feature(enable = $features)]
@@ -98,8 +101,8 @@ macro_rules! queries_compiled_for {
             pre: &RayPrecomp,
             t_max: f32,
             accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
-        ) -> Option<(u32, TriangleHit)> {
-            closest_with(self, packets, pre, t_max, accept)
+        ) -> Packed {
+            Packed::new(closest_with(self, packets, pre, t_max, accept), false)
         }
 
         #[target_feature(enable = $features)]
@@ -110,8 +113,9 @@ macro_rules! queries_compiled_for {
             accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
             b: (&RayPrecomp, f32),
             accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
-        ) -> (Option<(u32, TriangleHit)>, bool) {
-            pair_with(self, packets, a, accept_a, b, accept_b)
+        ) -> Packed {
+            let (found, blocked) = pair_with(self, packets, a, accept_a, b, accept_b);
+            Packed::new(found, blocked)
         }
 
         #[target_feature(enable = $features)]
