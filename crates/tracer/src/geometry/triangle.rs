@@ -85,16 +85,17 @@ pub fn intersect_watertight(r: &RayPrecomp, v: &[Vec3; 3], t_max: f32) -> Option
         return None;
     }
     let det = u + vv + w;
-    if det == 0.0 {
-        return None;
-    }
     let t_scaled = u * a.z + vv * b.z + w * c.z;
-    // t = t_scaled / det must lie in (0, t_max); compare without dividing, minding det's sign.
-    if det > 0.0 {
-        if t_scaled <= 0.0 || t_scaled >= t_max * det {
-            return None;
-        }
-    } else if t_scaled >= 0.0 || t_scaled <= t_max * det {
+    // t = t_scaled / det must lie in (0, t_max); compare without dividing, minding det's sign
+    // (det = 0 fails both). Written as comparisons that must hold, so that a NaN (from
+    // coordinates whose products overflow) is a miss, as in the lanes of the packet tests, and
+    // never a hit at a NaN distance.
+    let in_range = if det > 0.0 {
+        0.0 < t_scaled && t_scaled < t_max * det
+    } else {
+        det < 0.0 && t_scaled < 0.0 && t_max * det < t_scaled
+    };
+    if !in_range {
         return None;
     }
     let inv = 1.0 / det;
@@ -126,6 +127,34 @@ mod tests {
             hit(Vec3::new(0.25, 0.25, 1.0), Vec3::Z, &v).is_none(),
             "behind the origin"
         );
+    }
+
+    #[test]
+    fn overflowing_coordinates_are_a_miss_not_a_nan_hit() {
+        // Products of these coordinates overflow, so det or t_scaled is NaN: once reported as a
+        // hit at a NaN distance (the NaN slipped past comparisons meant to reject).
+        let big = [
+            [
+                Vec3::new(3e30, -2e30, 1e30),
+                Vec3::new(-1e30, 4e30, -2e30),
+                Vec3::ZERO,
+            ],
+            [
+                Vec3::new(1e30, -1e30, 1e30),
+                Vec3::new(0.2, -0.3, 0.1),
+                Vec3::new(-3e30, 2e30, 5e29),
+            ],
+        ];
+        let mut rng = crate::testing::uniform_stream(7);
+        for _ in 0..2000 {
+            let o = Vec3::new(rng(), rng(), rng()) * 4.0 - 2.0;
+            let d = (Vec3::new(rng(), rng(), rng()) * 2.0 - 1.0).normalize_or(Vec3::X);
+            for v in &big {
+                if let Some(h) = hit(o, d, v) {
+                    assert!(h.t.is_finite() && h.t > 0.0, "{h:?} from {o} along {d}");
+                }
+            }
+        }
     }
 
     #[test]

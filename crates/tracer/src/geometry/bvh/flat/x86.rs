@@ -194,6 +194,28 @@ impl Lanes for Avx512 {
         u32::from(unsafe { _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(a, b) })
     }
     #[inline(always)]
+    fn signs_differ(self, a: __m512, b: __m512, c: __m512) -> u32 {
+        unsafe {
+            let (a, b, c) = (
+                _mm512_castps_si512(a),
+                _mm512_castps_si512(b),
+                _mm512_castps_si512(c),
+            );
+            // (a ^ b) | (a ^ c): 0 only where a, b and c agree (truth table 0x7E).
+            let differ = _mm512_ternarylogic_epi32::<0x7E>(a, b, c);
+            u32::from(_mm512_test_epi32_mask(differ, _mm512_set1_epi32(i32::MIN)))
+        }
+    }
+    #[inline(always)]
+    fn flip_sign_by(self, x: __m512, s: __m512) -> __m512 {
+        unsafe {
+            let (x, s) = (_mm512_castps_si512(x), _mm512_castps_si512(s));
+            // x ^ (s & sign bit) (truth table 0x78).
+            let flipped = _mm512_ternarylogic_epi32::<0x78>(x, s, _mm512_set1_epi32(i32::MIN));
+            _mm512_castsi512_ps(flipped)
+        }
+    }
+    #[inline(always)]
     fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32 {
         unsafe { _mm512_mask_reduce_min_ps(mask as __mmask16, self.load(x, 0)) }
     }
@@ -242,6 +264,16 @@ impl Lanes for Avx2 {
     #[inline(always)]
     fn eq(self, a: __m256, b: __m256) -> u32 {
         (unsafe { _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(a, b)) }) as u32
+    }
+    #[inline(always)]
+    fn signs_differ(self, a: __m256, b: __m256, c: __m256) -> u32 {
+        // The sign bits of (a ^ b) | (a ^ c).
+        let differ = unsafe { _mm256_or_ps(_mm256_xor_ps(a, b), _mm256_xor_ps(a, c)) };
+        (unsafe { _mm256_movemask_ps(differ) }) as u32
+    }
+    #[inline(always)]
+    fn flip_sign_by(self, x: __m256, s: __m256) -> __m256 {
+        unsafe { _mm256_xor_ps(x, _mm256_and_ps(s, _mm256_set1_ps(-0.0))) }
     }
     #[inline(always)]
     fn min_where(self, mask: u32, x: &[f32; WIDE]) -> f32 {
