@@ -62,11 +62,8 @@ pub fn roulette_table_settings() -> Vec<(RussianRoulette, &'static str)> {
     vec![
         (RussianRoulette::Off, "no RR"),
         (
-            RussianRoulette::Threshold {
-                terminate: 0.5,
-                below: 0.25,
-            },
-            "terminate 50% below luminance 0.25",
+            RussianRoulette::Max,
+            "survive with max throughput after the 4th vertex (the default until November 26)",
         ),
         (
             RussianRoulette::Threshold {
@@ -85,7 +82,7 @@ pub fn roulette_table_settings() -> Vec<(RussianRoulette, &'static str)> {
         ),
         (
             RussianRoulette::Auto,
-            "auto: survive with max throughput after the 4th vertex (default)",
+            "auto (the default): terminate 50% below luminance 0.25",
         ),
     ]
 }

@@ -52,10 +52,7 @@ pub fn roulette_variants() -> [RussianRoulette; 4] {
         RussianRoulette::Off,
         RussianRoulette::Fixed(0.8),
         RussianRoulette::Fixed(0.5),
-        RussianRoulette::Threshold {
-            terminate: 0.5,
-            below: 0.25,
-        },
+        RussianRoulette::Max,
     ]
 }
 

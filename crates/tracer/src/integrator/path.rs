@@ -211,16 +211,26 @@ pub fn trace_path(
 pub(crate) fn survival(rr: RussianRoulette, depth: u32, beta: Vec3) -> f32 {
     match rr {
         RussianRoulette::Off => 1.0,
-        RussianRoulette::Auto if depth >= 3 => beta.max_element().min(1.0),
-        RussianRoulette::Auto => 1.0,
+        RussianRoulette::Auto => threshold_survival(0.5, 0.25, depth, beta),
+        RussianRoulette::Max if depth >= 3 => beta.max_element().min(1.0),
+        RussianRoulette::Max => 1.0,
         RussianRoulette::Fixed(p) if depth >= 1 => p,
         RussianRoulette::Fixed(_) => 1.0,
-        RussianRoulette::Threshold { terminate, below }
-            if depth >= 1 && crate::math::luminance(beta) < below =>
-        {
-            1.0 - terminate
+        RussianRoulette::Threshold { terminate, below } => {
+            threshold_survival(terminate, below, depth, beta)
         }
-        RussianRoulette::Threshold { .. } => 1.0,
+    }
+}
+
+/// [`RussianRoulette::Threshold`]'s survival probability. (A function of its own rather than
+/// `Auto` calling [`survival`] again: the recursion kept `survival` from being inlined, a call per
+/// lane and bounce.)
+#[inline(always)]
+fn threshold_survival(terminate: f32, below: f32, depth: u32, beta: Vec3) -> f32 {
+    if depth >= 1 && crate::math::luminance(beta) < below {
+        1.0 - terminate
+    } else {
+        1.0
     }
 }
 

@@ -398,6 +398,7 @@ impl<'a> Lanes<'a> {
         match self.settings.rr {
             RussianRoulette::Off => self.scatter(RussianRoulette::Off),
             RussianRoulette::Auto => self.scatter(RussianRoulette::Auto),
+            RussianRoulette::Max => self.scatter(RussianRoulette::Max),
             RussianRoulette::Fixed(p) => self.scatter(RussianRoulette::Fixed(p)),
             RussianRoulette::Threshold { terminate, below } => {
                 self.scatter(RussianRoulette::Threshold { terminate, below })
