@@ -15,6 +15,10 @@ pub struct RayPrecomp {
     pub o: Vec3,
     pub(crate) k: [usize; 3],
     pub(crate) s: [f32; 3],
+    /// 1/d per axis, a component of exactly zero nudged to ±1e-9 first (see `BoxRay::new`): for
+    /// the flat mesh's box test, which would otherwise divide in every query, its result waited
+    /// for by the packet tests behind it.
+    pub(crate) inv_d: [f32; 3],
 }
 
 impl RayPrecomp {
@@ -33,10 +37,15 @@ impl RayPrecomp {
         // keeps the winding of the sheared triangle). A table, so no switch on kz is generated.
         const AXES: [[[usize; 2]; 2]; 3] = [[[1, 2], [2, 1]], [[2, 0], [0, 2]], [[0, 1], [1, 0]]];
         let [kx, ky] = AXES[kz][usize::from(d[kz] < 0.0)];
+        let dv = glam::Vec3A::from(ray.d);
+        let tiny = dv.abs().cmplt(glam::Vec3A::splat(1e-9));
+        let inv_d =
+            glam::Vec3A::ONE / glam::Vec3A::select(tiny, glam::Vec3A::splat(1e-9).copysign(dv), dv);
         RayPrecomp {
             o: ray.o,
             k: [kx, ky, kz],
             s: [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]],
+            inv_d: inv_d.to_array(),
         }
     }
 

@@ -12,6 +12,11 @@
 //! bits, and the answer is the tree's (the smallest (t, triangle index) that the filter accepts).
 //! A lane with an edge function exactly zero goes to the scalar test, as in `packet.rs`.
 //!
+//! The triangles are grouped into packets by place and size (`group.rs`), and each query tests
+//! the packets' boxes first, four at once as a tree node's, skipping the packets whose box the ray
+//! misses or enters beyond its closest hit so far: on the Cornell box the walls and the light fill
+//! one packet and each block one more, so most rays test one packet instead of two.
+//!
 //! It needs AVX-512F (a packet is one register) or AVX2 (a packet is two registers, tested one
 //! after the other), detected once when the mesh is built; without either, or for larger meshes,
 //! the tree is used. (AVX2 once tested both halves side by side, which spilled registers and
@@ -21,10 +26,13 @@
 // Elsewhere than x86-64 a `Flat` cannot exist (see `Backend` below): the test is compiled, unused.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_imports))]
 
+mod group;
+
+use super::node::Node4;
 use super::packet::LaneHits;
-use super::Closest;
+use super::{BoxRay, Closest};
 use crate::geometry::{RayPrecomp, TriangleHit};
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 
 /// Lanes of a wide packet.
 const WIDE: usize = 16;
@@ -39,12 +47,13 @@ pub(super) const MAX_TRIANGLES: usize = 64;
 pub(super) const MAX_TRIANGLES_AVX2: usize = 32;
 
 /// Sixteen triangles in structure-of-arrays form: `v[vertex][axis][lane]`. Lane k holds triangle
-/// `first_id + k`; unused lanes repeat the last triangle and are masked out by `valid`.
+/// `ids[k]`, in ascending order (so that the first of the lanes tied at the smallest distance has
+/// the smallest index); unused lanes repeat the last triangle and are masked out by `valid`.
 #[derive(Clone, Debug)]
 #[repr(C, align(64))]
 struct WidePacket {
     v: [[[f32; WIDE]; 3]; 3],
-    first_id: u32,
+    ids: [u32; WIDE],
     valid: u32,
 }
 
@@ -62,6 +71,8 @@ impl WidePacket {
 #[derive(Clone, Debug)]
 pub(super) struct Flat {
     packets: Vec<WidePacket>,
+    /// The packets' boxes, packet k in lane k.
+    boxes: PacketBoxes,
     /// The instruction set the test runs in, the proof that the processor has it.
     backend: Backend,
 }
@@ -78,26 +89,32 @@ impl Flat {
         if triangles.is_empty() || triangles.len() > backend.max_triangles() {
             return None;
         }
-        let packets = triangles
-            .chunks(WIDE)
-            .enumerate()
-            .map(|(c, chunk)| {
+        let groups = group::groups(triangles, WIDE, backend.max_triangles() / WIDE);
+        let packets = groups
+            .iter()
+            .map(|ids| {
+                let lane = |k: usize| ids[k.min(ids.len() - 1)];
                 let mut v = [[[0.0f32; WIDE]; 3]; 3];
                 for (vertex, axes) in v.iter_mut().enumerate() {
                     for (axis, lanes) in axes.iter_mut().enumerate() {
                         for (k, x) in lanes.iter_mut().enumerate() {
-                            *x = chunk[k.min(chunk.len() - 1)][vertex][axis];
+                            *x = triangles[lane(k) as usize][vertex][axis];
                         }
                     }
                 }
                 WidePacket {
                     v,
-                    first_id: (c * WIDE) as u32,
-                    valid: (1u32 << chunk.len()) - 1,
+                    ids: std::array::from_fn(lane),
+                    valid: (1u32 << ids.len()) - 1,
                 }
             })
             .collect();
-        Some(Flat { packets, backend })
+        let boxes = PacketBoxes::new(triangles, &groups);
+        Some(Flat {
+            packets,
+            boxes,
+            backend,
+        })
     }
 
     /// Bytes held (for memory reports).
@@ -114,19 +131,19 @@ impl Flat {
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
-        self.backend.closest(&self.packets, pre, t_max, accept)
+        self.backend.closest(self.mesh(), (pre, t_max), accept)
     }
 
     /// [`Flat::closest`] of ray `a` and [`Flat::any`] of ray `b`, packet by packet in one loop.
     #[inline]
     pub fn closest_and_any(
         &self,
-        a: (&RayPrecomp, f32),
+        a: Query<'_>,
         accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
-        b: (&RayPrecomp, f32),
+        b: Query<'_>,
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
-        self.backend.pair(&self.packets, a, accept_a, b, accept_b)
+        self.backend.pair(self.mesh(), a, accept_a, b, accept_b)
     }
 
     /// Whether some triangle that `accept` lets through is hit in (0, t_max).
@@ -137,7 +154,68 @@ impl Flat {
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
-        self.backend.any(&self.packets, pre, t_max, accept)
+        self.backend.any(self.mesh(), (pre, t_max), accept)
+    }
+
+    #[inline(always)]
+    fn mesh(&self) -> Mesh<'_> {
+        Mesh {
+            packets: &self.packets,
+            boxes: &self.boxes,
+        }
+    }
+}
+
+/// A ray of a query: its test constants and t_max.
+pub(super) type Query<'a> = (&'a RayPrecomp, f32);
+
+/// What the queries read of a [`Flat`].
+#[derive(Clone, Copy)]
+struct Mesh<'a> {
+    packets: &'a [WidePacket],
+    boxes: &'a PacketBoxes,
+}
+
+/// The boxes of up to four packets, as a tree node's children, padded as the tree's boxes are
+/// (`build.rs`), so the slab test never skips a packet that holds a hit.
+#[derive(Clone, Debug)]
+struct PacketBoxes {
+    node: Node4,
+    /// More than one packet: the test can skip some. (With one, it is not made.)
+    cull: bool,
+}
+
+impl PacketBoxes {
+    fn new(triangles: &[[Vec3; 3]], groups: &[Vec<u32>]) -> PacketBoxes {
+        let (lo, hi) = group::bounds(triangles);
+        let pad = Vec3::splat((hi - lo).max_element() * 1e-6 + f32::MIN_POSITIVE);
+        let ulps = |v: Vec3| v.abs() * (4.0 * f32::EPSILON);
+        let mut node = Node4::EMPTY;
+        for (k, ids) in groups.iter().enumerate() {
+            let tris: Vec<[Vec3; 3]> = ids.iter().map(|&i| triangles[i as usize]).collect();
+            let (lo, hi) = group::bounds(&tris);
+            let (lo, hi) = (lo - pad - ulps(lo), hi + pad + ulps(hi));
+            for axis in 0..3 {
+                node.bounds[0][axis][k] = lo[axis];
+                node.bounds[1][axis][k] = hi[axis];
+            }
+            node.valid |= 1 << k;
+        }
+        PacketBoxes {
+            node,
+            cull: groups.len() > 1,
+        }
+    }
+
+    /// Bit k: the ray may hit packet k within t_max; lane k of the second value: the distance at
+    /// which it enters the packet's box (a hit in the packet is no nearer).
+    #[inline(always)]
+    fn test(&self, (pre, t_max): Query<'_>) -> (u32, [f32; 4]) {
+        if !self.cull {
+            return (self.node.valid, [0.0; 4]);
+        }
+        let (mask, near) = BoxRay::from_precomp(pre).test(&self.node, t_max);
+        (mask, Vec4::to_array(&near))
     }
 }
 
@@ -355,18 +433,26 @@ fn test_lanes<L: Lanes>(
     (mask, on_edge)
 }
 
+/// Whether packet `k` of a query's box test can still hold a closer hit than `best`'s.
+#[inline(always)]
+fn worth_testing(boxes: (u32, [f32; 4]), k: usize, best: &Closest) -> bool {
+    boxes.0 >> k & 1 != 0 && boxes.1[k] <= best.t
+}
+
 #[inline(always)]
 fn closest_with<L: Lanes>(
     l: L,
-    packets: &[WidePacket],
-    pre: &RayPrecomp,
-    t_max: f32,
+    mesh: Mesh<'_>,
+    q: Query<'_>,
     accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
 ) -> Option<(u32, TriangleHit)> {
-    let mut best = Closest::new(t_max);
+    let boxes = mesh.boxes.test(q);
+    let mut best = Closest::new(q.1);
     let mut hits = no_hits();
-    for p in packets {
-        closest_in_packet(l, p, pre, &mut best, accept, &mut hits);
+    for (k, p) in mesh.packets.iter().enumerate() {
+        if worth_testing(boxes, k, &best) {
+            closest_in_packet(l, p, q.0, &mut best, accept, &mut hits);
+        }
     }
     best.found()
 }
@@ -390,37 +476,40 @@ fn closest_in_packet<L: Lanes>(
     // improvement, no other lane is.
     let min = l.min_where(hits.mask, &hits.t);
     let k = (l.lanes_equal(&hits.t, min) & hits.mask).trailing_zeros() as usize;
-    let id = p.first_id + k as u32;
+    let id = p.ids[k];
     if !best.improved_by(min, id) {
         return;
     }
     let h = hits.get(k);
     if accept(id, &h) {
-        *best = Closest { t: min, id, hit: h };
+        best.take(id, h);
         return;
     }
     // The filter rejected it (an alpha cutout): every other lane in turn.
-    hits.offer(hits.mask & !(1 << k), p.first_id, best, accept);
+    hits.offer(hits.mask & !(1 << k), |k| p.ids[k], best, accept);
 }
 
 /// A closest-hit query and a shadow query, packet by packet in one loop.
 #[inline(always)]
 fn pair_with<L: Lanes>(
     l: L,
-    packets: &[WidePacket],
-    a: (&RayPrecomp, f32),
+    mesh: Mesh<'_>,
+    a: Query<'_>,
     accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
-    b: (&RayPrecomp, f32),
+    b: Query<'_>,
     accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
 ) -> (Option<(u32, TriangleHit)>, bool) {
+    let (boxes_a, boxes_b) = (mesh.boxes.test(a), mesh.boxes.test(b));
     let mut best = Closest::new(a.1);
     let mut blocked = false;
     let (mut hits_a, mut hits_b) = (no_hits(), no_hits());
-    for p in packets {
-        closest_in_packet(l, p, a.0, &mut best, accept_a, &mut hits_a);
-        if !blocked {
+    for (k, p) in mesh.packets.iter().enumerate() {
+        if worth_testing(boxes_a, k, &best) {
+            closest_in_packet(l, p, a.0, &mut best, accept_a, &mut hits_a);
+        }
+        if !blocked && boxes_b.0 >> k & 1 != 0 {
             test(l, b.0, p, b.1, &mut hits_b);
-            blocked = hits_b.any_accepted(p.first_id, accept_b);
+            blocked = hits_b.any_accepted(|k| p.ids[k], accept_b);
         }
     }
     (best.found(), blocked)
@@ -429,18 +518,21 @@ fn pair_with<L: Lanes>(
 #[inline(always)]
 fn any_with<L: Lanes>(
     l: L,
-    packets: &[WidePacket],
-    pre: &RayPrecomp,
-    t_max: f32,
+    mesh: Mesh<'_>,
+    q: Query<'_>,
     accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
 ) -> bool {
     // A loop, not `Iterator::any` with a closure: a closure that is not inlined is compiled
     // without AVX-512F, and every lane operation in it becomes a call (seen when this was
     // inlined into a larger AVX-512F function: 3.5× slower).
+    let boxes = mesh.boxes.test(q);
     let mut hits = no_hits();
-    for p in packets {
-        test(l, pre, p, t_max, &mut hits);
-        if hits.any_accepted(p.first_id, accept) {
+    for (k, p) in mesh.packets.iter().enumerate() {
+        if boxes.0 >> k & 1 == 0 {
+            continue;
+        }
+        test(l, q.0, p, q.1, &mut hits);
+        if hits.any_accepted(|k| p.ids[k], accept) {
             return true;
         }
     }
@@ -470,28 +562,21 @@ impl Backend {
     }
     fn closest(
         self,
-        _: &[WidePacket],
-        _: &RayPrecomp,
-        _: f32,
+        _: Mesh<'_>,
+        _: Query<'_>,
         _: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
         match self {}
     }
-    fn any(
-        self,
-        _: &[WidePacket],
-        _: &RayPrecomp,
-        _: f32,
-        _: &mut impl FnMut(u32, &TriangleHit) -> bool,
-    ) -> bool {
+    fn any(self, _: Mesh<'_>, _: Query<'_>, _: &mut impl FnMut(u32, &TriangleHit) -> bool) -> bool {
         match self {}
     }
     fn pair(
         self,
-        _: &[WidePacket],
-        _: (&RayPrecomp, f32),
+        _: Mesh<'_>,
+        _: Query<'_>,
         _: &mut impl FnMut(u32, &TriangleHit) -> bool,
-        _: (&RayPrecomp, f32),
+        _: Query<'_>,
         _: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
         match self {}

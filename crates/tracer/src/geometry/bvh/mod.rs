@@ -74,6 +74,19 @@ impl BoxRay {
         }
     }
 
+    /// [`BoxRay::new`] from the ray's precomputed reciprocal direction (the same values), every
+    /// component read where it was stored, one at a time (see `flat::Sheared::new`).
+    #[inline(always)]
+    fn from_precomp(pre: &RayPrecomp) -> BoxRay {
+        let o: &[f32; 3] = pre.o.as_ref();
+        let inv_d = pre.inv_d;
+        BoxRay {
+            o: [Vec4::splat(o[0]), Vec4::splat(o[1]), Vec4::splat(o[2])],
+            inv_d: inv_d.map(Vec4::splat),
+            near_upper: inv_d.map(|i| i < 0.0),
+        }
+    }
+
     /// Lane k: whether the ray meets child k's box within [0, t_max], and where it enters it.
     #[inline(always)]
     fn test(&self, n: &Node4, t_max: f32) -> (u32, Vec4) {
@@ -254,7 +267,7 @@ impl Bvh {
         for p in &self.packets[node.packets()] {
             // Accept ties (t equal to the best so far) so they can be broken by index.
             let hits = intersect_packet(ray, p, best.tie_limit());
-            hits.offer(hits.mask, p.first_id, best, accept);
+            hits.offer(hits.mask, |k| p.first_id + k as u32, best, accept);
         }
     }
 
@@ -268,7 +281,7 @@ impl Bvh {
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
         for p in &self.packets[node.packets()] {
-            if intersect_packet(ray, p, t_max).any_accepted(p.first_id, accept) {
+            if intersect_packet(ray, p, t_max).any_accepted(|k| p.first_id + k as u32, accept) {
                 return true;
             }
         }
@@ -381,6 +394,8 @@ struct Closest {
     t: f32,
     id: u32,
     hit: TriangleHit,
+    /// The query's t_max.
+    t_max: f32,
 }
 
 impl Closest {
@@ -395,7 +410,14 @@ impl Closest {
                 b1: 0.0,
                 b2: 0.0,
             },
+            t_max,
         }
+    }
+
+    /// Triangle `id`'s hit `hit` is the best so far.
+    #[inline(always)]
+    fn take(&mut self, id: u32, hit: TriangleHit) {
+        (self.t, self.id, self.hit) = (hit.t, id, hit);
     }
 
     /// The closest hit, if one was found: triangle and hit.
@@ -405,13 +427,19 @@ impl Closest {
     }
 
     /// The distance limit for a leaf test: ties with the best hit so far are let through, so
-    /// that they can be broken by index.
+    /// that they can be broken by index. The limit is a little above the best distance: the test
+    /// compares its scaled distance with the scaled limit (t·det against t_max·det), whose
+    /// rounding can reject a triangle whose distance, once divided out, equals the best exactly
+    /// (a duplicate of the best triangle with a smaller index, met after it: seen once packets
+    /// were no longer visited in index order). Hits beyond the best are then turned away by
+    /// [`Closest::improved_by`]; the limit never exceeds the query's t_max, so no hit beyond
+    /// it is let in.
     #[inline(always)]
     fn tie_limit(&self) -> f32 {
         if self.id == u32::MAX {
             self.t
         } else {
-            next_up(self.t)
+            (self.t * (1.0 + 32.0 * f32::EPSILON)).min(self.t_max)
         }
     }
 
@@ -420,15 +448,6 @@ impl Closest {
     #[inline(always)]
     fn improved_by(&self, t: f32, id: u32) -> bool {
         t < self.t || (t == self.t && id < self.id)
-    }
-}
-
-#[inline]
-fn next_up(x: f32) -> f32 {
-    if x.is_finite() && x >= 0.0 {
-        f32::from_bits(x.to_bits() + 1)
-    } else {
-        x
     }
 }
 

@@ -50,8 +50,8 @@ impl<'a> PacketRay<'a> {
 }
 
 /// The hits of a packet of N triangles: bit k of `mask` set when lane k's triangle is hit in
-/// (0, t_max), with its distance and barycentrics in lane k of `t`, `b1`, `b2`. Lane k is triangle
-/// `first_id + k`. Shared by the 4-lane test below and the 16-lane one of `flat.rs`.
+/// (0, t_max), with its distance and barycentrics in lane k of `t`, `b1`, `b2`. Which triangle lane
+/// k holds the packet says (`id(k)` below). Shared by the 4-lane test below and the 16-lane one of `flat.rs`.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct LaneHits<const N: usize> {
     pub mask: u32,
@@ -97,12 +97,13 @@ impl<const N: usize> LaneHits<N> {
     }
 
     /// Offers the hit lanes of `lanes` to `best` in lane order: each that is closer (or ties with a
-    /// smaller index) and that `accept` lets through becomes the best.
+    /// smaller index) and that `accept` lets through becomes the best. Lane k holds triangle
+    /// `id(k)`.
     #[inline(always)]
     pub fn offer(
         &self,
         lanes: u32,
-        first_id: u32,
+        id: impl Fn(usize) -> u32,
         best: &mut Closest,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) {
@@ -111,25 +112,25 @@ impl<const N: usize> LaneHits<N> {
             let k = m.trailing_zeros() as usize;
             m &= m - 1;
             let h = self.get(k);
-            let id = first_id + k as u32;
+            let id = id(k);
             if best.improved_by(h.t, id) && accept(id, &h) {
-                *best = Closest { t: h.t, id, hit: h };
+                best.take(id, h);
             }
         }
     }
 
-    /// Whether `accept` lets through one of the hits.
+    /// Whether `accept` lets through one of the hits (lane k holds triangle `id(k)`).
     #[inline(always)]
     pub fn any_accepted(
         &self,
-        first_id: u32,
+        id: impl Fn(usize) -> u32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
         let mut m = self.mask;
         while m != 0 {
             let k = m.trailing_zeros() as usize;
             m &= m - 1;
-            if accept(first_id + k as u32, &self.get(k)) {
+            if accept(id(k), &self.get(k)) {
                 return true;
             }
         }

@@ -2,8 +2,8 @@
 //! intrinsic needs its CPU feature, so every call is `unsafe`; the safety argument is the
 //! [`Avx512`] or [`Avx2`] value itself, which only [`Backend::detect`] makes.
 
-use super::{any_with, closest_with, pair_with, Lanes, Packed, WidePacket, WIDE};
-use crate::geometry::{RayPrecomp, TriangleHit};
+use super::{any_with, closest_with, pair_with, Lanes, Mesh, Packed, Query, WIDE};
+use crate::geometry::TriangleHit;
 use std::arch::x86_64::*;
 
 /// The instruction set a flat mesh is tested in.
@@ -38,15 +38,14 @@ impl Backend {
     #[inline]
     pub fn closest(
         self,
-        packets: &[WidePacket],
-        pre: &RayPrecomp,
-        t_max: f32,
+        mesh: Mesh<'_>,
+        q: Query<'_>,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
         // SAFETY (each call): the value exists, so the processor has its features.
         let packed = match self {
-            Backend::Avx512(l) => unsafe { l.closest(packets, pre, t_max, accept) },
-            Backend::Avx2(l) => unsafe { l.closest(packets, pre, t_max, accept) },
+            Backend::Avx512(l) => unsafe { l.closest(mesh, q, accept) },
+            Backend::Avx2(l) => unsafe { l.closest(mesh, q, accept) },
         };
         packed.found()
     }
@@ -55,16 +54,16 @@ impl Backend {
     #[inline]
     pub fn pair(
         self,
-        packets: &[WidePacket],
-        a: (&RayPrecomp, f32),
+        mesh: Mesh<'_>,
+        a: Query<'_>,
         accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
-        b: (&RayPrecomp, f32),
+        b: Query<'_>,
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
         // SAFETY (each call): as in `closest`.
         let packed = match self {
-            Backend::Avx512(l) => unsafe { l.pair(packets, a, accept_a, b, accept_b) },
-            Backend::Avx2(l) => unsafe { l.pair(packets, a, accept_a, b, accept_b) },
+            Backend::Avx512(l) => unsafe { l.pair(mesh, a, accept_a, b, accept_b) },
+            Backend::Avx2(l) => unsafe { l.pair(mesh, a, accept_a, b, accept_b) },
         };
         (packed.found(), packed.blocked())
     }
@@ -73,15 +72,14 @@ impl Backend {
     #[inline]
     pub fn any(
         self,
-        packets: &[WidePacket],
-        pre: &RayPrecomp,
-        t_max: f32,
+        mesh: Mesh<'_>,
+        q: Query<'_>,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
         // SAFETY (each call): as in `closest`.
         match self {
-            Backend::Avx512(l) => unsafe { l.any(packets, pre, t_max, accept) },
-            Backend::Avx2(l) => unsafe { l.any(packets, pre, t_max, accept) },
+            Backend::Avx512(l) => unsafe { l.any(mesh, q, accept) },
+            Backend::Avx2(l) => unsafe { l.any(mesh, q, accept) },
         }
     }
 }
@@ -97,36 +95,34 @@ macro_rules! queries_compiled_for {
         #[target_feature(enable = $features)]
         unsafe fn closest(
             self,
-            packets: &[WidePacket],
-            pre: &RayPrecomp,
-            t_max: f32,
+            mesh: Mesh<'_>,
+            q: Query<'_>,
             accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
         ) -> Packed {
-            Packed::new(closest_with(self, packets, pre, t_max, accept), false)
+            Packed::new(closest_with(self, mesh, q, accept), false)
         }
 
         #[target_feature(enable = $features)]
         unsafe fn pair(
             self,
-            packets: &[WidePacket],
-            a: (&RayPrecomp, f32),
+            mesh: Mesh<'_>,
+            a: Query<'_>,
             accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
-            b: (&RayPrecomp, f32),
+            b: Query<'_>,
             accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
         ) -> Packed {
-            let (found, blocked) = pair_with(self, packets, a, accept_a, b, accept_b);
+            let (found, blocked) = pair_with(self, mesh, a, accept_a, b, accept_b);
             Packed::new(found, blocked)
         }
 
         #[target_feature(enable = $features)]
         unsafe fn any(
             self,
-            packets: &[WidePacket],
-            pre: &RayPrecomp,
-            t_max: f32,
+            mesh: Mesh<'_>,
+            q: Query<'_>,
             accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
         ) -> bool {
-            any_with(self, packets, pre, t_max, accept)
+            any_with(self, mesh, q, accept)
         }
     };
 }
