@@ -473,9 +473,15 @@ fn closest_in_packet<L: Lanes>(
         return;
     }
     // The packet's smallest (t, index), found without a branch per lane: if it is no
-    // improvement, no other lane is.
-    let min = l.min_where(hits.mask, &hits.t);
-    let k = (l.lanes_equal(&hits.t, min) & hits.mask).trailing_zeros() as usize;
+    // improvement, no other lane is. A single hit (a wall seen from inside the room: the common
+    // case) is its own smallest, without the reduction across the lanes and the compare back.
+    let k = if hits.mask & (hits.mask - 1) == 0 {
+        hits.mask.trailing_zeros() as usize
+    } else {
+        let min = l.min_where(hits.mask, &hits.t);
+        (l.lanes_equal(&hits.t, min) & hits.mask).trailing_zeros() as usize
+    };
+    let min = hits.t[k];
     let id = p.ids[k];
     if !best.improved_by(min, id) {
         return;
