@@ -2,8 +2,9 @@
 
 /// An instruction set the vector steps are compiled for. A value exists only where the processor
 /// was found to have its features: it is the proof that calling that build is sound. Only
-/// [`Isa::detected`] makes one (its field is visible to `lanes.rs`, which matches on it, and
-/// nothing else in `wavefront/` builds it).
+/// [`Isa::detected`] makes one, and each build names its own inside the function compiled for it
+/// (`lanes/builds.rs`: that function runs only where the features are, so the value is as true
+/// there; it makes the build's choice a constant). Nothing else in `wavefront/` builds one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Isa(pub(super) Kind);
 

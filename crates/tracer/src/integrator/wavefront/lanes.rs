@@ -298,7 +298,7 @@ impl<'a> Lanes<'a> {
     /// The surface at each hit (`Scene::surface` without vertex normals), the emission the ray
     /// sees (`trace_path` step 1), and the sample values of the light sample.
     #[inline(always)]
-    fn shade_hit(&mut self) {
+    fn shade_hit(&mut self, isa: Isa) {
         // Inputs and outputs are copied to locals: the compiler vectorises a loop over distinct
         // local arrays, not one over fields of `self` indexed by a variable.
         let (hit, ca, cb, cc) = (self.hit, self.corner_a, self.corner_b, self.corner_c);
@@ -353,7 +353,7 @@ impl<'a> Lanes<'a> {
         (self.u_light_select, self.u_light) = (u_select, u_light);
         if let Some(lights) = self.lights {
             // `sample_lights`, in the lanes.
-            let s = lights.sample(&u_select, &u_light);
+            let s = lights.sample(&u_select, &u_light, Some(isa));
             let diffuse_on = self.diffuse_on;
             let mut ok = [false; LANES];
             for i in 0..LANES {

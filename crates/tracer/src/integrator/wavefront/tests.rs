@@ -193,32 +193,34 @@ fn the_light_table_samples_what_area_lights_sample() {
                 u[0][i] = (i as f32 * 0.37 + u_select[i]).fract();
                 u[1][i] = (i as f32 * 0.61 + 0.5 * u_select[i]).fract();
             }
-            let got = table.sample(&u_select, &u);
-            for i in 0..chunk.len() {
-                let ls = area
-                    .sample(u_select[i], glam::Vec2::new(u[0][i], u[1][i]))
-                    .expect("lights");
-                let m = &diffuse.materials[scene.mesh.material[ls.triangle as usize] as usize];
-                let bits = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
-                assert_eq!(
-                    (
-                        bits(got.point.get(i)),
-                        bits(got.normal.get(i)),
-                        got.pdf_area[i].to_bits(),
-                        bits(got.front.get(i)),
-                        bits(got.back.get(i))
-                    ),
-                    (
-                        bits(ls.point),
-                        bits(ls.normal),
-                        ls.pdf_area.to_bits(),
-                        bits(m.emission_front),
-                        bits(m.emission_back)
-                    ),
-                    "{name}: u_select {}",
-                    u_select[i]
-                );
-                checked += 1;
+            let isas = super::isa::Isa::detected().map(Some).chain([None]);
+            for got in isas.map(|isa| table.sample(&u_select, &u, isa)) {
+                for i in 0..chunk.len() {
+                    let ls = area
+                        .sample(u_select[i], glam::Vec2::new(u[0][i], u[1][i]))
+                        .expect("lights");
+                    let m = &diffuse.materials[scene.mesh.material[ls.triangle as usize] as usize];
+                    let bits = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+                    assert_eq!(
+                        (
+                            bits(got.point.get(i)),
+                            bits(got.normal.get(i)),
+                            got.pdf_area[i].to_bits(),
+                            bits(got.front.get(i)),
+                            bits(got.back.get(i))
+                        ),
+                        (
+                            bits(ls.point),
+                            bits(ls.normal),
+                            ls.pdf_area.to_bits(),
+                            bits(m.emission_front),
+                            bits(m.emission_back)
+                        ),
+                        "{name}: u_select {}",
+                        u_select[i]
+                    );
+                    checked += 1;
+                }
             }
         }
         assert!(checked > 4096);

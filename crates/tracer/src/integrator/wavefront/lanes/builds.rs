@@ -32,7 +32,7 @@ impl Lanes<'_> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
     unsafe fn shade_hit_avx512(&mut self) {
-        self.shade_hit();
+        self.shade_hit(Isa(Kind::Avx512));
     }
 
     /// `shade_hit` compiled for AVX2 (with BMI1/2, LZCNT and POPCNT; without FMA, whose fused
@@ -40,7 +40,7 @@ impl Lanes<'_> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
     unsafe fn shade_hit_avx2(&mut self) {
-        self.shade_hit();
+        self.shade_hit(Isa(Kind::Avx2));
     }
 
     /// `scatter` compiled for AVX-512.
