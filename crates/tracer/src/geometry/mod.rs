@@ -8,4 +8,5 @@ mod triangle;
 pub use bvh::{Bvh, RayQuery};
 pub use mesh::{renderable, Mesh, MeshError};
 pub use ray::Ray;
+pub(crate) use triangle::box_reciprocal;
 pub use triangle::{intersect_watertight, RayPrecomp, TriangleHit};

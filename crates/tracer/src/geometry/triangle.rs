@@ -15,10 +15,22 @@ pub struct RayPrecomp {
     pub o: Vec3,
     pub(crate) k: [usize; 3],
     pub(crate) s: [f32; 3],
-    /// 1/d per axis, a component of exactly zero nudged to ±1e-9 first (see `BoxRay::new`): for
-    /// the flat mesh's box test, which would otherwise divide in every query, its result waited
-    /// for by the packet tests behind it.
+    /// [`box_reciprocal`] of the direction: for the flat mesh's box test, which would otherwise
+    /// divide in every query, its result waited for by the packet tests behind it.
     pub(crate) inv_d: [f32; 3],
+}
+
+/// 1/d per axis for the slab tests of boxes, a component smaller than 1e-9 nudged to ±1e-9 first:
+/// a component of exactly zero would make 0 · ∞ = NaN at a slab through the origin; nudged, the
+/// slab is crossed at a huge but finite distance, and the padded boxes cover the nudge's
+/// displacement. Only the box tests see it. All three components at once: the nudge is a select,
+/// not a branch per component.
+#[inline(always)]
+pub(crate) fn box_reciprocal(d: Vec3) -> [f32; 3] {
+    let d = glam::Vec3A::from(d);
+    let tiny = d.abs().cmplt(glam::Vec3A::splat(1e-9));
+    (glam::Vec3A::ONE / glam::Vec3A::select(tiny, glam::Vec3A::splat(1e-9).copysign(d), d))
+        .to_array()
 }
 
 impl RayPrecomp {
@@ -37,15 +49,11 @@ impl RayPrecomp {
         // keeps the winding of the sheared triangle). A table, so no switch on kz is generated.
         const AXES: [[[usize; 2]; 2]; 3] = [[[1, 2], [2, 1]], [[2, 0], [0, 2]], [[0, 1], [1, 0]]];
         let [kx, ky] = AXES[kz][usize::from(d[kz] < 0.0)];
-        let dv = glam::Vec3A::from(ray.d);
-        let tiny = dv.abs().cmplt(glam::Vec3A::splat(1e-9));
-        let inv_d =
-            glam::Vec3A::ONE / glam::Vec3A::select(tiny, glam::Vec3A::splat(1e-9).copysign(dv), dv);
         RayPrecomp {
             o: ray.o,
             k: [kx, ky, kz],
             s: [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]],
-            inv_d: inv_d.to_array(),
+            inv_d: box_reciprocal(ray.d),
         }
     }
 

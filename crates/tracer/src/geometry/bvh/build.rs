@@ -48,27 +48,37 @@ const MAX_PRIMS_PER_LEAF: u32 = 4;
 /// into leaves: obvhs' default.
 const COLLAPSE_TRAVERSAL_COST: f32 = 3.0;
 
+/// The padding of the boxes of a mesh whose bounding box's largest extent is `extent`: a small
+/// fraction of the scene's size (see [`padded`]).
+pub(super) fn box_pad(extent: f32) -> f32 {
+    extent * 1e-6 + f32::MIN_POSITIVE
+}
+
+/// The box from `lo` to `hi` padded by `pad` ([`box_pad`]) and a few ulps of its coordinates: flat
+/// boxes (a triangle in an axis-aligned plane) and the rounding of the slab test must never cull a
+/// box that the watertight triangle test would still hit. The tree's boxes and the flat test's
+/// packet boxes are both made this way.
+pub(super) fn padded(lo: Vec3A, hi: Vec3A, pad: f32) -> (Vec3A, Vec3A) {
+    let (pad, ulps) = (Vec3A::splat(pad), |v: Vec3A| v.abs() * (4.0 * f32::EPSILON));
+    (lo - pad - ulps(lo), hi + pad + ulps(hi))
+}
+
 pub(super) fn build(mesh: &Mesh) -> Built {
-    // Every triangle's box is padded by a small fraction of the scene's size and a few ulps of its
-    // coordinates: flat boxes (a triangle in an axis-aligned plane) and the rounding of the slab
-    // test must never cull a box that the watertight triangle test would still hit.
+    // Every triangle's box padded (`padded`).
     let mut scene = Aabb::empty();
     for t in &mesh.positions {
         for v in t {
             scene.extend(Vec3A::from(*v));
         }
     }
-    let pad = Vec3A::splat(scene.diagonal().max_element() * 1e-6 + f32::MIN_POSITIVE);
+    let pad = box_pad(scene.diagonal().max_element());
     let boxes: Vec<PaddedBox> = mesh
         .positions
         .iter()
         .map(|t| {
             let b = Aabb::from_points(&[Vec3A::from(t[0]), Vec3A::from(t[1]), Vec3A::from(t[2])]);
-            let ulps = |v: Vec3A| v.abs() * (4.0 * f32::EPSILON);
-            PaddedBox(Aabb::new(
-                b.min - pad - ulps(b.min),
-                b.max + pad + ulps(b.max),
-            ))
+            let (min, max) = padded(b.min, b.max, pad);
+            PaddedBox(Aabb::new(min, max))
         })
         .collect();
     // No spatial pre-splits: every triangle appears exactly once, so the mesh can be reordered.

@@ -30,7 +30,7 @@ mod group;
 
 use super::node::Node4;
 use super::packet::LaneHits;
-use super::{BoxRay, Closest};
+use super::{build, BoxRay, Closest};
 use crate::geometry::{RayPrecomp, TriangleHit};
 use glam::{Vec3, Vec4};
 
@@ -188,13 +188,11 @@ struct PacketBoxes {
 impl PacketBoxes {
     fn new(triangles: &[[Vec3; 3]], groups: &[Vec<u32>]) -> PacketBoxes {
         let (lo, hi) = group::bounds(triangles);
-        let pad = Vec3::splat((hi - lo).max_element() * 1e-6 + f32::MIN_POSITIVE);
-        let ulps = |v: Vec3| v.abs() * (4.0 * f32::EPSILON);
+        let pad = build::box_pad((hi - lo).max_element());
         let mut node = Node4::EMPTY;
         for (k, ids) in groups.iter().enumerate() {
-            let tris: Vec<[Vec3; 3]> = ids.iter().map(|&i| triangles[i as usize]).collect();
-            let (lo, hi) = group::bounds(&tris);
-            let (lo, hi) = (lo - pad - ulps(lo), hi + pad + ulps(hi));
+            let (lo, hi) = group::bounds_of(triangles, ids);
+            let (lo, hi) = build::padded(lo.into(), hi.into(), pad);
             for axis in 0..3 {
                 node.bounds[0][axis][k] = lo[axis];
                 node.bounds[1][axis][k] = hi[axis];

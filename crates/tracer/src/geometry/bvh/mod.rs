@@ -18,9 +18,9 @@ mod walk;
 
 pub use pair::RayQuery;
 
-use super::{Mesh, RayPrecomp, TriangleHit};
+use super::{box_reciprocal, Mesh, RayPrecomp, TriangleHit};
 use flat::Flat;
-use glam::{Vec3, Vec3A, Vec4};
+use glam::{Vec3, Vec4};
 use node::{Node4, NodeRef, TriPacket};
 use packet::{intersect_packet, PacketRay};
 use walk::{AnyWalk, ClosestWalk};
@@ -59,14 +59,7 @@ struct BoxRay {
 impl BoxRay {
     #[inline(always)]
     fn new(o: Vec3, d: Vec3) -> BoxRay {
-        // A direction component of exactly zero would make 0 · ∞ = NaN at a slab through the
-        // origin; nudged to a tiny value, the slab is crossed at a huge but finite distance, and the
-        // padded boxes cover the nudge's displacement. Only the box tests see it.
-        // All three components at once: the nudge is a select, not a branch per component.
-        let d = Vec3A::from(d);
-        let tiny = d.abs().cmplt(Vec3A::splat(1e-9));
-        let inv_d =
-            (Vec3A::ONE / Vec3A::select(tiny, Vec3A::splat(1e-9).copysign(d), d)).to_array();
+        let inv_d = box_reciprocal(d);
         BoxRay {
             o: [Vec4::splat(o.x), Vec4::splat(o.y), Vec4::splat(o.z)],
             inv_d: inv_d.map(Vec4::splat),

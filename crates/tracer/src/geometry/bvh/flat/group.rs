@@ -141,10 +141,16 @@ fn bounds_area((lo, hi): Bounds) -> f32 {
     2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
 }
 
+/// The box of the triangles `group` names.
+pub(super) fn bounds_of(triangles: &[[Vec3; 3]], group: &[u32]) -> Bounds {
+    group.iter().fold(EMPTY, |b, &i| {
+        union(b, bounds(std::slice::from_ref(&triangles[i as usize])))
+    })
+}
+
 /// The surface area of the box of the triangles `group` names.
 fn area(triangles: &[[Vec3; 3]], group: &[u32]) -> f32 {
-    let tris: Vec<[Vec3; 3]> = group.iter().map(|&i| triangles[i as usize]).collect();
-    bounds_area(bounds(&tris))
+    bounds_area(bounds_of(triangles, group))
 }
 
 #[cfg(test)]
@@ -229,10 +235,7 @@ mod tests {
         }
         // The first group's box is the room; the others are the blocks' (one each, with the
         // room's four leftover triangles of neither block placed where they cost least).
-        let boxes: Vec<Bounds> = groups
-            .iter()
-            .map(|g| bounds(&g.iter().map(|&i| tris[i as usize]).collect::<Vec<_>>()))
-            .collect();
+        let boxes: Vec<Bounds> = groups.iter().map(|g| bounds_of(&tris, g)).collect();
         assert_eq!(boxes[0], (Vec3::ZERO, Vec3::splat(10.0)));
         let mut small: Vec<Bounds> = boxes[1..].to_vec();
         small.sort_by(|p, q| p.0.x.total_cmp(&q.0.x));
