@@ -1,7 +1,8 @@
 //! The lanes of the wavefront integrator and its steps. One step moves every live path by one
 //! vertex:
 //!
-//! 1. `refill` (scalar): lanes whose path ended take the next sample and its camera ray;
+//! 1. `refill` (scalar, `refill.rs`): lanes whose path ended take the next sample and its camera
+//!    ray, made sixteen samples ahead by `make_rays` (vector);
 //! 2. `trace_closest` (scalar): lanes without a hit yet trace their ray; lanes that hit nothing
 //!    end, the others load their triangle and material;
 //! 3. `shade_hit` (vector): the hit point and normal, emission seen by the ray, the light's
@@ -22,6 +23,9 @@
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
 mod builds;
+mod refill;
+
+use refill::CameraRays;
 
 use super::isa::{Isa, Kind};
 use super::lights::LightTable;
@@ -32,7 +36,7 @@ use crate::integrator::direct::{LightGeometry, SHADOW_EPSILON};
 use crate::integrator::path::survival;
 use crate::integrator::PathResult;
 use crate::math::{is_black, offset_unit_normal, Frame};
-use crate::sampler::{bounce_dim, dims, hash_words, owen_sobol_sample_lanewise};
+use crate::sampler::{bounce_dim, dims, owen_sobol_sample_lanewise};
 use crate::sampling::power_heuristic;
 use crate::scene::{Hit, Scene};
 use crate::settings::{RenderSettings, RussianRoulette};
@@ -60,6 +64,8 @@ pub(super) struct Lanes<'a> {
     key: U,
     index_rev: U,
     alive: B,
+    /// The next samples' camera rays, made ahead of the lanes that take them.
+    camera_rays: CameraRays,
 
     // The path.
     o: V3,
@@ -136,6 +142,7 @@ impl<'a> Lanes<'a> {
             key: [0; LANES],
             index_rev: [0; LANES],
             alive: [false; LANES],
+            camera_rays: CameraRays::new(),
             o: V3::ZERO,
             d: V3::ZERO,
             beta: V3::ZERO,
@@ -188,7 +195,7 @@ impl<'a> Lanes<'a> {
         mut each: impl FnMut(u32, u32, u32, PathResult),
     ) {
         loop {
-            self.refill(&mut work, &mut each);
+            self.refill(isa, &mut work, &mut each);
             if !self.alive.iter().any(|&a| a) {
                 return;
             }
@@ -197,56 +204,6 @@ impl<'a> Lanes<'a> {
             self.sample_lights();
             self.scatter_for(isa);
             self.trace_shadows(&mut each);
-        }
-    }
-
-    /// Gives every lane without a path the next sample of `work`, with its camera ray. A sample
-    /// whose camera ray is not finite is handed on at once with a NaN radiance, as
-    /// `render_sample` does.
-    fn refill(
-        &mut self,
-        work: &mut impl Iterator<Item = (u32, u32, u32)>,
-        each: &mut impl FnMut(u32, u32, u32, PathResult),
-    ) {
-        let seed = self.settings.seed;
-        let (w, h) = (self.settings.width, self.settings.height);
-        for i in 0..LANES {
-            if self.alive[i] {
-                continue;
-            }
-            for (x, y, index) in work.by_ref() {
-                let key = hash_words(&[seed as u32, (seed >> 32) as u32, x, y]);
-                let index_rev = index.reverse_bits();
-                let jitter = Vec2::new(
-                    owen_sobol_sample_lanewise(key, index_rev, dims::PIXEL),
-                    owen_sobol_sample_lanewise(key, index_rev, dims::PIXEL + 1),
-                );
-                let film = Vec2::new(x as f32, y as f32) + jitter;
-                let ray = self.scene.camera.generate_ray(film, w, h);
-                if !ray.d.is_finite() {
-                    let nan = PathResult {
-                        radiance: Vec3::splat(f32::NAN),
-                        rays: 0,
-                        vertices: 0,
-                    };
-                    each(x, y, index, nan);
-                    continue;
-                }
-                (self.x[i], self.y[i], self.index[i]) = (x, y, index);
-                (self.key[i], self.index_rev[i]) = (key, index_rev);
-                self.alive[i] = true;
-                self.o.set(i, ray.o);
-                self.d.set(i, ray.d);
-                self.beta.set(i, Vec3::ONE);
-                self.l.set(i, Vec3::ZERO);
-                self.mis[i] = false;
-                self.bsdf_pdf[i] = 0.0;
-                self.depth[i] = 0;
-                self.rays[i] = 0;
-                self.vertices[i] = 0;
-                self.untraced[i] = true;
-                break;
-            }
         }
     }
 

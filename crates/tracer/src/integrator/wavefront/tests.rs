@@ -136,6 +136,46 @@ fn double_sided_lights_black_and_emissive_walls_are_the_scalar_integrators() {
     }
 }
 
+/// The camera rays the lanes make ahead (`lanes/refill.rs`) are `Camera::generate_ray`'s: an
+/// orthographic camera and a perspective one, turned, scaled unevenly and moved; and a camera
+/// that collapses every direction to zero, whose samples are handed on at once as NaN.
+#[test]
+fn every_camera_ray_is_the_scalar_integrators() {
+    use crate::camera::{Camera, Orthographic, Perspective, Projection};
+    use glam::{Affine3A, Quat};
+    let place = |to_world: Affine3A, base: &Camera| base.to_world * to_world;
+    let base = scene(parts("cornell")).camera;
+    let turned = Affine3A::from_scale_rotation_translation(
+        Vec3::new(1.0, 1.3, 0.8),
+        Quat::from_euler(glam::EulerRot::YXZ, 0.11, -0.07, 0.05),
+        Vec3::new(0.02, -0.03, 0.1),
+    );
+    let cameras = [
+        Camera::new(
+            Projection::Orthographic(Orthographic { ymag: 0.9 }),
+            place(turned, &base),
+        ),
+        Camera::new(
+            Projection::Perspective(Perspective::new(0.6)),
+            place(turned, &base),
+        ),
+        Camera::new(base.projection, Affine3A::ZERO),
+    ];
+    for (k, camera) in cameras.into_iter().enumerate() {
+        let mut p = parts("cornell");
+        p.camera = Some(camera);
+        let scene = scene(p);
+        let settings = settings(k as u64 + 3, RussianRoulette::Auto, None);
+        if k == 2 {
+            let ray = scene.camera.generate_ray(glam::Vec2::new(1.5, 2.5), 48, 36);
+            assert!(!ray.d.is_finite(), "the collapsed camera makes no rays");
+            let s = render_sample(&scene, &settings, 1, 2, 0);
+            assert!(s.radiance.is_nan() && s.rays == 0);
+        }
+        assert_same_bits(&scene, &settings, 0..5);
+    }
+}
+
 #[test]
 fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     let cornell = scene(parts("cornell"));

@@ -1,7 +1,10 @@
-//! The builds of the vector steps: `shade_hit` and `scatter` compiled once per instruction set
+//! The builds of the vector steps: `make_rays`, `shade_hit` and `scatter` compiled once per instruction set
 //! (`#[target_feature]`), and the dispatch on the [`Isa`] that proves the processor runs them.
 
+use super::refill::CameraRays;
 use super::{Isa, Kind, Lanes};
+use crate::camera::Camera;
+use crate::settings::RenderSettings;
 
 impl Lanes<'_> {
     /// [`Lanes::shade_hit`] compiled for `isa`.
@@ -55,5 +58,33 @@ impl Lanes<'_> {
     #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
     unsafe fn scatter_avx2(&mut self) {
         self.scatter_by_roulette();
+    }
+}
+
+impl CameraRays {
+    /// [`CameraRays::make_rays`] compiled for `isa`.
+    #[inline(always)]
+    pub(super) fn make_rays_for(&mut self, isa: Isa, camera: &Camera, settings: &RenderSettings) {
+        match isa.0 {
+            // SAFETY (each arm): an `Isa` exists only where its features were detected.
+            #[cfg(target_arch = "x86_64")]
+            Kind::Avx512 => unsafe { self.make_rays_avx512(camera, settings) },
+            #[cfg(target_arch = "x86_64")]
+            Kind::Avx2 => unsafe { self.make_rays_avx2(camera, settings) },
+        }
+    }
+
+    /// `make_rays` compiled for AVX-512.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl")]
+    unsafe fn make_rays_avx512(&mut self, camera: &Camera, settings: &RenderSettings) {
+        self.make_rays(camera, settings);
+    }
+
+    /// `make_rays` compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn make_rays_avx2(&mut self, camera: &Camera, settings: &RenderSettings) {
+        self.make_rays(camera, settings);
     }
 }
