@@ -366,9 +366,10 @@ impl<L: Lanes> Sheared<L> {
 fn no_hits() -> WideHits {
     WideHits {
         mask: 0,
-        t: [0.0; WIDE],
-        b1: [0.0; WIDE],
-        b2: [0.0; WIDE],
+        t_scaled: [0.0; WIDE],
+        b1_scaled: [0.0; WIDE],
+        b2_scaled: [0.0; WIDE],
+        det: [0.0; WIDE],
     }
 }
 
@@ -424,11 +425,26 @@ fn test_lanes<L: Lanes>(
     let (t_unsigned, limit_unsigned) = (l.flip_sign_by(t_scaled, det), l.flip_sign_by(limit, det));
     let in_range = l.lt(zero, t_unsigned) & l.lt(t_unsigned, limit_unsigned);
     let mask = !outside & in_range & valid & !on_edge;
-    let inv = l.div(l.splat(1.0), det);
-    l.store(l.mul(t_scaled, inv), &mut hits.t, at);
-    l.store(l.mul(v, inv), &mut hits.b1, at);
-    l.store(l.mul(w, inv), &mut hits.b2, at);
+    // Undivided: `LaneHits::get` divides for the lanes a query reads.
+    l.store(t_scaled, &mut hits.t_scaled, at);
+    l.store(v, &mut hits.b1_scaled, at);
+    l.store(w, &mut hits.b2_scaled, at);
+    l.store(det, &mut hits.det, at);
     (mask, on_edge)
+}
+
+/// Every lane's distance, as [`LaneHits::get`] divides it out (the same operations), for the
+/// packets with more than one hit.
+#[inline(always)]
+fn distances<L: Lanes>(l: L, hits: &WideHits) -> [f32; WIDE] {
+    let mut t = [0.0; WIDE];
+    let mut at = 0;
+    while at < WIDE {
+        let inv = l.div(l.splat(1.0), l.load(&hits.det, at));
+        l.store(l.mul(l.load(&hits.t_scaled, at), inv), &mut t, at);
+        at += L::N;
+    }
+    t
 }
 
 /// Whether packet `k` of a query's box test can still hold a closer hit than `best`'s.
@@ -476,15 +492,15 @@ fn closest_in_packet<L: Lanes>(
     let k = if hits.mask & (hits.mask - 1) == 0 {
         hits.mask.trailing_zeros() as usize
     } else {
-        let min = l.min_where(hits.mask, &hits.t);
-        (l.lanes_equal(&hits.t, min) & hits.mask).trailing_zeros() as usize
+        let t = distances(l, hits);
+        let min = l.min_where(hits.mask, &t);
+        (l.lanes_equal(&t, min) & hits.mask).trailing_zeros() as usize
     };
-    let min = hits.t[k];
+    let h = hits.get(k);
     let id = p.ids[k];
-    if !best.improved_by(min, id) {
+    if !best.improved_by(h.t, id) {
         return;
     }
-    let h = hits.get(k);
     if accept(id, &h) {
         best.take(id, h);
         return;
