@@ -8,8 +8,9 @@ use glam::Vec3;
 /// Per-ray constants of the watertight test: the axis permutation (kx, ky, kz) that makes `d.z`
 /// the largest component, and the shear (sx, sy, sz) that maps the ray onto +z. A vertex's sheared
 /// coordinates are x' = (v−o)[kx] − sx·(v−o)[kz], y' = (v−o)[ky] − sy·(v−o)[kz],
-/// z' = sz·(v−o)[kz], exactly as in the paper; the 4-wide packet test of the BVH performs the same
-/// operations lane by lane, so both give the same bits.
+/// z' = sz·(v−o)[kz], as in the paper (which divides for sx = d[kx]/d[kz] and sy where this
+/// multiplies by sz = 1/d[kz]); the packet tests of the BVH and of flat meshes perform the same
+/// operations lane by lane, so all give the same bits.
 #[derive(Clone, Copy, Debug)]
 pub struct RayPrecomp {
     pub o: Vec3,
@@ -27,10 +28,17 @@ pub struct RayPrecomp {
 /// not a branch per component.
 #[inline(always)]
 pub(crate) fn box_reciprocal(d: Vec3) -> [f32; 3] {
+    nudged(d, glam::Vec3A::ONE / glam::Vec3A::from(d))
+}
+
+/// [`box_reciprocal`] given 1/d: a component of d smaller than 1e-9 gets ±(1/1e-9) instead (the
+/// quotient of the nudged component, the same bits: one division per lane either way).
+#[inline(always)]
+fn nudged(d: Vec3, reciprocal: glam::Vec3A) -> [f32; 3] {
     let d = glam::Vec3A::from(d);
     let tiny = d.abs().cmplt(glam::Vec3A::splat(1e-9));
-    (glam::Vec3A::ONE / glam::Vec3A::select(tiny, glam::Vec3A::splat(1e-9).copysign(d), d))
-        .to_array()
+    let nudge = glam::Vec3A::splat(1.0 / 1e-9f32).copysign(d);
+    glam::Vec3A::select(tiny, nudge, reciprocal).to_array()
 }
 
 impl RayPrecomp {
@@ -49,11 +57,16 @@ impl RayPrecomp {
         // keeps the winding of the sheared triangle). A table, so no switch on kz is generated.
         const AXES: [[[usize; 2]; 2]; 3] = [[[1, 2], [2, 1]], [[2, 0], [0, 2]], [[0, 1], [1, 0]]];
         let [kx, ky] = AXES[kz][usize::from(d[kz] < 0.0)];
+        // One division for the three reciprocals, which the shear and the box tests share: the
+        // shear multiplies by 1/d[kz] where the paper divides by d[kz] (any fixed shear per ray
+        // keeps the test watertight: the shared vertices of two triangles are transformed alike).
+        let reciprocal = glam::Vec3A::ONE / glam::Vec3A::from(ray.d);
+        let sz = reciprocal.to_array()[kz];
         RayPrecomp {
             o: ray.o,
             k: [kx, ky, kz],
-            s: [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]],
-            inv_d: box_reciprocal(ray.d),
+            s: [d[kx] * sz, d[ky] * sz, sz],
+            inv_d: nudged(ray.d, reciprocal),
         }
     }
 
