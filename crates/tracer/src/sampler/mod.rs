@@ -11,7 +11,7 @@ mod sobol;
 
 pub use hash::{hash_u32, hash_words};
 pub use independent::independent_sample;
-pub(crate) use sobol::owen_sobol_sample_lanewise;
+pub(crate) use sobol::owen_sobol_group_lanewise;
 pub use sobol::{owen_sobol_pair, owen_sobol_sample, SobolPixel};
 
 use crate::settings::SamplerKind;

@@ -281,18 +281,31 @@ impl SobolPixel {
     }
 }
 
-/// [`owen_sobol_sample`] in the form the wavefront integrator's lanes are vectorised from: every
-/// seed hashed as it is drawn (lanes hold different pixels and depths, so no per-pixel cache
-/// applies) and the bit reversal by `reverse_bits`, which compiles to SIMD shuffles, instead of
-/// byte tables, which would not gather. The same bits (tested): the same hashes, and the reversal
-/// of the 24 bits that are kept.
+/// [`owen_sobol_sample`] of dimensions `group + c` for each c of `components` (below four), where
+/// `group` is the first dimension of a group (a multiple of four), in the form the wavefront
+/// integrator's lanes are vectorised from: every seed hashed as it is drawn (lanes hold different
+/// pixels and depths, so no per-pixel cache applies), the group's seed and index shuffle (half of
+/// each value's multiplications) computed once for all its values, and the bit reversal by
+/// `reverse_bits`, which compiles to SIMD shuffles, instead of byte tables, which would not
+/// gather. The same bits (tested): the same hashes, and the reversal of the 24 bits that are kept.
 #[inline(always)]
-pub(crate) fn owen_sobol_sample_lanewise(pixel_key: u32, index_rev: u32, dim: u32) -> f32 {
-    let seed = hash_u32(pixel_key ^ group_key(dim >> 2));
+pub(crate) fn owen_sobol_group_lanewise<const N: usize>(
+    pixel_key: u32,
+    index_rev: u32,
+    group: u32,
+    components: [u32; N],
+) -> [f32; N] {
+    let seed = hash_u32(pixel_key ^ group_key(group >> 2));
     let shuffled_rev = laine_karras_permutation(index_rev, seed);
-    let c = (dim & 3) as usize;
-    let x_rev = sobol_reversed(shuffled_rev, c);
-    bits_to_unit(laine_karras_permutation(x_rev, component_seed(seed, c)).reverse_bits())
+    // A loop, not `map` with a closure, which is not inlined into the vector steps' builds.
+    let mut out = [0.0; N];
+    for k in 0..N {
+        let c = (components[k] & 3) as usize;
+        let x_rev = sobol_reversed(shuffled_rev, c);
+        out[k] =
+            bits_to_unit(laine_karras_permutation(x_rev, component_seed(seed, c)).reverse_bits());
+    }
+    out
 }
 
 /// Dimensions `dim` and `dim + 1` at once (same values as two [`owen_sobol_sample`] calls, sharing
@@ -401,10 +414,19 @@ mod tests {
             for i in (0..64u32).chain([1 << 20, 0xdead_beef, u32::MAX]) {
                 key = hash_u32(key);
                 let r = i.reverse_bits();
+                let [one] = owen_sobol_group_lanewise(key, r, dim & !3, [dim & 3]);
                 assert_eq!(
-                    owen_sobol_sample_lanewise(key, r, dim).to_bits(),
+                    one.to_bits(),
                     owen_sobol_sample(key, r, dim).to_bits(),
                     "key {key:#x}, index {i}, dim {dim}"
+                );
+                let group = dim & !3;
+                let [a, b, c, d] = owen_sobol_group_lanewise(key, r, group, [3, 0, 2, 1]);
+                let want = [3, 0, 2, 1].map(|c| owen_sobol_sample(key, r, group + c).to_bits());
+                assert_eq!(
+                    [a, b, c, d].map(f32::to_bits),
+                    want,
+                    "key {key:#x}, index {i}"
                 );
             }
         }

@@ -36,11 +36,19 @@ use crate::integrator::direct::{LightGeometry, SHADOW_EPSILON};
 use crate::integrator::path::survival;
 use crate::integrator::PathResult;
 use crate::math::{is_black, offset_unit_normal, Frame};
-use crate::sampler::{bounce_dim, dims, owen_sobol_sample_lanewise};
+use crate::sampler::{bounce_dim, dims, owen_sobol_group_lanewise};
 use crate::sampling::power_heuristic;
 use crate::scene::{Hit, Scene};
 use crate::settings::{RenderSettings, RussianRoulette};
 use glam::{Vec2, Vec3};
+
+// The sample values each vector step draws lie in one group of four dimensions per bounce
+// (`owen_sobol_group_lanewise`): bounces start on a group, and the light's three values share one,
+// the continuation's and the roulette's another.
+const _: () = assert!(dims::BOUNCE_BASE.is_multiple_of(4) && dims::PER_BOUNCE.is_multiple_of(4));
+const _: () =
+    assert!(dims::LIGHT_POINT.is_multiple_of(4) && dims::LIGHT_SELECT / 4 == dims::LIGHT_POINT / 4);
+const _: () = assert!(dims::BSDF_DIR.is_multiple_of(4) && dims::ROULETTE / 4 == dims::BSDF_DIR / 4);
 
 type F = [f32; LANES];
 type U = [u32; LANES];
@@ -300,11 +308,15 @@ impl<'a> Lanes<'a> {
         }
         // The light sample's values in a loop of their own (see `scatter`).
         for i in 0..LANES {
-            let dim = |offset| bounce_dim(depths[i], offset);
-            u_select[i] = owen_sobol_sample_lanewise(keys[i], revs[i], dim(dims::LIGHT_SELECT));
-            u_light[0][i] = owen_sobol_sample_lanewise(keys[i], revs[i], dim(dims::LIGHT_POINT));
-            u_light[1][i] =
-                owen_sobol_sample_lanewise(keys[i], revs[i], dim(dims::LIGHT_POINT + 1));
+            // One group of four dimensions (`dims`): its seed and shuffle computed once.
+            let group = bounce_dim(depths[i], dims::LIGHT_POINT);
+            let [point0, point1, select] = owen_sobol_group_lanewise(
+                keys[i],
+                revs[i],
+                group,
+                [0, 1, dims::LIGHT_SELECT - dims::LIGHT_POINT],
+            );
+            (u_light[0][i], u_light[1][i], u_select[i]) = (point0, point1, select);
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
         (self.u_light_select, self.u_light) = (u_select, u_light);
@@ -424,12 +436,10 @@ impl<'a> Lanes<'a> {
         // of the lane's sample, so drawing it changes nothing else.
         let (mut u0, mut u1, mut u_rr) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
         for i in 0..LANES {
-            let sample1 = |offset| {
-                owen_sobol_sample_lanewise(keys[i], revs[i], bounce_dim(depths[i], offset))
-            };
-            u0[i] = sample1(dims::BSDF_DIR);
-            u1[i] = sample1(dims::BSDF_DIR + 1);
-            u_rr[i] = sample1(dims::ROULETTE);
+            // One group of four dimensions (`dims`), as in `shade_hit`.
+            let group = bounce_dim(depths[i], dims::BSDF_DIR);
+            let offsets = [0, 1, dims::ROULETTE - dims::BSDF_DIR];
+            [u0[i], u1[i], u_rr[i]] = owen_sobol_group_lanewise(keys[i], revs[i], group, offsets);
         }
         for i in 0..LANES {
             let ng = ngs.get(i);

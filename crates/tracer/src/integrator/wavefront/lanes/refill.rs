@@ -9,7 +9,7 @@ use super::{Lanes, F, U};
 use crate::camera::{Camera, Projection};
 use crate::integrator::wavefront::{Isa, LANES, V3};
 use crate::integrator::PathResult;
-use crate::sampler::{dims, hash_words, owen_sobol_sample_lanewise};
+use crate::sampler::{dims, hash_words, owen_sobol_group_lanewise};
 use crate::settings::RenderSettings;
 use glam::{Vec2, Vec3};
 
@@ -107,8 +107,7 @@ impl CameraRays {
         let (mut revs, mut jx, mut jy): (U, F, F) = ([0; LANES], [0.0; LANES], [0.0; LANES]);
         for i in 0..LANES {
             revs[i] = indices[i].reverse_bits();
-            jx[i] = owen_sobol_sample_lanewise(keys[i], revs[i], dims::PIXEL);
-            jy[i] = owen_sobol_sample_lanewise(keys[i], revs[i], dims::PIXEL + 1);
+            [jx[i], jy[i]] = owen_sobol_group_lanewise(keys[i], revs[i], dims::PIXEL, [0, 1]);
         }
         let (mut os, mut ds) = (V3::ZERO, V3::ZERO);
         for i in 0..LANES {
