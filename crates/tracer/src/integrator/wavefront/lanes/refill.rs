@@ -23,7 +23,7 @@ pub(super) struct CameraRays {
     index_rev: U,
     o: V3,
     d: V3,
-    /// The samples `len` and beyond have been taken.
+    /// Entries `0..len` hold the batch; `next` is the first not yet handed to a lane.
     len: usize,
     next: usize,
     /// The last pixel whose key was hashed, with its key (the work is a run of samples per
