@@ -70,13 +70,27 @@ impl Scene {
     /// The closest surface hit by `ray` in (0, t_max). `alpha_u` ∈ [0,1) drives stochastic alpha.
     #[inline(always)]
     pub fn intersect(&self, ray: &Ray, t_max: f32, alpha_u: f32) -> Option<Hit> {
+        self.intersect_in::<false>(ray, t_max, alpha_u)
+    }
+
+    /// [`Scene::intersect`], with a flat mesh's test inlined into the caller where `INLINED`:
+    /// only for callers compiled for that test's instruction set (the wavefront's steps; see
+    /// `Bvh::closest_in`).
+    #[inline(always)]
+    pub(crate) fn intersect_in<const INLINED: bool>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        alpha_u: f32,
+    ) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
         let found = if self.any_alpha {
-            self.bvh.closest(&pre, ray.d, t_max, |id, h| {
+            self.bvh.closest_in::<INLINED>(&pre, ray.d, t_max, |id, h| {
                 !self.passes_through(id as usize, h.b1, h.b2, alpha_u)
             })
         } else {
-            self.bvh.closest(&pre, ray.d, t_max, |_, _| true)
+            self.bvh
+                .closest_in::<INLINED>(&pre, ray.d, t_max, |_, _| true)
         };
         found.map(Hit::from_bvh)
     }
@@ -84,13 +98,24 @@ impl Scene {
     /// True if nothing blocks the segment from `ray.o` along `ray.d` up to distance `t_max`.
     #[inline(always)]
     pub fn visible(&self, ray: &Ray, t_max: f32, alpha_u: f32) -> bool {
+        self.visible_in::<false>(ray, t_max, alpha_u)
+    }
+
+    /// [`Scene::visible`], `INLINED` as in [`Scene::intersect_in`].
+    #[inline(always)]
+    pub(crate) fn visible_in<const INLINED: bool>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        alpha_u: f32,
+    ) -> bool {
         let pre = RayPrecomp::new(ray);
         if self.any_alpha {
-            !self.bvh.any(&pre, ray.d, t_max, |id, h| {
+            !self.bvh.any_in::<INLINED>(&pre, ray.d, t_max, |id, h| {
                 !self.passes_through(id as usize, h.b1, h.b2, alpha_u)
             })
         } else {
-            !self.bvh.any(&pre, ray.d, t_max, |_, _| true)
+            !self.bvh.any_in::<INLINED>(&pre, ray.d, t_max, |_, _| true)
         }
     }
 
@@ -98,6 +123,19 @@ impl Scene {
     /// traversals interleaved, see `Bvh::closest_and_any`): the same answers as the two calls.
     #[inline(always)]
     pub fn intersect_and_visible(
+        &self,
+        ray: &Ray,
+        alpha_u: f32,
+        shadow: &Ray,
+        shadow_t_max: f32,
+        shadow_alpha_u: f32,
+    ) -> (Option<Hit>, bool) {
+        self.intersect_and_visible_in::<false>(ray, alpha_u, shadow, shadow_t_max, shadow_alpha_u)
+    }
+
+    /// [`Scene::intersect_and_visible`], `INLINED` as in [`Scene::intersect_in`].
+    #[inline(always)]
+    pub(crate) fn intersect_and_visible_in<const INLINED: bool>(
         &self,
         ray: &Ray,
         alpha_u: f32,
@@ -117,14 +155,15 @@ impl Scene {
             t_max: shadow_t_max,
         };
         let (found, blocked) = if self.any_alpha {
-            self.bvh.closest_and_any(
+            self.bvh.closest_and_any_in::<INLINED>(
                 a,
                 |id, h| !self.passes_through(id as usize, h.b1, h.b2, alpha_u),
                 b,
                 |id, h| !self.passes_through(id as usize, h.b1, h.b2, shadow_alpha_u),
             )
         } else {
-            self.bvh.closest_and_any(a, |_, _| true, b, |_, _| true)
+            self.bvh
+                .closest_and_any_in::<INLINED>(a, |_, _| true, b, |_, _| true)
         };
         (found.map(Hit::from_bvh), !blocked)
     }

@@ -124,37 +124,47 @@ impl Flat {
 
     /// The closest hit in (0, t_max) that `accept` lets through, ties broken towards the smaller
     /// index: [`super::Bvh::closest`]'s answer.
-    #[inline]
-    pub fn closest(
+    ///
+    /// The test is a function compiled for its instruction set, called; with `INLINED` its body
+    /// is inlined into the caller instead, which saves the call and its set-up (4 % of the
+    /// Cornell box's time in the wavefront's steps) but is only fast where the caller is compiled
+    /// for that instruction set too (the wavefront's builds, `integrator/wavefront/lanes/builds.rs`):
+    /// anywhere else every lane operation would be a call. Either way the answer is the same.
+    #[inline(always)]
+    pub fn closest<const INLINED: bool>(
         &self,
         pre: &RayPrecomp,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
-        self.backend.closest(self.mesh(), (pre, t_max), accept)
+        self.backend
+            .closest::<INLINED>(self.mesh(), (pre, t_max), accept)
     }
 
     /// [`Flat::closest`] of ray `a` and [`Flat::any`] of ray `b`, packet by packet in one loop.
-    #[inline]
-    pub fn closest_and_any(
+    #[inline(always)]
+    pub fn closest_and_any<const INLINED: bool>(
         &self,
         a: Query<'_>,
         accept_a: &mut impl FnMut(u32, &TriangleHit) -> bool,
         b: Query<'_>,
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
-        self.backend.pair(self.mesh(), a, accept_a, b, accept_b)
+        self.backend
+            .pair::<INLINED>(self.mesh(), a, accept_a, b, accept_b)
     }
 
-    /// Whether some triangle that `accept` lets through is hit in (0, t_max).
-    #[inline]
-    pub fn any(
+    /// Whether some triangle that `accept` lets through is hit in (0, t_max) (`INLINED` as in
+    /// [`Flat::closest`]).
+    #[inline(always)]
+    pub fn any<const INLINED: bool>(
         &self,
         pre: &RayPrecomp,
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
-        self.backend.any(self.mesh(), (pre, t_max), accept)
+        self.backend
+            .any::<INLINED>(self.mesh(), (pre, t_max), accept)
     }
 
     #[inline(always)]
@@ -580,7 +590,7 @@ impl Backend {
     fn detected() -> impl Iterator<Item = Backend> {
         std::iter::empty()
     }
-    fn closest(
+    fn closest<const INLINED: bool>(
         self,
         _: Mesh<'_>,
         _: Query<'_>,
@@ -588,10 +598,15 @@ impl Backend {
     ) -> Option<(u32, TriangleHit)> {
         match self {}
     }
-    fn any(self, _: Mesh<'_>, _: Query<'_>, _: &mut impl FnMut(u32, &TriangleHit) -> bool) -> bool {
+    fn any<const INLINED: bool>(
+        self,
+        _: Mesh<'_>,
+        _: Query<'_>,
+        _: &mut impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
         match self {}
     }
-    fn pair(
+    fn pair<const INLINED: bool>(
         self,
         _: Mesh<'_>,
         _: Query<'_>,
@@ -711,9 +726,20 @@ mod tests {
                 let pre = RayPrecomp::new(&Ray::new(o, d));
                 let t_max = if ray % 3 == 0 { 1.7 } else { f32::INFINITY };
                 let want = brute_force(&tris, &pre, t_max, |_| true);
-                let got = flat.closest(&pre, t_max, &mut |_, _| true);
+                let got = flat.closest::<false>(&pre, t_max, &mut |_, _| true);
                 assert_eq!(got, want, "{backend:?}: case {case} ray {ray}");
-                assert_eq!(flat.any(&pre, t_max, &mut |_, _| true), want.is_some());
+                // Inlined into this function, which is not compiled for the instruction set: slow
+                // (every lane operation a call), the same answers.
+                if ray % 8 == 1 {
+                    let inlined = flat.closest::<true>(&pre, t_max, &mut |_, _| true);
+                    assert_eq!(inlined, want, "{backend:?} inlined: case {case} ray {ray}");
+                    let visible = flat.any::<true>(&pre, t_max, &mut |_, _| true);
+                    assert_eq!(visible, want.is_some());
+                }
+                assert_eq!(
+                    flat.any::<false>(&pre, t_max, &mut |_, _| true),
+                    want.is_some()
+                );
                 if let Some((id, h)) = want {
                     hits += 1;
                     let tied = tris.iter().enumerate().any(|(other, tri)| {
@@ -723,9 +749,9 @@ mod tests {
                     ties += u32::from(tied);
                     edges += u32::from(h.b1 == 0.0 || h.b2 == 0.0 || h.b1 + h.b2 == 1.0);
                     // A filter that rejects the nearest triangle (an alpha cutout) finds the next.
-                    let next = flat.closest(&pre, t_max, &mut |other, _| other != id);
+                    let next = flat.closest::<false>(&pre, t_max, &mut |other, _| other != id);
                     assert_eq!(next, brute_force(&tris, &pre, t_max, |other| other != id));
-                    let behind = flat.any(&pre, t_max, &mut |other, _| other != id);
+                    let behind = flat.any::<false>(&pre, t_max, &mut |other, _| other != id);
                     assert_eq!(behind, next.is_some());
                     rejected += u32::from(next.is_some());
                 }

@@ -163,10 +163,23 @@ impl Bvh {
         pre: &RayPrecomp,
         d: Vec3,
         t_max: f32,
+        accept: impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> Option<(u32, TriangleHit)> {
+        self.closest_in::<false>(pre, d, t_max, accept)
+    }
+
+    /// [`Bvh::closest`], with a flat mesh's test inlined into the caller where `INLINED` (only
+    /// for callers compiled for the test's instruction set: see `flat::Flat::closest`).
+    #[inline(always)]
+    pub fn closest_in<const INLINED: bool>(
+        &self,
+        pre: &RayPrecomp,
+        d: Vec3,
+        t_max: f32,
         mut accept: impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
         if let Some(flat) = &self.flat {
-            return flat.closest(pre, t_max, &mut accept);
+            return flat.closest::<INLINED>(pre, t_max, &mut accept);
         }
         let root = self.root?;
         let ray = PacketRay::new(pre);
@@ -288,10 +301,22 @@ impl Bvh {
         pre: &RayPrecomp,
         d: Vec3,
         t_max: f32,
+        accept: impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> bool {
+        self.any_in::<false>(pre, d, t_max, accept)
+    }
+
+    /// [`Bvh::any`], `INLINED` as in [`Bvh::closest_in`].
+    #[inline(always)]
+    pub fn any_in<const INLINED: bool>(
+        &self,
+        pre: &RayPrecomp,
+        d: Vec3,
+        t_max: f32,
         mut accept: impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
         if let Some(flat) = &self.flat {
-            return flat.any(pre, t_max, &mut accept);
+            return flat.any::<INLINED>(pre, t_max, &mut accept);
         }
         let Some(root) = self.root else { return false };
         let ray = PacketRay::new(pre);

@@ -31,13 +31,25 @@ impl Bvh {
     pub fn closest_and_any(
         &self,
         a: RayQuery,
+        accept_a: impl FnMut(u32, &TriangleHit) -> bool,
+        b: RayQuery,
+        accept_b: impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> (Option<(u32, TriangleHit)>, bool) {
+        self.closest_and_any_in::<false>(a, accept_a, b, accept_b)
+    }
+
+    /// [`Bvh::closest_and_any`], `INLINED` as in [`Bvh::closest_in`].
+    #[inline(always)]
+    pub fn closest_and_any_in<const INLINED: bool>(
+        &self,
+        a: RayQuery,
         mut accept_a: impl FnMut(u32, &TriangleHit) -> bool,
         b: RayQuery,
         mut accept_b: impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
         if let Some(flat) = &self.flat {
             // No chains of dependent steps to interleave: the two queries one after the other.
-            return flat.closest_and_any(
+            return flat.closest_and_any::<INLINED>(
                 (a.pre, a.t_max),
                 &mut accept_a,
                 (b.pre, b.t_max),

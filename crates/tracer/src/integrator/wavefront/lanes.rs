@@ -234,7 +234,8 @@ impl<'a> Lanes<'a> {
             let i = usize::from(i);
             self.rays[i] += 1;
             let ray = Ray::new(self.o.get(i), self.d.get(i));
-            self.found[i] = scene.intersect(&ray, f32::INFINITY, 0.0);
+            // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
+            self.found[i] = scene.intersect_in::<true>(&ray, f32::INFINITY, 0.0);
         }
         // Every lane loads a triangle (the first where there is no hit), so nothing here branches.
         for i in 0..LANES {
@@ -528,15 +529,20 @@ impl<'a> Lanes<'a> {
             self.rays[i] += 1;
             let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
             let ray = Ray::new(self.o.get(i), self.d.get(i));
-            let (found, visible) =
-                scene.intersect_and_visible(&ray, 0.0, &shadow, self.shadow_t_max[i], 0.0);
+            let (found, visible) = scene.intersect_and_visible_in::<true>(
+                &ray,
+                0.0,
+                &shadow,
+                self.shadow_t_max[i],
+                0.0,
+            );
             self.found[i] = found;
             self.add_if(i, visible);
         }
         for &i in &alone[..n_alone] {
             let i = usize::from(i);
             let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
-            let visible = scene.visible(&shadow, self.shadow_t_max[i], 0.0);
+            let visible = scene.visible_in::<true>(&shadow, self.shadow_t_max[i], 0.0);
             self.add_if(i, visible);
         }
         for &i in &ended[..n_ended] {

@@ -34,14 +34,21 @@ impl Backend {
         }
     }
 
-    /// [`closest_with`] in this instruction set.
-    #[inline]
-    pub fn closest(
+    /// [`closest_with`] in this instruction set: called, compiled for it, or with `INLINED` its
+    /// body inlined into the caller (see [`super::Flat::closest`]).
+    #[inline(always)]
+    pub fn closest<const INLINED: bool>(
         self,
         mesh: Mesh<'_>,
         q: Query<'_>,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> Option<(u32, TriangleHit)> {
+        if INLINED {
+            return match self {
+                Backend::Avx512(l) => closest_with(l, mesh, q, accept),
+                Backend::Avx2(l) => closest_with(l, mesh, q, accept),
+            };
+        }
         // SAFETY (each call): the value exists, so the processor has its features.
         let packed = match self {
             Backend::Avx512(l) => unsafe { l.closest(mesh, q, accept) },
@@ -50,9 +57,9 @@ impl Backend {
         packed.found()
     }
 
-    /// [`pair_with`] in this instruction set.
-    #[inline]
-    pub fn pair(
+    /// [`pair_with`] in this instruction set, as `closest`.
+    #[inline(always)]
+    pub fn pair<const INLINED: bool>(
         self,
         mesh: Mesh<'_>,
         a: Query<'_>,
@@ -60,6 +67,12 @@ impl Backend {
         b: Query<'_>,
         accept_b: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> (Option<(u32, TriangleHit)>, bool) {
+        if INLINED {
+            return match self {
+                Backend::Avx512(l) => pair_with(l, mesh, a, accept_a, b, accept_b),
+                Backend::Avx2(l) => pair_with(l, mesh, a, accept_a, b, accept_b),
+            };
+        }
         // SAFETY (each call): as in `closest`.
         let packed = match self {
             Backend::Avx512(l) => unsafe { l.pair(mesh, a, accept_a, b, accept_b) },
@@ -68,14 +81,20 @@ impl Backend {
         (packed.found(), packed.blocked())
     }
 
-    /// [`any_with`] in this instruction set.
-    #[inline]
-    pub fn any(
+    /// [`any_with`] in this instruction set, as `closest`.
+    #[inline(always)]
+    pub fn any<const INLINED: bool>(
         self,
         mesh: Mesh<'_>,
         q: Query<'_>,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
+        if INLINED {
+            return match self {
+                Backend::Avx512(l) => any_with(l, mesh, q, accept),
+                Backend::Avx2(l) => any_with(l, mesh, q, accept),
+            };
+        }
         // SAFETY (each call): as in `closest`.
         match self {
             Backend::Avx512(l) => unsafe { l.any(mesh, q, accept) },
