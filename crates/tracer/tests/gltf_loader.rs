@@ -915,14 +915,16 @@ fn parts_of(d: &Doc) -> SceneParts {
     parts(&d.gltf())
 }
 
+/// Photometric intensities become radiometric at 683 lm/W: 6830 cd is 10 W/sr, 2049 lx × 0.5 is
+/// 1.5 W/m².
 #[test]
 fn punctual_lights() {
     let mut d = triangle_doc("{}");
     d.json["extensionsUsed"] = j(r#"["KHR_lights_punctual"]"#);
     d.json["extensions"] = j(r#"{"KHR_lights_punctual":{"lights":[
-        {"type":"point","color":[1,0.5,0.25],"intensity":10,"range":5},
-        {"type":"spot","intensity":2,"spot":{"innerConeAngle":0.2,"outerConeAngle":0.5}},
-        {"type":"directional","color":[0.5,0.5,0.5],"intensity":3}]}}"#);
+        {"type":"point","color":[1,0.5,0.25],"intensity":6830,"range":5},
+        {"type":"spot","intensity":1366,"spot":{"innerConeAngle":0.2,"outerConeAngle":0.5}},
+        {"type":"directional","color":[0.5,0.5,0.5],"intensity":2049}]}}"#);
     let h = std::f32::consts::FRAC_1_SQRT_2;
     let point = d.node(j(
         r#"{"translation":[1,2,3],"extensions":{"KHR_lights_punctual":{"light":0}}}"#,

@@ -5,6 +5,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pathfarm_tracer::gltf::{self, LoadOptions};
+use pathfarm_tracer::light::Environment;
 use pathfarm_tracer::output::{decode_exr, encode_exr, encode_png, ExrChannels};
 use pathfarm_tracer::{
     render_image, render_sample, Accumulation, DirectStrategy, RenderSettings, RussianRoulette,
@@ -55,12 +56,73 @@ impl SettingsArgs {
     }
 }
 
+/// The environment light, shared by `render` and `submit`: radiance from every direction a ray
+/// leaves the scene in. glTF cannot carry Blender's world, so it is given here.
+#[derive(Args, Clone, Debug, Default)]
+pub struct EnvironmentArgs {
+    /// Environment light: an equirectangular image (.exr or .hdr, mapped as Blender's Environment
+    /// Texture maps it) or one linear radiance R,G,B (or a single grey value). None by default.
+    #[arg(long, value_name = "FILE|R,G,B")]
+    pub environment: Option<String>,
+    /// Multiplies the environment's radiance.
+    #[arg(long, default_value_t = 1.0, value_name = "S")]
+    pub environment_strength: f32,
+    /// Turns the environment image about the up axis, in degrees (as a Blender Mapping node's Z
+    /// rotation on its vector).
+    #[arg(long, default_value_t = 0.0, value_name = "DEGREES", allow_negative_numbers = true)]
+    pub environment_rotation: f32,
+}
+
+/// What `--environment` names.
+pub enum EnvironmentSource {
+    Radiance(glam::Vec3),
+    Image(PathBuf),
+}
+
+impl EnvironmentArgs {
+    /// `--environment` read as a radiance when it is one or three numbers, as a file otherwise.
+    pub fn source(&self) -> Option<EnvironmentSource> {
+        let spec = self.environment.as_deref()?;
+        let numbers: Result<Vec<f32>, _> = spec.split(',').map(|s| s.trim().parse()).collect();
+        Some(match numbers.as_deref() {
+            Ok(&[v]) => EnvironmentSource::Radiance(glam::Vec3::splat(v)),
+            Ok(&[r, g, b]) => EnvironmentSource::Radiance(glam::Vec3::new(r, g, b)),
+            _ => EnvironmentSource::Image(PathBuf::from(spec)),
+        })
+    }
+
+    /// The environment for a local render, or None.
+    pub fn load(&self) -> Result<Option<Environment>> {
+        let env = match self.source() {
+            None => return Ok(None),
+            Some(EnvironmentSource::Radiance(l)) => {
+                Environment::uniform(l * self.environment_strength)
+                    .context("invalid --environment radiance or --environment-strength")?
+            }
+            Some(EnvironmentSource::Image(path)) => {
+                let bytes = std::fs::read(&path).with_context(|| {
+                    format!("cannot read the environment image {}", path.display())
+                })?;
+                Environment::from_image(
+                    &bytes,
+                    self.environment_strength,
+                    self.environment_rotation,
+                )
+                .with_context(|| format!("cannot load the environment {}", path.display()))?
+            }
+        };
+        Ok(Some(env))
+    }
+}
+
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     /// The scene: a .gltf (with embedded data or files next to it) or a .glb.
     pub scene: PathBuf,
     #[command(flatten)]
     pub settings: SettingsArgs,
+    #[command(flatten)]
+    pub environment: EnvironmentArgs,
     /// Worker threads (default: one per core).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -125,7 +187,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
             .context("cannot start threads")?;
     }
     let t_load = Instant::now();
-    let scene = load_scene(&args.scene, args.camera.clone())?;
+    let environment = args.environment.load()?;
+    let scene = load_scene(&args.scene, args.camera.clone())?.with_environment(environment);
     let info = &scene.info;
     tracing::info!(
         triangles = info.triangles,

@@ -1,6 +1,15 @@
 //! KHR_lights_punctual: point, spot and directional lights placed by their node's world transform.
-//! Spot and directional lights point along the node's −Z; intensity is color × intensity (candela for
-//! point and spot, lux for directional); `range` is ignored (lights fall off with the inverse square).
+//! Spot and directional lights point along the node's −Z; `range` is ignored (lights fall off with
+//! the inverse square).
+//!
+//! Units: the extension is photometric (point and spot `intensity` in candela, directional in lux),
+//! the tracer radiometric (see [`crate::light`]). color × intensity is converted at
+//! [`LUMENS_PER_WATT`] = 683 lm/W: point and spot cd / 683 = W/sr, directional lx / 683 = W/m².
+//! That is the convention of Blender's glTF exporter (its default "Standard" lighting mode writes
+//! W/(4π)·683 for point and spot lamps and W/m²·683 for the sun, and its importer divides by 683
+//! again), so a Blender export renders at Blender's brightness. Emissive materials carry no such
+//! factor (`emissiveFactor` × `emissiveStrength` is radiance as it is, as Blender writes it), so
+//! lamps and emitters keep the balance they had in Blender.
 
 use super::error::{label, GltfError, Warnings};
 use super::nodes::node_label;
@@ -10,6 +19,11 @@ use gltf::json;
 use json::extensions::scene::khr_lights_punctual::{Light, Type};
 use json::validation::Checked;
 use std::f32::consts::FRAC_PI_2;
+
+/// Luminous efficacy used to convert the extension's photometric intensities (cd, lx) to the
+/// tracer's radiometric ones (W/sr, W/m²): 683 lm/W, the peak of the photopic curve, as Blender's
+/// exporter and importer use it.
+pub const LUMENS_PER_WATT: f32 = 683.0;
 
 fn lights(root: &json::Root) -> &[Light] {
     root.extensions
@@ -60,7 +74,7 @@ pub(crate) fn node_light(
         warnings
             .once("KHR_lights_punctual range is ignored (lights fall off with the inverse square)");
     }
-    let intensity = (Vec3::from(light.color) * light.intensity).max(Vec3::ZERO);
+    let intensity = (Vec3::from(light.color) * (light.intensity / LUMENS_PER_WATT)).max(Vec3::ZERO);
     let position = world.transform_point3(DVec3::ZERO).as_vec3();
     let direction = (DMat3::from_mat4(*world) * DVec3::NEG_Z)
         .normalize_or_zero()

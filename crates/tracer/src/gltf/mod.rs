@@ -26,7 +26,8 @@
 //!   `Material::default()`, added once after the file's (used) materials.
 //! - Textures: PNG and JPEG, decoded once per image with limits ([`MAX_IMAGE_SIZE`],
 //!   [`MAX_IMAGE_BYTES`], [`MAX_SCENE_TEXTURE_BYTES`]); sampler wrap modes and NEAREST magnification.
-//! - KHR_lights_punctual point, spot and directional lights.
+//! - KHR_lights_punctual point, spot and directional lights, their candela and lux converted to W/sr
+//!   and W/m² at 683 lm/W ([`LUMENS_PER_WATT`]; see `lights.rs`).
 //! - The camera: the first camera node in traversal order, or the one named by [`LoadOptions::camera`];
 //!   its node's scale is stripped.
 //!
@@ -75,6 +76,7 @@ mod textures;
 pub use bounds::MAX_COORDINATE;
 pub use document::SUPPORTED_EXTENSIONS;
 pub use error::GltfError;
+pub use lights::LUMENS_PER_WATT;
 pub use materials::texture_transform_matrix;
 pub use mesh::MAX_TRIANGLES;
 pub use textures::{MAX_IMAGE_BYTES, MAX_IMAGE_SIZE, MAX_SCENE_TEXTURE_BYTES};

@@ -93,12 +93,12 @@ pub(crate) struct ShadowQuery {
     pub value: Vec3,
 }
 
-/// A point on an area light chosen by power, pdf P(light)/A converted to solid angle by
-/// r² / |cos θ'|. With `mis`, weighted by the power heuristic against the BSDF. Returns the shadow
-/// ray that decides the contribution, untraced: the integrator traces it together with the path's
-/// continuation ray (`Scene::intersect_and_visible`). None when the sample contributes nothing.
+/// The vertex's light sample for the area lights and the environment: the environment with
+/// probability `environment_choice` (the selection number is remapped to choose among the area
+/// lights otherwise, so no dimension is added), each sample's density including the probability of
+/// its family. Without an environment this is [`area_light_query`] with `u_sel` as it was drawn.
 #[inline(always)]
-pub(crate) fn area_light_query(
+pub(crate) fn light_query(
     scene: &Scene,
     v: &Vertex,
     s: &PixelSampler,
@@ -106,6 +106,53 @@ pub(crate) fn area_light_query(
     mis: bool,
 ) -> Option<ShadowQuery> {
     let u_sel = s.bounce1(depth, dims::LIGHT_SELECT);
+    let lights = &scene.lights;
+    let Some(env) = &lights.environment else {
+        return area_light_query(scene, v, s, depth, mis, u_sel, 1.0);
+    };
+    let p_env = lights.environment_choice;
+    if u_sel >= p_env {
+        let u = ((u_sel - p_env) / lights.area_choice).min(1.0 - f32::EPSILON / 2.0);
+        return area_light_query(scene, v, s, depth, mis, u, lights.area_choice);
+    }
+    let es = env.sample(s.bounce2(depth, dims::LIGHT_POINT))?;
+    let pdf = p_env * es.pdf;
+    let (f, bsdf_pdf) = if mis {
+        v.bsdf.eval_pdf(v.wo, es.wi)
+    } else {
+        (v.bsdf.eval(v.wo, es.wi), 0.0)
+    };
+    if is_black(f) || is_black(es.radiance) || !(pdf > 0.0 && pdf.is_finite()) {
+        return None;
+    }
+    let w = if mis {
+        power_heuristic(pdf, bsdf_pdf)
+    } else {
+        1.0
+    };
+    Some(ShadowQuery {
+        ray: v.spawn(es.wi),
+        t_max: f32::INFINITY,
+        alpha_u: s.bounce1(depth, dims::ALPHA),
+        value: f * es.radiance * (w / pdf),
+    })
+}
+
+/// A point on an area light chosen by power (from `u_sel`; the family was chosen with probability
+/// `choice`), pdf choice · P(light)/A converted to solid angle by r² / |cos θ'|. With `mis`,
+/// weighted by the power heuristic against the BSDF. Returns the shadow ray that decides the
+/// contribution, untraced: the integrator traces it together with the path's continuation ray
+/// (`Scene::intersect_and_visible`). None when the sample contributes nothing.
+#[inline(always)]
+fn area_light_query(
+    scene: &Scene,
+    v: &Vertex,
+    s: &PixelSampler,
+    depth: u32,
+    mis: bool,
+    u_sel: f32,
+    choice: f32,
+) -> Option<ShadowQuery> {
     let ls = scene
         .lights
         .area
@@ -121,7 +168,14 @@ pub(crate) fn area_light_query(
     } else {
         (v.bsdf.eval(v.wo, g.wi), 0.0)
     };
-    let value = g.value(ls.pdf_area, le, f, bsdf_pdf, v.transmittance(g.dist), mis)?;
+    let value = g.value(
+        ls.pdf_area * choice,
+        le,
+        f,
+        bsdf_pdf,
+        v.transmittance(g.dist),
+        mis,
+    )?;
     Some(ShadowQuery {
         ray: v.spawn(g.wi),
         t_max: g.dist * (1.0 - SHADOW_EPSILON),
@@ -208,7 +262,8 @@ fn light_uv(scene: &Scene, tri: usize, b: Vec3) -> [Vec2; 2] {
 }
 
 /// Direct lighting by sampling a direction (uniform or cosine-weighted about the geometric normal on
-/// the viewer's side) and tracing it to whatever emitter it hits. On surfaces that transmit through a
+/// the viewer's side) and tracing it to whatever emitter it hits, or to the environment if it
+/// leaves the scene. On surfaces that transmit through a
 /// non-delta lobe both hemispheres are sampled, each with probability ½, so light from behind is not
 /// missed.
 pub(crate) fn direct_by_direction(
@@ -247,7 +302,10 @@ pub(crate) fn direct_by_direction(
     let ray = v.spawn(wi);
     *rays += 1;
     let Some(hit) = scene.intersect(&ray, f32::INFINITY, s.bounce1(depth, dims::ALPHA)) else {
-        return Vec3::ZERO;
+        return match &scene.lights.environment {
+            Some(env) => f * env.radiance(wi) / pdf,
+            None => Vec3::ZERO,
+        };
     };
     let si = scene.surface(&ray, &hit);
     let material = &scene.materials[si.material as usize];

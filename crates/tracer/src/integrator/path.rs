@@ -1,4 +1,4 @@
-use super::direct::{area_light_query, direct_by_direction, direct_punctual, ShadowQuery, Vertex};
+use super::direct::{direct_by_direction, direct_punctual, light_query, ShadowQuery, Vertex};
 use super::EmissionWeight;
 use crate::geometry::Ray;
 use crate::math::{is_black, offset_ray_origin};
@@ -36,7 +36,8 @@ pub fn trace_path(
     let mut medium: Option<Vec3> = None;
     let depth_limit = settings.depth_limit();
     let strategy = settings.direct;
-    let has_area = !scene.lights.area.is_empty();
+    // Area lights or an environment: what the shared light sample finds.
+    let has_sampled = scene.lights.has_sampled();
     let has_punctual = !scene.lights.punctual.is_empty();
 
     let mut depth = 0u32;
@@ -51,6 +52,19 @@ pub fn trace_path(
             }
         };
         let Some(hit) = found else {
+            // The ray left the scene: the environment's light along it, counted as emission is.
+            if let Some(env) = &scene.lights.environment {
+                let w = match emission {
+                    EmissionWeight::Full => 1.0,
+                    EmissionWeight::Skip => 0.0,
+                    EmissionWeight::Mis { bsdf_pdf } => {
+                        power_heuristic(bsdf_pdf, scene.lights.environment_choice * env.pdf(ray.d))
+                    }
+                };
+                if w > 0.0 {
+                    l += beta * env.radiance(ray.d) * w;
+                }
+            }
             break;
         };
         out.vertices += 1;
@@ -69,8 +83,11 @@ pub fn trace_path(
                     EmissionWeight::Skip => 0.0,
                     EmissionWeight::Mis { bsdf_pdf } => {
                         let cos_l = ray.d.dot(si.ng).abs();
-                        let light_pdf =
-                            scene.lights.area.pdf_area(si.material) * hit.t * hit.t / cos_l;
+                        let light_pdf = scene.lights.area.pdf_area(si.material)
+                            * scene.lights.area_choice
+                            * hit.t
+                            * hit.t
+                            / cos_l;
                         power_heuristic(bsdf_pdf, light_pdf)
                     }
                 };
@@ -100,9 +117,9 @@ pub fn trace_path(
                 l += beta * direct_punctual(scene, &vertex, sampler, depth, &mut out.rays);
             }
             match strategy {
-                DirectStrategy::Light | DirectStrategy::Mis if has_area => {
+                DirectStrategy::Light | DirectStrategy::Mis if has_sampled => {
                     let mis = strategy == DirectStrategy::Mis;
-                    shadow = area_light_query(scene, &vertex, sampler, depth, mis).map(|q| {
+                    shadow = light_query(scene, &vertex, sampler, depth, mis).map(|q| {
                         out.rays += 1;
                         ShadowQuery {
                             value: beta * q.value,
@@ -110,7 +127,7 @@ pub fn trace_path(
                         }
                     });
                 }
-                DirectStrategy::Hemisphere | DirectStrategy::Cosine if has_area => {
+                DirectStrategy::Hemisphere | DirectStrategy::Cosine if has_sampled => {
                     l += beta
                         * direct_by_direction(
                             scene,
@@ -154,7 +171,7 @@ pub fn trace_path(
                 DirectStrategy::Bsdf => EmissionWeight::Full,
                 DirectStrategy::Mis => EmissionWeight::Mis { bsdf_pdf: bs.pdf },
                 DirectStrategy::Light | DirectStrategy::Hemisphere | DirectStrategy::Cosine => {
-                    if has_area {
+                    if has_sampled {
                         EmissionWeight::Skip
                     } else {
                         EmissionWeight::Full

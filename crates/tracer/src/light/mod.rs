@@ -1,18 +1,30 @@
-//! Light sources. Two families, each sampled by its own distribution over power:
+//! Light sources. Three families:
 //! - area lights: every emissive triangle ([`AreaLights`]); reached both by light sampling and by
 //!   rays that hit them;
+//! - the environment ([`Environment`]): radiance from infinitely far away, one colour or an
+//!   equirectangular image; reached by light sampling and by rays that leave the scene. Area lights
+//!   and the environment share one light sample per vertex: the environment is chosen with
+//!   probability [`Lights::environment_choice`] (by power), an area light otherwise;
 //! - punctual lights from `KHR_lights_punctual` ([`PunctualLight`]: point, spot, directional), each in
 //!   its own file; delta distributions, so they are reached by light sampling only, whatever the
-//!   direct-lighting strategy.
+//!   direct-lighting strategy. They get a light sample of their own, chosen by power.
+//!
+//! Units: radiometric, linear RGB. Emission and the environment are radiance (W/(m²·sr)), point and
+//! spot intensities W/sr, directional irradiance W/m²; pixels are radiance. glTF's photometric
+//! punctual lights are converted by the loader (`gltf/lights.rs`, 683 lm/W).
 
 mod area;
 mod directional;
+mod environment;
 mod point;
 mod spot;
 
 pub(crate) use area::point_on;
 pub use area::{AreaLightSample, AreaLights};
 pub use directional::DirectionalLight;
+pub use environment::{
+    Environment, EnvironmentError, EnvironmentSample, MAX_DISTRIBUTION_SIZE, MAX_ENVIRONMENT_TEXELS,
+};
 pub use point::PointLight;
 pub use spot::SpotLight;
 
@@ -67,6 +79,14 @@ pub struct Lights {
     pub punctual: Vec<PunctualLight>,
     /// Choice among punctual lights, proportional to power.
     pub punctual_distribution: Distribution1D,
+    /// The environment, if the render has one (see [`Lights::set_environment`]).
+    pub environment: Option<Environment>,
+    /// Probability that a vertex's light sample goes to the environment rather than to an area
+    /// light (by power; 1 without area lights, 0 without an environment).
+    pub environment_choice: f32,
+    /// 1 − `environment_choice`: the probability of the area lights (exactly 1 without an
+    /// environment, so the area lights' densities keep their bits).
+    pub area_choice: f32,
 }
 
 impl Lights {
@@ -76,7 +96,33 @@ impl Lights {
             area,
             punctual_distribution: Distribution1D::new(&powers),
             punctual,
+            environment: None,
+            environment_choice: 0.0,
+            area_choice: 1.0,
         }
+    }
+
+    /// Sets the environment (none, or one whose every direction is black, removes it) and the
+    /// choice between it and the area lights, by power over a scene of radius `scene_radius`.
+    pub fn set_environment(&mut self, environment: Option<Environment>, scene_radius: f32) {
+        self.environment = environment.filter(|e| !e.is_black());
+        (self.environment_choice, self.area_choice) = match &self.environment {
+            None => (0.0, 1.0),
+            Some(_) if self.area.is_empty() => (1.0, 0.0),
+            Some(env) => {
+                let env_power = env.power(scene_radius) as f64;
+                let p = (env_power / (env_power + self.area.total_power())) as f32;
+                // Neither family is starved: each keeps at least 1/16 of the samples.
+                let p = p.clamp(1.0 / 16.0, 15.0 / 16.0);
+                (p, 1.0 - p)
+            }
+        };
+    }
+
+    /// Area lights or the environment: something for the shared light sample to find.
+    #[inline]
+    pub fn has_sampled(&self) -> bool {
+        !self.area.is_empty() || self.environment.is_some()
     }
 
     /// Chooses a punctual light in proportion to power. Returns the light and its probability.

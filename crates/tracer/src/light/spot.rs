@@ -15,11 +15,14 @@ pub struct SpotLight {
 }
 
 impl SpotLight {
-    /// The spec's falloff: t = clamp((cos θ − cos outer) / (cos inner − cos outer)), attenuation t².
+    /// The falloff exactly as `KHR_lights_punctual`'s reference code writes it:
+    /// scale = 1 / max(0.001, cos inner − cos outer), offset = −cos outer · scale,
+    /// t = saturate(cos θ · scale + offset), attenuation t².
     #[inline]
     pub fn falloff(&self, cos_theta: f32) -> f32 {
         let scale = 1.0 / (self.cos_inner - self.cos_outer).max(1e-3);
-        let t = ((cos_theta - self.cos_outer) * scale).clamp(0.0, 1.0);
+        let offset = -self.cos_outer * scale;
+        let t = (cos_theta * scale + offset).clamp(0.0, 1.0);
         t * t
     }
 

@@ -4,12 +4,14 @@
 
 mod discrete;
 mod disk;
+mod distribution2d;
 mod inverse_cdf;
 mod sphere;
 mod triangle;
 
 pub use discrete::Distribution1D;
 pub use disk::{sample_concentric_disk, sample_uniform_disk};
+pub use distribution2d::Distribution2D;
 pub use inverse_cdf::{cubic_falloff_pdf, sample_cubic_falloff};
 pub use sphere::{
     cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_hemisphere,

@@ -10,7 +10,7 @@ use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::geometry::{Bvh, Mesh, MeshError};
 use crate::integrator::DiffuseScene;
-use crate::light::{AreaLights, Lights, PunctualLight};
+use crate::light::{AreaLights, Environment, Lights, PunctualLight};
 use crate::material::{Material, Texture};
 use glam::Vec3;
 
@@ -167,13 +167,7 @@ impl Scene {
                     .map(|p| Bsdf::new(p, Vec3::Z, Vec3::Z, None))
             })
             .collect::<Vec<_>>();
-        let diffuse = DiffuseScene::new(
-            &materials,
-            &bsdf_templates,
-            &mesh,
-            &lights.area,
-            lights.punctual.len(),
-        );
+        let diffuse = DiffuseScene::new(&materials, &bsdf_templates, &mesh, &lights);
         Ok(Scene {
             bsdf_templates,
             diffuse,
@@ -206,6 +200,21 @@ impl Scene {
         let material = &self.materials[si.material as usize];
         let shading = material.shade(&self.textures, &si.uv, si.ns, si.tangent);
         Bsdf::new(shading.params, shading.normal, si.ng, tangent)
+    }
+
+    /// Lights the scene with an environment (`None` takes it away). The environment is part of the
+    /// render rather than of the glTF file, which cannot carry one; it takes its share of the light
+    /// samples by power against the emissive triangles (see [`crate::light`]).
+    pub fn with_environment(mut self, environment: Option<Environment>) -> Self {
+        let radius = 0.5 * (self.info.bounds_max - self.info.bounds_min).length();
+        self.lights.set_environment(environment, radius.max(1e-3));
+        self.diffuse = DiffuseScene::new(
+            &self.materials,
+            &self.bsdf_templates,
+            &self.mesh,
+            &self.lights,
+        );
+        self
     }
 
     /// Replaces the camera (e.g. one chosen by name).

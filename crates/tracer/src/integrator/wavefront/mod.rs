@@ -10,7 +10,8 @@
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
-//! untextured materials, emissive triangles as the only lights, no alpha, no vertex normals; MIS
+//! untextured materials, emissive triangles as the only lights (no environment), no alpha, no
+//! vertex normals; MIS
 //! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
 //! scalar integrator, with the same result it always had. Ray queries stay scalar, one lane at a
 //! time, through the scene's BVH.
@@ -26,7 +27,7 @@ mod lights;
 mod tests;
 
 use super::PathResult;
-use crate::light::AreaLights;
+use crate::light::Lights;
 use crate::material::Material;
 use crate::scene::Scene;
 use crate::settings::{DirectStrategy, RenderSettings, SamplerKind};
@@ -92,15 +93,20 @@ pub(crate) struct DiffuseScene {
 impl DiffuseScene {
     /// The lanes' view of a scene, if every material is an untextured pure Lambertian (emissive
     /// or not) without alpha or volume, the mesh has no vertex normals or tangents, and the only
-    /// lights are emissive triangles (at least one).
+    /// lights are emissive triangles (at least one): no punctual lights, no environment. The one
+    /// place that decides which scenes the lanes render.
     pub(crate) fn new(
         materials: &[Material],
         templates: &[Option<crate::bsdf::Bsdf>],
         mesh: &crate::geometry::Mesh,
-        area: &AreaLights,
-        punctual_lights: usize,
+        lights: &Lights,
     ) -> Option<DiffuseScene> {
-        if mesh.normals.is_some() || mesh.tangents.is_some() || punctual_lights > 0 {
+        let area = &lights.area;
+        if mesh.normals.is_some()
+            || mesh.tangents.is_some()
+            || !lights.punctual.is_empty()
+            || lights.environment.is_some()
+        {
             return None;
         }
         if area.is_empty() {
