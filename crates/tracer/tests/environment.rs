@@ -12,7 +12,7 @@ use pathfarm_tracer::camera::{Camera, Perspective, Projection};
 use pathfarm_tracer::geometry::Mesh;
 use pathfarm_tracer::light::Environment;
 use pathfarm_tracer::scene::SceneParts;
-use pathfarm_tracer::stats::{chi_square_test, SphereBins};
+use pathfarm_tracer::stats::chi_square_test;
 use pathfarm_tracer::{render_image, DirectStrategy, RenderSettings, SamplerKind, Scene};
 use std::f64::consts::PI;
 use std::io::Cursor;
@@ -52,7 +52,7 @@ fn sky(width: usize, height: usize) -> Vec<Vec3> {
             Vec3::new(q(rng.f32()), q(rng.f32()), q(rng.f32())) + Vec3::splat(0.0625)
         })
         .collect();
-    texels[3 * width / 2 + 3] = Vec3::new(1024.0, 768.0, 512.0);
+    texels[(height / 2 - 1) * width + width / 4] = Vec3::new(1024.0, 768.0, 512.0);
     texels
 }
 
@@ -141,21 +141,31 @@ fn oversized_and_broken_images_are_refused_with_reasons() {
     assert!(e.contains("texel (1, 1)"), "{e}");
 }
 
-/// The sampled directions follow `Environment::pdf` (χ², 1M samples), and a density without the
-/// equirectangular map's cos(elevation) Jacobian is rejected by the same test.
+/// Where direction `d` (glTF axes) looks up an image turned by `rotation` degrees: Blender's
+/// formulas in f64, the inverse of [`blender_direction`].
+fn blender_uv(d: Vec3, rotation: f64) -> (f64, f64) {
+    let d = d.as_dvec3().normalize();
+    let (bx, by, bz) = (d.x, -d.z, d.y);
+    let (s, c) = rotation.to_radians().sin_cos();
+    let (rx, ry) = (bx * c - by * s, bx * s + by * c);
+    (
+        0.5 - ry.atan2(rx) / (2.0 * PI),
+        0.5 - bz.clamp(-1.0, 1.0).asin() / PI,
+    )
+}
+
+/// The sampled directions follow `Environment::pdf` (χ², 1M samples), binned on a grid aligned
+/// with the image's texels (the rotation is a whole number of texel columns), where the density is
+/// constant in each bin and the expected counts are exact; a density without the equirectangular
+/// map's cos(elevation) Jacobian is rejected by the same test.
 #[test]
 fn environment_sampling_matches_its_pdf() {
     let (w, h) = (16, 8);
-    let env = Environment::from_image(&exr_bytes(w, h, &sky(w, h)), 1.0, 30.0).unwrap();
-    // SphereBins work about z; the environment's up axis is y: bin the directions turned so.
-    let to_bins = |d: Vec3| Vec3::new(d.x, d.z, d.y);
-    let from_bins = |b: Vec3| Vec3::new(b.x, b.z, b.y);
-    let bins = SphereBins {
-        n_theta: 40,
-        n_phi: 40,
-    };
+    let rotation = 45.0; // two texel columns
+    let env = Environment::from_image(&exr_bytes(w, h, &sky(w, h)), 1.0, rotation as f32).unwrap();
+    let (bw, bh) = (2 * w, 2 * h);
     let n = 1_000_000;
-    let mut observed = vec![0.0f64; bins.len()];
+    let mut observed = vec![0.0f64; bw * bh];
     let mut rng = Pcg32::seeded(21);
     let mut estimate = 0.0f64;
     // A sample on a cell's edge may look up the neighbouring cell by a rounding: rare.
@@ -166,22 +176,42 @@ fn environment_sampling_matches_its_pdf() {
         if (s.pdf - env.pdf(s.wi)).abs() > 1e-3 * s.pdf || s.radiance != env.radiance(s.wi) {
             disagree += 1;
         }
-        observed[bins.bin(to_bins(s.wi))] += 1.0;
+        let (u, v) = blender_uv(s.wi, rotation);
+        let (i, j) = (
+            ((u * bw as f64) as usize).min(bw - 1),
+            ((v * bh as f64) as usize).min(bh - 1),
+        );
+        observed[j * bw + i] += 1.0;
         estimate += (s.radiance.y / s.pdf) as f64;
     }
-    let expected: Vec<f64> = bins
-        .integrate(|b| env.pdf(from_bins(b)) as f64, 16)
-        .iter()
-        .map(|e| e * n as f64)
-        .collect();
     assert!(
         disagree < n / 10_000,
         "{disagree} samples disagree with pdf()"
     );
+    // ∫ pdf dω over a bin = Σ pdf(ω) · 2π² cos e · ΔuΔv at sub-bin midpoints (exact where the
+    // density is constant in the bin: pdf · cos e is then constant too).
+    let integrate = |pdf: &dyn Fn(Vec3) -> f64| -> Vec<f64> {
+        let sub = 4;
+        let (du, dv) = (1.0 / (bw * sub) as f64, 1.0 / (bh * sub) as f64);
+        let mut out = vec![0.0; bw * bh];
+        for (k, e) in out.iter_mut().enumerate() {
+            let (i, j) = (k % bw, k / bw);
+            for a in 0..sub {
+                for b in 0..sub {
+                    let u = (i * sub + a) as f64 * du + 0.5 * du;
+                    let v = (j * sub + b) as f64 * dv + 0.5 * dv;
+                    let d = blender_direction(u, v, rotation).as_vec3();
+                    *e += pdf(d) * 2.0 * PI * PI * (PI * (0.5 - v)).cos() * du * dv * n as f64;
+                }
+            }
+        }
+        out
+    };
+    let expected = integrate(&|d| env.pdf(d) as f64);
     let chi = chi_square_test(&observed, &expected, 5.0);
     eprintln!("environment sampling: p = {:.3e}", chi.p_value);
     assert!(chi.p_value > 1e-4, "{chi:?}");
-    // The importance-sampled estimate of ∫ L_green dω is unbiased (and, importance sampled, tight).
+    // The importance-sampled estimate of ∫ L_green dω is unbiased:
     // ∫ L dω = Σ L · (2π/w) · ∫ cos e de over each texel's rows of elevation e.
     let exact: f64 = sky(w, h)
         .iter()
@@ -199,27 +229,19 @@ fn environment_sampling_matches_its_pdf() {
     assert!((mean - exact).abs() < 0.01 * exact, "{mean} vs {exact}");
 
     // Without the Jacobian the law is wrong, and the test says so.
-    let wrong: Vec<f64> = bins
-        .integrate(
-            |b| {
-                let d = from_bins(b);
-                let cos_e = (d.x * d.x + d.z * d.z).sqrt() as f64;
-                env.pdf(d) as f64 * cos_e * 4.0 / PI
-            },
-            16,
-        )
-        .iter()
-        .map(|e| e * n as f64)
-        .collect();
+    let wrong = integrate(&|d| {
+        let cos_e = (d.x * d.x + d.z * d.z).sqrt() as f64;
+        env.pdf(d) as f64 * cos_e * 4.0 / PI
+    });
     let p = chi_square_test(&observed, &wrong, 5.0).p_value;
     assert!(p < 1e-6, "a wrong density passed: p = {p}");
 }
 
-/// A one-sided Lambertian square of half-size 1000 facing `normal`, filling the view of a camera one
+/// A one-sided Lambertian square of half-size 3 facing `normal`, filling the view of a camera one
 /// unit in front of it: every pixel sees the plane, and every point of it the whole hemisphere.
 fn plane_facing(normal: Vec3, rho: f32, extra: Vec<[Vec3; 3]>, extra_le: f32) -> Scene {
     let rotation = Quat::from_rotation_arc(Vec3::Z, normal);
-    let s = 1000.0;
+    let s = 3.0;
     let c = |x: f32, y: f32| rotation * Vec3::new(x, y, 0.0);
     let mut mesh = Mesh::default();
     mesh.positions.push([c(-s, -s), c(s, -s), c(s, s)]);
@@ -307,7 +329,7 @@ fn a_plane_under_an_image_reflects_the_cosine_weighted_integral() {
         // strategies, whose variance it dominates.
         for (direct, spp) in [
             (DirectStrategy::Mis, 64),
-            (DirectStrategy::Light, 64),
+            (DirectStrategy::Light, 1024),
             (DirectStrategy::Bsdf, 1024),
             (DirectStrategy::Cosine, 1024),
         ] {

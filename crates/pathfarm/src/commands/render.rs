@@ -69,7 +69,12 @@ pub struct EnvironmentArgs {
     pub environment_strength: f32,
     /// Turns the environment image about the up axis, in degrees (as a Blender Mapping node's Z
     /// rotation on its vector).
-    #[arg(long, default_value_t = 0.0, value_name = "DEGREES", allow_negative_numbers = true)]
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "DEGREES",
+        allow_negative_numbers = true
+    )]
     pub environment_rotation: f32,
 }
 
