@@ -14,15 +14,18 @@
 //! the order its triangles first use them; the triangles, their order and their values are the same),
 //! so each instance transforms only the vertices its triangles use.
 //!
-//! Tangents: a primitive whose material has a normal map but no TANGENT attribute gets a per-triangle
-//! tangent from its UVs (the standard dP/du, with the sign chosen so that cross(N, T)·w points to
-//! decreasing v, "up" in the image, as glTF specifies). This is not MikkTSpace: normal maps baked
-//! against MikkTSpace tangents show small differences across smooth-shaded edges.
+//! Tangents: a primitive whose material has a normal map but no TANGENT attribute gets MikkTSpace
+//! tangents (see `tangents`), computed once per primitive on its local (compacted) vertices when it
+//! is read, then transformed per instance like a file's TANGENT. Where MikkTSpace is not computed
+//! (a primitive over its limits, with a warning) or leaves a corner without a tangent, the triangle
+//! gets a per-triangle tangent from its UVs (the standard dP/du, with the sign chosen so that
+//! cross(N, T)·w points to decreasing v, "up" in the image, as glTF specifies).
 
 use super::accessors::Accessors;
 use super::bounds::{outside, Far};
 use super::compact::{compact, gather};
 use super::error::{label, GltfError, Warnings};
+use super::tangents::{self, Tangents};
 use crate::geometry::{renderable, Mesh};
 use glam::{DMat3, DMat4, Vec2, Vec3, Vec4};
 use gltf::json;
@@ -152,7 +155,8 @@ struct Primitive {
     positions: Rc<[Vec3]>,
     normals: Option<Rc<[Vec3]>>,
     uv: [Option<Rc<[Vec2]>>; 2],
-    tangents: Option<Rc<[Vec4]>>,
+    /// The file's TANGENT, or MikkTSpace's when the material has a normal map and the file none.
+    tangents: Option<Tangents>,
 }
 
 /// Accumulates the scene's triangles.
@@ -218,7 +222,8 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 let infos = scan_mesh(self.acc.root(), mesh, &mut scratch);
                 let mut prims = Vec::with_capacity(infos.len());
                 for info in infos {
-                    let p = self.read_primitive(mesh, info, warnings)?;
+                    let m = material(info.material);
+                    let p = self.read_primitive(mesh, info, m, warnings)?;
                     // One with no triangles costs nothing per instance.
                     if !p.triangles.is_empty() {
                         prims.push(p);
@@ -247,6 +252,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         &self,
         mesh: usize,
         info: PrimitiveInfo,
+        material: PrimitiveMaterial,
         warnings: &mut Warnings,
     ) -> Result<Primitive, GltfError> {
         let root = self.acc.root();
@@ -299,7 +305,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         if let (true, Some(i)) = (self.needs.tangents, attr(Semantic::Tangents)) {
             let v = self.acc.vec4(i, &format!("TANGENT of {plabel}"))?;
             same_count(i, "TANGENT", v.len())?;
-            tangents = Some(v);
+            tangents = Some(Tangents::Vertex(v));
         }
         let Ok(n32) = u32::try_from(n) else {
             return Err(perr(format!("{n} vertices are too many")));
@@ -332,7 +338,25 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             p.positions = gather(&p.positions, &used);
             p.normals = p.normals.map(|v| gather(&v, &used));
             p.uv = p.uv.map(|v| v.map(|v| gather(&v, &used)));
-            p.tangents = p.tangents.map(|v| gather(&v, &used));
+            p.tangents = p.tangents.map(|t| match t {
+                Tangents::Vertex(v) => Tangents::Vertex(gather(&v, &used)),
+                // Only MikkTSpace makes these, below.
+                corners => corners,
+            });
+        }
+        // MikkTSpace only where the material's normal map needs it and the file has no TANGENT,
+        // once per primitive (not per instance), on the local vertices: what an exporter would
+        // have computed and written as TANGENT.
+        let normal_map_uv = material
+            .normal_map_uv
+            .and_then(|s| p.uv.get(s as usize).and_then(|u| u.clone()));
+        if let (true, None, Some(uv)) = (self.needs.tangents, &p.tangents, normal_map_uv) {
+            match tangents::mikktspace(&triangles, &p.positions, p.normals.as_deref(), &uv) {
+                Ok(t) => p.tangents = Some(t),
+                Err(why) => warnings.once(format!(
+                    "{plabel}: {why}; per-triangle tangents used for its normal map"
+                )),
+            }
         }
         p.triangles = triangles;
         Ok(p)
@@ -365,21 +389,26 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 .map(|n| (normal_matrix * n.as_dvec3()).normalize_or_zero().as_vec3())
                 .collect()
         });
-        let wt: Option<Vec<Vec4>> = p.tangents.as_ref().map(|ts| {
-            ts.iter()
-                .map(|t| {
-                    let xyz = (m3 * t.truncate().as_dvec3()).normalize_or_zero().as_vec3();
-                    let w = if t.w < 0.0 { -1.0 } else { 1.0 } * sign as f32;
-                    xyz.extend(w)
-                })
-                .collect()
-        });
+        let tangent = |t: &Vec4| {
+            let xyz = (m3 * t.truncate().as_dvec3()).normalize_or_zero().as_vec3();
+            let w = if t.w < 0.0 { -1.0 } else { 1.0 } * sign as f32;
+            xyz.extend(w)
+        };
+        // Per vertex, or per corner (MikkTSpace split some vertex); at most one is set.
+        let (wt, wt_corners): (Option<Vec<Vec4>>, Option<Vec<[Vec4; 3]>>) = match &p.tangents {
+            Some(Tangents::Vertex(ts)) => (Some(ts.iter().map(tangent).collect()), None),
+            Some(Tangents::Corner(ts)) => (
+                None,
+                Some(ts.iter().map(|c| c.map(|t| tangent(&t))).collect()),
+            ),
+            None => (None, None),
+        };
         let tangent_uv = mat
             .normal_map_uv
             .and_then(|s| p.uv.get(s as usize).and_then(|u| u.as_ref()));
         if self.needs.tangents
             && mat.normal_map_uv.is_some()
-            && wt.is_none()
+            && p.tangents.is_none()
             && tangent_uv.is_none()
         {
             warnings.once(format!(
@@ -387,8 +416,10 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 primitive_label(self.acc.root(), mesh, p.info.primitive)
             ));
         }
-        for t in &p.triangles {
-            let [a, b, c] = if flip { [t[0], t[2], t[1]] } else { *t };
+        for (k, t) in p.triangles.iter().enumerate() {
+            // The corners in the order they are stored (two swapped under a mirroring transform).
+            let order = if flip { [0, 2, 1] } else { [0, 1, 2] };
+            let [a, b, c] = order.map(|i| t[i]);
             let [a, b, c] = [a as usize, b as usize, c as usize];
             let pos = [wp[a], wp[b], wp[c]];
             if !renderable(&pos) {
@@ -427,10 +458,11 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 }
             }
             if let Some(out) = &mut self.mesh.tangents {
-                out.push(match (&wt, tangent_uv) {
-                    (Some(wt), _) => [wt[a], wt[b], wt[c]],
-                    (None, Some(uv)) => [generate_tangent(pos, [uv[a], uv[b], uv[c]]); 3],
-                    (None, None) => [Vec4::ZERO; 3],
+                out.push(match (&wt, &wt_corners, tangent_uv) {
+                    (Some(wt), _, _) => [wt[a], wt[b], wt[c]],
+                    (None, Some(wc), _) => order.map(|i| wc[k][i]),
+                    (None, None, Some(uv)) => [generate_tangent(pos, [uv[a], uv[b], uv[c]]); 3],
+                    (None, None, None) => [Vec4::ZERO; 3],
                 });
             }
         }

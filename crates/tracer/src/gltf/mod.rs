@@ -16,10 +16,13 @@
 //!   Integer attributes of KHR_mesh_quantization.
 //! - Per-triangle arrays are stored only when used: normals when some primitive has NORMAL (the others
 //!   get their flat normal), a UV set when some material's texture reads it, tangents when some material
-//!   has a normal map. Primitives without TANGENT get a per-triangle tangent from their UVs (dP/du,
-//!   with the handedness making cross(N, T)·w point to decreasing v, "up" in the image, as glTF
-//!   specifies). This is not MikkTSpace: maps baked against MikkTSpace tangents differ slightly
-//!   across smooth-shaded edges.
+//!   has a normal map. Primitives whose material has a normal map and that have no TANGENT get
+//!   MikkTSpace tangents, as glTF asks and as the exporters that bake normal maps compute them
+//!   (`tangents.rs`: `bevy_mikktspace` with a deterministic `acos`, once per primitive on its local
+//!   vertices, then transformed per instance like a TANGENT; handedness making cross(N, T)·w point
+//!   to decreasing v, "up" in the image, as glTF specifies). A primitive past MikkTSpace's limits
+//!   (over 2 million triangles, or a point shared by thousands of corners: see `tangents.rs`) gets
+//!   per-triangle tangents from its UVs (dP/du) instead, with a warning naming it.
 //! - Materials: metallic-roughness, emissive × KHR_materials_emissive_strength, normal map, alpha
 //!   mode, double-sidedness, KHR_materials_specular, _ior, _transmission, _volume, and
 //!   KHR_texture_transform on every texture reference. Primitives without a material get
@@ -71,6 +74,7 @@ mod materials;
 mod mesh;
 mod nodes;
 mod resources;
+mod tangents;
 mod textures;
 
 pub use bounds::MAX_COORDINATE;
