@@ -2233,7 +2233,6 @@ fn meshopt_doc(index_mode: &str) -> (Doc, Vec<[f32; 3]>, Vec<u32>) {
     pad4(&mut d.bin, 0);
     let i_off = d.bin.len();
     d.bin.extend(&encoded_indices);
-    let fallback_len = raw.len() + indices.len() * 4;
     d.json["bufferViews"] = j(&format!(
         r#"[{{"buffer":1,"byteLength":{},"byteStride":12,"extensions":{{"EXT_meshopt_compression":
              {{"buffer":0,"byteOffset":{v_off},"byteLength":{},"byteStride":12,"mode":"ATTRIBUTES","count":{}}}}}}},
@@ -2259,7 +2258,6 @@ fn meshopt_doc(index_mode: &str) -> (Doc, Vec<[f32; 3]>, Vec<u32>) {
     );
     let node = d.node(j(r#"{"mesh":0}"#));
     d.root(node);
-    let _ = fallback_len;
     (d, positions, indices)
 }
 
@@ -2389,13 +2387,12 @@ fn meshopt_errors_name_the_view_and_never_panic() {
         let mut c = d.clone();
         let at = (seed as usize * 7919) % c.bin.len();
         c.bin[at] ^= 0x5a ^ seed as u8;
-        match load(
+        if let Err(GltfError::Internal(e)) = load(
             &with_fallback_buffer(&c),
             &NoExternalResources,
             &LoadOptions::default(),
         ) {
-            Err(GltfError::Internal(e)) => panic!("seed {seed}: panic {e}"),
-            _ => {}
+            panic!("seed {seed}: panic {e}");
         }
     }
     // An unknown mode and a count × byteStride the data cannot hold.

@@ -96,7 +96,6 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, GltfError> {
     let required = std::mem::take(&mut root.extensions_required);
     precheck(&root)?;
     validate(&root)?;
-    let mut root = root;
     root.extensions_required = required;
     Ok(Parsed {
         root,
