@@ -215,6 +215,10 @@ impl<'r, 'a> Accessors<'r, 'a> {
         self.root
     }
 
+    pub fn resources(&self) -> &'r Resources<'a> {
+        self.res
+    }
+
     /// `accessor 7 "name" (POSITION of mesh 0 "Box", primitive 0)`.
     pub fn label(&self, index: usize, usage: &str) -> String {
         let name = self
@@ -291,7 +295,13 @@ impl<'r, 'a> Accessors<'r, 'a> {
             });
         };
         let view_index = view_ref.value();
-        let data = self.res.view(view_index)?;
+        let data = self.res.view(view_index).map_err(|e| match e {
+            // A compressed view's decoding error also names the accessor and its use.
+            GltfError::Data { object, reason } if reason.contains("meshopt_compression") => {
+                self.err(index, usage, format!("{object}: {reason}"))
+            }
+            e => e,
+        })?;
         let stride = match self
             .root
             .buffer_views

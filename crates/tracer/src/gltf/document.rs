@@ -12,6 +12,9 @@ use json::validation::Checked;
 
 /// Extensions this loader implements (so a file may require them).
 pub const SUPPORTED_EXTENSIONS: &[&str] = &[
+    "EXT_meshopt_compression",
+    "EXT_texture_webp",
+    "KHR_draco_mesh_compression",
     "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
     "KHR_materials_ior",
@@ -19,6 +22,7 @@ pub const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_materials_transmission",
     "KHR_materials_volume",
     "KHR_mesh_quantization",
+    "KHR_meshopt_compression",
     "KHR_texture_transform",
 ];
 
@@ -87,12 +91,14 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Parsed<'_>, GltfError> {
     {
         return Err(GltfError::UnsupportedExtension(ext.clone()));
     }
-    // All required extensions are supported here; the gltf crate refuses some of them, so hide them.
-    root.extensions_required.clear();
+    // All required extensions are supported here; the gltf crate refuses some of them, so hide them
+    // from its validation (and put them back: EXT_texture_webp's fallback depends on them).
+    let required = std::mem::take(&mut root.extensions_required);
     precheck(&root)?;
-    let document = gltf::Document::from_json(root).map_err(validation_error)?;
+    validate(&root)?;
+    root.extensions_required = required;
     Ok(Parsed {
-        root: document.into_json(),
+        root,
         bin,
         warnings,
     })
@@ -117,6 +123,45 @@ fn precheck(root: &json::Root) -> Result<(), GltfError> {
         }
     }
     Ok(())
+}
+
+/// The `gltf` crate's validation (what `gltf::Document::from_json` runs), less one rule that
+/// KHR_draco_mesh_compression breaks on purpose: the accessors a Draco primitive describes may have
+/// no `bufferView` (their data is in the Draco stream).
+fn validate(root: &json::Root) -> Result<(), GltfError> {
+    use json::validation::Validate;
+    let draco_accessors: std::collections::HashSet<usize> = root
+        .meshes
+        .iter()
+        .flat_map(|m| &m.primitives)
+        .filter(|p| {
+            p.extensions
+                .as_ref()
+                .is_some_and(|e| e.others.contains_key(super::draco::EXTENSION))
+        })
+        .flat_map(|p| {
+            p.attributes
+                .values()
+                .map(|i| i.value())
+                .chain(p.indices.map(|i| i.value()))
+        })
+        .collect();
+    let mut errors = Vec::new();
+    root.validate(root, json::Path::new, &mut |path, error| {
+        let path = path();
+        let exempt = matches!(error, json::validation::Error::Missing)
+            && draco_accessors
+                .iter()
+                .any(|i| path.as_str() == format!("accessors[{i}].bufferView"));
+        if !exempt {
+            errors.push((path, error));
+        }
+    });
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(validation_error(gltf::Error::Validation(errors)))
+    }
 }
 
 fn validation_error(e: gltf::Error) -> GltfError {

@@ -24,6 +24,7 @@
 use super::accessors::Accessors;
 use super::bounds::{outside, Far};
 use super::compact::{compact, gather};
+use super::draco;
 use super::error::{label, GltfError, Warnings};
 use super::tangents::{self, Tangents};
 use crate::geometry::{renderable, Mesh};
@@ -272,7 +273,12 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         let Some(pos_index) = attr(Semantic::Positions) else {
             return Err(perr("has no POSITION attribute".into()));
         };
-        let positions = self.acc.vec3(pos_index, &format!("POSITION of {plabel}"))?;
+        // KHR_draco_mesh_compression: the arrays come from the Draco stream instead of the accessors.
+        let draco = draco::decode_primitive(self.acc, mesh, info.primitive, warnings)?;
+        let positions = match &draco {
+            Some(d) => d.positions.clone(),
+            None => self.acc.vec3(pos_index, &format!("POSITION of {plabel}"))?,
+        };
         let n = positions.len();
         let same_count = |index: usize, name: &str, got: usize| -> Result<(), GltfError> {
             if got == n {
@@ -288,30 +294,57 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         };
         let mut normals = None;
         if let (true, Some(i)) = (self.needs.normals, attr(Semantic::Normals)) {
-            let v = self.acc.vec3(i, &format!("NORMAL of {plabel}"))?;
-            same_count(i, "NORMAL", v.len())?;
-            normals = Some(v);
+            normals = match &draco {
+                Some(d) => d.normals.clone(),
+                None => Some(self.acc.vec3(i, &format!("NORMAL of {plabel}"))?),
+            };
+            if let Some(v) = &normals {
+                same_count(i, "NORMAL", v.len())?;
+            }
         }
         let mut uv: [Option<Rc<[Vec2]>>; 2] = [None, None];
         for (set, slot) in uv.iter_mut().enumerate() {
             if let (true, Some(i)) = (self.needs.uv[set], attr(Semantic::TexCoords(set as u32))) {
                 let name = format!("TEXCOORD_{set}");
-                let v = self.acc.vec2(i, &format!("{name} of {plabel}"))?;
-                same_count(i, &name, v.len())?;
-                *slot = Some(v);
+                *slot = match &draco {
+                    Some(d) => d.uv[set].clone(),
+                    None => Some(self.acc.vec2(i, &format!("{name} of {plabel}"))?),
+                };
+                if let Some(v) = slot {
+                    same_count(i, &name, v.len())?;
+                }
             }
         }
         let mut tangents = None;
         if let (true, Some(i)) = (self.needs.tangents, attr(Semantic::Tangents)) {
-            let v = self.acc.vec4(i, &format!("TANGENT of {plabel}"))?;
-            same_count(i, "TANGENT", v.len())?;
-            tangents = Some(Tangents::Vertex(v));
+            let v = match &draco {
+                Some(d) => d.tangents.clone(),
+                None => Some(self.acc.vec4(i, &format!("TANGENT of {plabel}"))?),
+            };
+            if let Some(v) = v {
+                same_count(i, "TANGENT", v.len())?;
+                tangents = Some(Tangents::Vertex(v));
+            }
         }
         let Ok(n32) = u32::try_from(n) else {
             return Err(perr(format!("{n} vertices are too many")));
         };
-        let mut triangles = match prim.indices {
-            Some(i) => {
+        let mut triangles = match (&draco, prim.indices) {
+            (Some(d), _) => {
+                if let Some(&bad) = d.indices.iter().find(|&&v| v >= n32) {
+                    return Err(perr(format!(
+                        "{}: index {bad} out of range (the stream has {n} vertices)",
+                        draco::EXTENSION
+                    )));
+                }
+                assemble(
+                    &d.indices,
+                    Checked::Valid(Mode::Triangles),
+                    &plabel,
+                    warnings,
+                )
+            }
+            (None, Some(i)) => {
                 let i = i.value();
                 let idx = self.acc.indices(i, &format!("indices of {plabel}"))?;
                 if let Some(&bad) = idx.iter().find(|&&v| v >= n32) {
@@ -321,7 +354,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 }
                 assemble(&idx, prim.mode, &plabel, warnings)
             }
-            None => {
+            (None, None) => {
                 let idx: Vec<u32> = (0..n32).collect();
                 assemble(&idx, prim.mode, &plabel, warnings)
             }

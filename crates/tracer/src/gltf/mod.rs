@@ -13,7 +13,13 @@
 //! - Primitives of mode TRIANGLES, TRIANGLE_STRIP and TRIANGLE_FAN (strips and fans are converted);
 //!   POINTS and LINES are skipped with a warning. Indexed or not; u8/u16/u32 indices. POSITION
 //!   (required), NORMAL, TEXCOORD_0/1 (float or normalized integers), TANGENT. Sparse accessors.
-//!   Integer attributes of KHR_mesh_quantization.
+//!   Integer attributes of KHR_mesh_quantization (normalized or not, on every attribute).
+//! - Compressed geometry: buffer views of EXT_meshopt_compression and KHR_meshopt_compression (all
+//!   modes and filters; decoded once each, the fallback buffer never read) and primitives of
+//!   KHR_draco_mesh_compression (attributes by the extension's ids; with uncompressed accessors and
+//!   the extension not required, a stream that fails to decode falls back to them with a warning).
+//!   Pure-Rust decoders (`meshoptimizer-rs`, `draco-core`); what they produce counts against
+//!   [`MAX_DECOMPRESSED_BYTES`], checked before each decode allocates.
 //! - Per-triangle arrays are stored only when used: normals when some primitive has NORMAL (the others
 //!   get their flat normal), a UV set when some material's texture reads it, tangents when some material
 //!   has a normal map. Primitives whose material has a normal map and that have no TANGENT get
@@ -27,8 +33,11 @@
 //!   mode, double-sidedness, KHR_materials_specular, _ior, _transmission, _volume, and
 //!   KHR_texture_transform on every texture reference. Primitives without a material get
 //!   `Material::default()`, added once after the file's (used) materials.
-//! - Textures: PNG and JPEG, decoded once per image with limits ([`MAX_IMAGE_SIZE`],
-//!   [`MAX_IMAGE_BYTES`], [`MAX_SCENE_TEXTURE_BYTES`]); sampler wrap modes and NEAREST magnification.
+//! - Textures: PNG and JPEG, and WebP (lossy and lossless) through EXT_texture_webp, decoded once per
+//!   image with limits ([`MAX_IMAGE_SIZE`], [`MAX_IMAGE_BYTES`], [`MAX_SCENE_TEXTURE_BYTES`]), checked
+//!   from the image's header before decoding; a WebP that fails falls back to the texture's PNG/JPEG
+//!   `source` with a warning unless EXT_texture_webp is required. Sampler wrap modes and NEAREST
+//!   magnification.
 //! - KHR_lights_punctual point, spot and directional lights, their candela and lux converted to W/sr
 //!   and W/m² at 683 lm/W ([`LUMENS_PER_WATT`]; see `lights.rs`).
 //! - The camera: the first camera node in traversal order, or the one named by [`LoadOptions::camera`];
@@ -50,8 +59,8 @@
 //!   vertices its triangles use. The loader's warnings stop after the first 100 distinct ones, with
 //!   one "… and N more warnings" for the rest.
 //! - Ignored with one warning each (in `SceneParts::warnings` and through `tracing::warn!`):
-//!   unsupported `extensionsUsed` (e.g. KHR_materials_clearcoat, _sheen, _unlit, KHR_draco as
-//!   optional), skins (bind pose), morph targets (base geometry), animations (rest pose), COLOR_0,
+//!   unsupported `extensionsUsed` (e.g. KHR_materials_clearcoat, _sheen, _unlit, KHR_texture_basisu
+//!   as optional), skins (bind pose), morph targets (base geometry), animations (rest pose), COLOR_0,
 //!   light `range`, TEXCOORD_2+ (TEXCOORD_1 is used). Occlusion textures, camera aspect ratio and
 //!   clip planes, and texture min filters are ignored silently.
 //!
@@ -67,11 +76,13 @@ mod camera;
 mod compact;
 mod components;
 mod document;
+mod draco;
 mod error;
 mod glb;
 mod lights;
 mod materials;
 mod mesh;
+mod meshopt;
 mod nodes;
 mod resources;
 mod tangents;
@@ -83,6 +94,7 @@ pub use error::GltfError;
 pub use lights::LUMENS_PER_WATT;
 pub use materials::texture_transform_matrix;
 pub use mesh::MAX_TRIANGLES;
+pub use resources::MAX_DECOMPRESSED_BYTES;
 pub use textures::{MAX_IMAGE_BYTES, MAX_IMAGE_SIZE, MAX_SCENE_TEXTURE_BYTES};
 
 use crate::material::Material;

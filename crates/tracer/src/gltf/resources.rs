@@ -1,8 +1,12 @@
 //! Where the bytes of buffers and images come from: the GLB BIN chunk, `data:` URIs (base64 or
 //! percent-encoded) and external URIs through the caller's [`ResourceResolver`]. Each buffer is fetched
 //! at most once, and only if something the scene uses reads it.
+//!
+//! Buffer views compressed with EXT_meshopt_compression (or KHR_meshopt_compression) are decoded here,
+//! once each, from the buffer their extension names; their own (fallback) buffer is never read.
 
 use super::error::{label, GltfError};
+use super::meshopt;
 use super::ResourceResolver;
 use base64::Engine as _;
 use gltf::json;
@@ -11,14 +15,39 @@ use std::cell::{Cell, OnceCell};
 
 type Fetched<'a> = Result<Cow<'a, [u8]>, (String, String)>;
 
+/// Most bytes that decompression (EXT_meshopt_compression buffer views, KHR_draco_mesh_compression
+/// primitives) may produce in one load, each decode checked against what is left before it
+/// allocates: 4 GiB, the order of the largest scene [`super::MAX_TRIANGLES`] allows.
+pub const MAX_DECOMPRESSED_BYTES: u64 = 4 << 30;
+
+/// Why a decompressed view is not available (kept to be reported again to later readers).
+#[derive(Clone, Debug)]
+enum Failed {
+    Data { object: String, reason: String },
+    Limit(String),
+}
+
+impl From<Failed> for GltfError {
+    fn from(f: Failed) -> Self {
+        match f {
+            Failed::Data { object, reason } => GltfError::Data { object, reason },
+            Failed::Limit(m) => GltfError::Limit(m),
+        }
+    }
+}
+
 /// Lazily fetched buffers of one document.
 pub(crate) struct Resources<'a> {
     root: &'a json::Root,
     bin: Option<&'a [u8]>,
     resolver: &'a dyn ResourceResolver,
     buffers: Vec<OnceCell<Fetched<'a>>>,
-    /// Bytes of the buffers fetched so far.
+    /// Bytes of the buffers fetched so far, and of the buffer views decompressed.
     fetched: Cell<u64>,
+    /// Decompressed buffer views (empty when no view is compressed).
+    decoded: Vec<OnceCell<Result<Vec<u8>, Failed>>>,
+    /// Bytes decompressed so far (see [`MAX_DECOMPRESSED_BYTES`]).
+    decompressed: Cell<u64>,
 }
 
 pub(crate) fn buffer_label(root: &json::Root, index: usize) -> String {
@@ -52,13 +81,106 @@ impl<'a> Resources<'a> {
         resolver: &'a dyn ResourceResolver,
     ) -> Self {
         let buffers = (0..root.buffers.len()).map(|_| OnceCell::new()).collect();
+        let any_compressed = root.buffer_views.iter().any(|v| {
+            v.extensions.as_ref().is_some_and(|e| {
+                meshopt::EXTENSIONS
+                    .iter()
+                    .any(|n| e.others.contains_key(*n))
+            })
+        });
+        let decoded = if any_compressed {
+            (0..root.buffer_views.len())
+                .map(|_| OnceCell::new())
+                .collect()
+        } else {
+            Vec::new()
+        };
         Resources {
             root,
             bin,
             resolver,
             buffers,
             fetched: Cell::new(0),
+            decoded,
+            decompressed: Cell::new(0),
         }
+    }
+
+    /// Counts `bytes` of decompressed data against [`MAX_DECOMPRESSED_BYTES`], before they are
+    /// allocated.
+    pub fn charge_decompressed(&self, bytes: u64, object: &str) -> Result<(), GltfError> {
+        self.charge(bytes, object).map_err(GltfError::Limit)
+    }
+
+    /// Bytes that may still be decompressed in this load.
+    pub fn decompress_budget_left(&self) -> u64 {
+        MAX_DECOMPRESSED_BYTES.saturating_sub(self.decompressed.get())
+    }
+
+    fn charge(&self, bytes: u64, object: &str) -> Result<(), String> {
+        let total = self.decompressed.get().saturating_add(bytes);
+        if total > MAX_DECOMPRESSED_BYTES {
+            return Err(format!(
+                "{object}: decompresses to {bytes} bytes; the scene's compressed data would take \
+                 more than {} MiB decompressed",
+                MAX_DECOMPRESSED_BYTES >> 20
+            ));
+        }
+        self.decompressed.set(total);
+        Ok(())
+    }
+
+    /// Buffer view `index` decompressed, if it is compressed with meshopt.
+    fn decompressed_view(&self, index: usize) -> Option<Result<&[u8], GltfError>> {
+        let view = self.root.buffer_views.get(index)?;
+        let cell = self.decoded.get(index)?;
+        if matches!(meshopt::compressed(view), Ok(None)) {
+            return None;
+        }
+        let result = cell.get_or_init(|| {
+            let object = view_label(self.root, index);
+            let data = |reason: String| Failed::Data {
+                object: object.clone(),
+                reason,
+            };
+            let c = match meshopt::compressed(view) {
+                Ok(Some(c)) => c,
+                Ok(None) => return Err(data("is not compressed".into())),
+                Err(reason) => return Err(data(reason)),
+            };
+            let source = self
+                .buffer(c.buffer)
+                .map_err(|e| data(format!("{}: {e}", c.extension)))?;
+            let source = match c.byte_offset.checked_add(c.byte_length) {
+                Some(end) if end <= source.len() as u64 => {
+                    &source[c.byte_offset as usize..end as usize]
+                }
+                _ => {
+                    return Err(data(format!(
+                        "{}: byteOffset {} + byteLength {} exceeds the {} bytes of {}",
+                        c.extension,
+                        c.byte_offset,
+                        c.byte_length,
+                        source.len(),
+                        buffer_label(self.root, c.buffer)
+                    )))
+                }
+            };
+            let Some(len) = c.decoded_len() else {
+                return Err(data(format!(
+                    "{}: count × byteStride overflows",
+                    c.extension
+                )));
+            };
+            self.charge(len, &object).map_err(Failed::Limit)?;
+            let bytes = meshopt::decode(&c, source, len).map_err(data)?;
+            self.fetched.set(self.fetched.get() + bytes.len() as u64);
+            Ok(bytes)
+        });
+        Some(match result {
+            Ok(bytes) => Ok(bytes),
+            Err(f) => Err(f.clone().into()),
+        })
     }
 
     /// The bytes of buffer `index`, exactly `byteLength` long.
@@ -98,6 +220,13 @@ impl<'a> Resources<'a> {
         let data: Cow<'a, [u8]> = match buffer.uri.as_deref() {
             None => match (index, self.bin) {
                 (0, Some(bin)) => Cow::Borrowed(bin),
+                _ if meshopt::is_fallback(buffer) => {
+                    return fail(
+                        "is a meshopt compression fallback buffer without data; only buffer views \
+                         compressed with EXT_meshopt_compression may refer to it"
+                            .into(),
+                    )
+                }
                 (0, None) => return fail("has no uri and the file has no GLB BIN chunk".into()),
                 _ => {
                     return fail("has no uri (only buffer 0 may refer to the GLB BIN chunk)".into())
@@ -129,7 +258,11 @@ impl<'a> Resources<'a> {
     }
 
     /// The bytes of buffer view `index`, after checking that the view lies inside its buffer.
+    /// A view compressed with meshopt is decoded (once) from its extension's buffer instead.
     pub fn view(&self, index: usize) -> Result<&[u8], GltfError> {
+        if let Some(decoded) = self.decompressed_view(index) {
+            return decoded;
+        }
         let Some(view) = self.root.buffer_views.get(index) else {
             return Err(GltfError::Data {
                 object: format!("bufferView {index}"),

@@ -1,4 +1,5 @@
-//! Textures: each image a material uses is decoded once (PNG or JPEG, recognised by its bytes) to
+//! Textures: each image a material uses is decoded once (PNG, JPEG or WebP, recognised by its bytes,
+//! WebP through EXT_texture_webp) to
 //! RGBA8 with the `image` crate under decode limits, so that a decompression bomb is an error rather
 //! than an out-of-memory abort. A glTF texture is an (image, sampler) pair; each distinct pair becomes
 //! one [`Texture`] of the scene.
@@ -25,11 +26,15 @@ pub const MAX_SCENE_TEXTURE_BYTES: u64 = 1 << 30;
 
 type Texels = Rc<(u32, u32, Vec<[u8; 4]>)>;
 
+const WEBP: &str = "EXT_texture_webp";
+
 /// Decodes images on demand and hands out scene texture indices.
 pub(crate) struct TextureCache<'r, 'a> {
     root: &'r json::Root,
     res: &'r Resources<'a>,
     images: HashMap<usize, Texels>,
+    /// Images that could not be decoded, and why.
+    failed: HashMap<usize, String>,
     by_key: HashMap<(usize, Option<usize>), u32>,
     textures: Vec<Texture>,
     /// Bytes of texels held by `images` and `textures`, against `budget`.
@@ -52,6 +57,7 @@ impl<'r, 'a> TextureCache<'r, 'a> {
             root,
             res,
             images: HashMap::new(),
+            failed: HashMap::new(),
             by_key: HashMap::new(),
             textures: Vec::new(),
             bytes: 0,
@@ -64,6 +70,10 @@ impl<'r, 'a> TextureCache<'r, 'a> {
     }
 
     /// The scene texture for glTF texture `index`, decoding its image if not done yet.
+    ///
+    /// A texture with EXT_texture_webp reads the extension's WebP image. If that image cannot be
+    /// decoded and the texture has a (PNG or JPEG) `source` too, that is used with a warning, unless
+    /// the file lists EXT_texture_webp in `extensionsRequired` (then no fallback is meant to exist).
     pub fn texture(&mut self, index: usize, warnings: &mut Warnings) -> Result<u32, GltfError> {
         let Some(tex) = self.root.textures.get(index) else {
             return Err(GltfError::Object {
@@ -74,37 +84,74 @@ impl<'r, 'a> TextureCache<'r, 'a> {
                 ),
             });
         };
+        let tlabel = texture_label(self.root, index);
+        let fallback = (tex.source.value() != u32::MAX as usize).then(|| tex.source.value());
+        let mut webp = None;
+        let mut others = Vec::new();
         if let Some(ext) = &tex.extensions {
-            for name in ext.others.keys() {
+            for (name, value) in &ext.others {
+                if name == WEBP {
+                    let Some(source) = value
+                        .get("source")
+                        .and_then(|v| v.as_u64())
+                        .and_then(|v| usize::try_from(v).ok())
+                    else {
+                        return Err(GltfError::Object {
+                            object: tlabel,
+                            reason: format!("{WEBP}: source is missing or not an index"),
+                        });
+                    };
+                    webp = Some(source);
+                } else {
+                    others.push(name.clone());
+                }
+            }
+        }
+        if fallback.is_some() || webp.is_some() {
+            for name in &others {
                 warnings.once(format!(
-                    "{}: extension {name} is not supported; using the texture's PNG/JPEG source",
-                    texture_label(self.root, index)
+                    "{tlabel}: extension {name} is not supported; using the texture's {} source",
+                    if webp.is_some() { "WebP" } else { "PNG/JPEG" }
                 ));
             }
         }
-        let image = tex.source.value();
+        let required = self.root.extensions_required.iter().any(|e| e == WEBP);
         let sampler = tex.sampler.map(|s| s.value());
+        let (image, texels) = match (webp, fallback) {
+            (Some(w), fallback) => match (self.image(w), fallback) {
+                (Ok(t), _) => (w, t),
+                (Err(e @ GltfError::Limit(_)), _) => return Err(e),
+                (Err(e), Some(f)) if !required => {
+                    warnings.once(format!(
+                        "{tlabel}: {WEBP} image cannot be used ({e}); using its fallback {}",
+                        image_label(self.root, f)
+                    ));
+                    (f, self.image(f)?)
+                }
+                (Err(e), _) => return Err(e),
+            },
+            (None, Some(f)) => (f, self.image(f)?),
+            (None, None) => {
+                return Err(GltfError::Object {
+                    object: tlabel,
+                    reason: if others.is_empty() {
+                        "has no source image".to_string()
+                    } else {
+                        format!(
+                            "has no source image this loader can decode (its images are in \
+                             unsupported extensions: {})",
+                            others.join(", ")
+                        )
+                    },
+                })
+            }
+        };
         if let Some(&t) = self.by_key.get(&(image, sampler)) {
             return Ok(t);
         }
-        let texels = match self.images.get(&image) {
-            Some(t) => t.clone(),
-            None => {
-                let bytes = self.res.image_bytes(image)?;
-                let object = image_label(self.root, image);
-                let (w, h) = image_dimensions(&bytes, &object)?;
-                self.charge(rgba8_bytes(w, h), &object)?;
-                let decoded = Rc::new(decode_image(&bytes, &object)?);
-                self.images.insert(image, decoded.clone());
-                decoded
-            }
-        };
         // Each texture holds its own copy of the texels, beside the decoded image kept for
         // further textures of the same image during the load: both count.
-        self.charge(
-            rgba8_bytes(texels.0, texels.1),
-            &texture_label(self.root, index),
-        )?;
+        self.charge(rgba8_bytes(texels.0, texels.1), &tlabel)?;
         let sampler_state = self.sampler(sampler);
         let name = tex
             .name
@@ -128,6 +175,40 @@ impl<'r, 'a> TextureCache<'r, 'a> {
         self.textures.push(texture);
         self.by_key.insert((image, sampler), scene_index);
         Ok(scene_index)
+    }
+
+    /// Image `image` decoded (once; a failure is remembered too, so that many textures over one
+    /// broken image with a fallback cost one decode).
+    fn image(&mut self, image: usize) -> Result<Texels, GltfError> {
+        if let Some(t) = self.images.get(&image) {
+            return Ok(t.clone());
+        }
+        let object = image_label(self.root, image);
+        if let Some(reason) = self.failed.get(&image) {
+            return Err(GltfError::Image {
+                object,
+                reason: reason.clone(),
+            });
+        }
+        let decoded = (|| {
+            let bytes = self.res.image_bytes(image)?;
+            let (w, h) = image_dimensions(&bytes, &object)?;
+            self.charge(rgba8_bytes(w, h), &object)?;
+            decode_image(&bytes, &object)
+        })();
+        match decoded {
+            Ok(d) => {
+                let d = Rc::new(d);
+                self.images.insert(image, d.clone());
+                Ok(d)
+            }
+            Err(e) => {
+                if let GltfError::Image { reason, .. } = &e {
+                    self.failed.insert(image, reason.clone());
+                }
+                Err(e)
+            }
+        }
     }
 
     /// Counts `bytes` more texels against the scene's budget.
@@ -163,7 +244,7 @@ fn rgba8_bytes(w: u32, h: u32) -> u64 {
     u64::from(w) * u64::from(h) * 4
 }
 
-/// A PNG or JPEG reader with the decode limits, or why the bytes are not one.
+/// A PNG, JPEG or WebP reader with the decode limits, or why the bytes are not one.
 fn image_reader<'b>(
     bytes: &'b [u8],
     object: &str,
@@ -176,13 +257,13 @@ fn image_reader<'b>(
         .with_guessed_format()
         .map_err(|e| err(e.to_string()))?;
     match reader.format() {
-        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg) => {}
+        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg | image::ImageFormat::WebP) => {}
         Some(other) => {
             return Err(err(format!(
-                "{other:?} images are not supported (PNG and JPEG are)"
+                "{other:?} images are not supported (PNG, JPEG and WebP are)"
             )))
         }
-        None => return Err(err("not a PNG or JPEG image".into())),
+        None => return Err(err("not a PNG, JPEG or WebP image".into())),
     }
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_IMAGE_SIZE);
@@ -215,7 +296,7 @@ pub(crate) fn image_dimensions(bytes: &[u8], object: &str) -> Result<(u32, u32),
     Ok((w, h))
 }
 
-/// Decodes PNG or JPEG bytes to RGBA8 (first row at the top) under the decode limits.
+/// Decodes PNG, JPEG or WebP bytes to RGBA8 (first row at the top) under the decode limits.
 pub(crate) fn decode_image(
     bytes: &[u8],
     object: &str,
