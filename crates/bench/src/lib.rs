@@ -5,6 +5,7 @@
 //! lecture experiments; and the farm's scaling. Results go to `report.md`, `results.json` and SVG
 //! charts. Unlike the tracer, this crate measures wall-clock time and writes files.
 
+pub mod blender_suite;
 pub mod chart;
 pub mod error;
 pub mod experiments;

@@ -23,6 +23,10 @@ pub enum Suite {
     /// error against time versus ../shared/refs/cornell.exr. Writes speed.md and speed.json.
     /// Not part of `all`.
     Speed,
+    /// The Blender suite (scenes/suite/: Blender exports with Cycles 5.0 references): each scene's
+    /// load time, samples/s and image mean against Cycles'. Writes blender.md and blender.json.
+    /// Not part of `all`.
+    Blender,
 }
 
 #[derive(Args, Debug)]
@@ -54,6 +58,9 @@ pub struct BenchArgs {
     /// Also measure the farm's simulated workers on this PostgreSQL database.
     #[arg(long, env = "PATHFARM_BENCH_POSTGRES")]
     pub postgres: Option<String>,
+    /// Samples per pixel (`blender` only; default 256, 32 with --quick).
+    #[arg(long)]
+    pub spp: Option<u32>,
     /// The soak's window per store, in seconds (`soak` only).
     #[arg(long, default_value_t = 120.0)]
     pub seconds: f64,
@@ -115,10 +122,35 @@ fn speed(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn blender(args: BenchArgs) -> anyhow::Result<()> {
+    let dir = args.scenes_dir.join("suite");
+    anyhow::ensure!(
+        dir.join("manifest.json").is_file(),
+        "{} has no manifest.json: run from the repository root or pass --scenes-dir",
+        dir.display()
+    );
+    let spp = args.spp.unwrap_or(if args.quick { 32 } else { 256 });
+    anyhow::ensure!(spp > 0, "--spp must be at least 1");
+    let threads = args.threads.unwrap_or(2);
+    anyhow::ensure!(threads > 0, "--threads must be at least 1");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("cannot start threads")?;
+    let command_line = std::env::args().collect::<Vec<_>>().join(" ");
+    let (_, markdown) = pool.install(|| {
+        pathfarm_bench::blender_suite::run(&dir, spp, args.seed, &args.out, &command_line)
+    })?;
+    println!("{markdown}");
+    eprintln!("report in {}", args.out.join("blender.md").display());
+    Ok(())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.suite {
         Suite::Soak => return soak(args),
         Suite::Speed => return speed(args),
+        Suite::Blender => return blender(args),
         Suite::All | Suite::Tracer | Suite::Farm => {}
     }
     for s in &args.scenes {
