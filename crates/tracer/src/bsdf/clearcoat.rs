@@ -42,7 +42,6 @@ pub(super) struct Coat {
     pub smooth: bool,
     /// The coat's normal in the shading frame (front side), when it is not the shading normal.
     pub normal: Option<Vec3>,
-    f0: f32,
 }
 
 impl Coat {
@@ -53,7 +52,6 @@ impl Coat {
         row: AlbedoRow::NONE,
         smooth: true,
         normal: None,
-        f0: 0.0,
     };
 
     /// A coat of weight `weight` and perceptual roughness `roughness` (both sanitised to [0, 1]),
@@ -66,14 +64,13 @@ impl Coat {
             row: AlbedoRow::new(roughness),
             smooth: roughness == 0.0,
             normal,
-            f0: f0_from_ior(COAT_IOR),
         }
     }
 
     /// clearcoat · F at a view cosine `cos_o` against the coat normal (the extension's abs()).
     #[inline]
     pub(super) fn weight_at(&self, cos_o: f32) -> f32 {
-        let f0 = self.f0;
+        let f0 = f0_from_ior(COAT_IOR);
         self.weight * (f0 + (1.0 - f0) * schlick_weight(cos_o.abs()))
     }
 

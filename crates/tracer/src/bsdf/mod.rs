@@ -398,8 +398,32 @@ impl Bsdf {
 
     /// The public queries of every material but the pure Lambertian, out of line: the
     /// Lambertian's short paths (`lambert.rs`) are inlined into the integrator, this is not.
+    /// Materials with layers take a copy of their own (`LAYERED`), so that the others run the code
+    /// they ran before the layers existed.
     #[inline(never)]
     fn general_eval_pdf<const EVAL: bool, const PDF: bool>(
+        &self,
+        wo: Vec3,
+        wi: Vec3,
+    ) -> (Vec3, f32) {
+        if self.layered {
+            return self.layered_eval_pdf::<EVAL, PDF>(wo, wi);
+        }
+        self.general_eval_pdf_in::<EVAL, PDF, false>(wo, wi)
+    }
+
+    /// [`Bsdf::general_eval_pdf`] of a material with layers.
+    #[inline(never)]
+    fn layered_eval_pdf<const EVAL: bool, const PDF: bool>(
+        &self,
+        wo: Vec3,
+        wi: Vec3,
+    ) -> (Vec3, f32) {
+        self.general_eval_pdf_in::<EVAL, PDF, true>(wo, wi)
+    }
+
+    #[inline(always)]
+    fn general_eval_pdf_in<const EVAL: bool, const PDF: bool, const LAYERED: bool>(
         &self,
         wo: Vec3,
         wi: Vec3,
@@ -408,8 +432,8 @@ impl Bsdf {
             return (Vec3::ZERO, 0.0);
         };
         let eta = self.interface.eta(entering);
-        let t = self.wo_terms(o, if entering { 1.0 } else { -1.0 }, eta);
-        self.eval_pdf_local::<EVAL, PDF>(o, i, eta, &t)
+        let t = self.wo_terms::<LAYERED>(o, if entering { 1.0 } else { -1.0 }, eta);
+        self.eval_pdf_local::<EVAL, PDF, LAYERED>(o, i, eta, &t)
     }
 
     /// Samples wi. `u_lobe` chooses the lobe (and, remapped, reflection against refraction); `u`
@@ -422,9 +446,29 @@ impl Bsdf {
         self.general_sample(wo, u_lobe, u)
     }
 
-    /// [`Bsdf::sample`] for every material but the pure Lambertian, out of line.
+    /// [`Bsdf::sample`] for every material but the pure Lambertian, out of line (materials with
+    /// layers in a copy of their own).
     #[inline(never)]
     fn general_sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        if self.layered {
+            return self.layered_sample(wo, u_lobe, u);
+        }
+        self.general_sample_in::<false>(wo, u_lobe, u)
+    }
+
+    /// [`Bsdf::general_sample`] of a material with layers.
+    #[inline(never)]
+    fn layered_sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        self.general_sample_in::<true>(wo, u_lobe, u)
+    }
+
+    #[inline(always)]
+    fn general_sample_in<const LAYERED: bool>(
+        &self,
+        wo: Vec3,
+        u_lobe: f32,
+        u: Vec2,
+    ) -> Option<BsdfSample> {
         let lo = self.frame.to_local(wo);
         if lo.z == 0.0 || lo.z.is_nan() {
             return None;
@@ -432,7 +476,7 @@ impl Bsdf {
         let s = if lo.z > 0.0 { 1.0 } else { -1.0 };
         let o = Vec3::new(lo.x, lo.y, lo.z.abs());
         let eta = self.interface.eta(lo.z > 0.0);
-        let t = self.wo_terms(o, s, eta);
+        let t = self.wo_terms::<LAYERED>(o, s, eta);
         let [p_d, p_s, p_t] = t.p;
         let lt = &t.layers;
         let p_base = p_d + p_s + p_t;
@@ -441,7 +485,7 @@ impl Bsdf {
             return None;
         }
         let unflip = |i: Vec3| Vec3::new(i.x, i.y, i.z * s);
-        let (i, transmit) = if p_layers > 0.0 && u_lobe >= p_base {
+        let (i, transmit) = if LAYERED && p_layers > 0.0 && u_lobe >= p_base {
             // The layers' lobes take the top of u_lobe's range, so that a material without them
             // chooses among the others exactly as before.
             if u_lobe < p_base + lt.p_coat || lt.p_sheen == 0.0 {
@@ -468,7 +512,8 @@ impl Bsdf {
             if self.spec_smooth {
                 let m = self.w_metal * conductor::mirror(self.params.base_color, o.z)
                     + (self.w_base * self.layer.weight) * self.layer.fresnel(o.z);
-                return self.finish(wo, lo.z, unflip(mirror(o)), m * lt.base / p_s, p_s, true);
+                let m = if LAYERED { m * lt.base } else { m };
+                return self.finish(wo, lo.z, unflip(mirror(o)), m / p_s, p_s, true);
             }
             (
                 dielectric::reflect(o, self.ggx.sample_visible_normal(o, u)),
@@ -478,8 +523,12 @@ impl Bsdf {
             let u2 = ((u_lobe - p_d - p_s) / p_t).clamp(0.0, 1.0);
             let base = self.params.base_color;
             if self.trans_smooth {
-                // Under the layers (1 without them: the same bits).
-                let w_trans = self.w_trans * lt.base;
+                // Under the layers.
+                let w_trans = if LAYERED {
+                    self.w_trans * lt.base
+                } else {
+                    self.w_trans
+                };
                 let sp = self.interface.split(o.z, eta, base);
                 if u2 < sp.p_r {
                     let pdf = p_t * sp.p_r;
@@ -531,7 +580,7 @@ impl Bsdf {
             return None;
         }
         let i = Vec3::new(li.x, li.y, li.z * s);
-        let (f, pdf) = self.eval_pdf_local::<true, true>(o, i, eta, &t);
+        let (f, pdf) = self.eval_pdf_local::<true, true, LAYERED>(o, i, eta, &t);
         if pdf.is_nan() || pdf <= 0.0 || crate::math::is_black(f) {
             return None;
         }
@@ -603,11 +652,11 @@ impl Bsdf {
     /// Diffuse weight and lobe probabilities for the local (mirrored) wo `o` (`o.z` > 0) on the
     /// side `s` (±1) of the shading surface.
     #[inline]
-    fn wo_terms(&self, o: Vec3, s: f32, eta: f32) -> WoTerms {
+    fn wo_terms<const LAYERED: bool>(&self, o: Vec3, s: f32, eta: f32) -> WoTerms {
         let co = o.z;
         let mut layers = LayerTerms::NONE;
         let (mut est_c, mut est_sh) = (0.0, 0.0);
-        if self.layered {
+        if LAYERED {
             (layers, est_c, est_sh) = self.layer_terms(o, s);
         }
         let base = self.params.base_color;
@@ -641,7 +690,7 @@ impl Bsdf {
         } else {
             0.0
         };
-        let (est_d, est_s, est_t, sum) = if self.layered {
+        let (est_d, est_s, est_t, sum) = if LAYERED {
             let b = layers.base;
             let (d, s, t) = (est_d * b, est_s * b, est_t * b);
             (d, s, t, d + s + t + est_c + est_sh)
@@ -653,7 +702,7 @@ impl Bsdf {
         } else {
             [0.0; 3]
         };
-        if sum > 0.0 && self.layered {
+        if sum > 0.0 && LAYERED {
             layers.p_coat = est_c / sum;
             layers.p_sheen = est_sh / sum;
         }
@@ -661,7 +710,7 @@ impl Bsdf {
     }
 
     /// The layers' wo terms, and the estimated albedos of the coat and the sheen lobes.
-    #[inline(never)]
+    #[inline]
     fn layer_terms(&self, o: Vec3, s: f32) -> (LayerTerms, f32, f32) {
         let mut t = LayerTerms::NONE;
         let (mut est_c, mut est_sh) = (0.0, 0.0);
@@ -680,8 +729,8 @@ impl Bsdf {
             // scaled down to reflect at most its colour, and the base gets nothing.
             let e = self.sheen.albedo(o.z);
             let e1 = e.min(1.0);
-            est_sh = t.sheen_w * self.sheen.mean * e1;
-            t.base *= 1.0 - self.sheen.max * e1;
+            est_sh = t.sheen_w * self.sheen.mean() * e1;
+            t.base *= 1.0 - self.sheen.max() * e1;
             if e > 1.0 {
                 t.sheen_w /= e;
             }
@@ -692,7 +741,7 @@ impl Bsdf {
 
     /// f·|cos θi| and/or the pdf of the non-delta lobes, in the local frame with `o.z > 0`.
     #[inline]
-    fn eval_pdf_local<const EVAL: bool, const PDF: bool>(
+    fn eval_pdf_local<const EVAL: bool, const PDF: bool, const LAYERED: bool>(
         &self,
         o: Vec3,
         i: Vec3,
@@ -700,7 +749,7 @@ impl Bsdf {
         t: &WoTerms,
     ) -> (Vec3, f32) {
         let (f, pdf) = self.base_eval_pdf_local::<EVAL, PDF>(o, i, eta, t);
-        if !self.layered {
+        if !LAYERED {
             return (f, pdf);
         }
         self.layer_eval_pdf::<EVAL, PDF>(o, i, &t.layers, f, pdf)

@@ -54,16 +54,12 @@ const N_R: usize = 24;
 pub(super) struct Sheen {
     /// sheenColor (linear).
     pub color: Vec3,
-    /// max3(sheenColor), the albedo scaling's weight.
-    pub max: f32,
-    /// Mean of sheenColor over the channels (lobe selection).
-    pub mean: f32,
     /// (2 + 1/α) / (2π).
     norm: f32,
     /// 1 / (2α): D's exponent on sin² θh.
     half_inv_alpha: f32,
-    /// The coefficients a, b, c, d, e of the fitted L(x), and 2 L(0.5).
-    fit: [f32; 5],
+    /// (1 − α)², the fitted L's interpolation weight, and 2 L(0.5).
+    t: f32,
     two_l_half: f32,
     /// Row of the albedo table and the fraction towards the next.
     k: u16,
@@ -74,11 +70,9 @@ impl Sheen {
     /// No sheen.
     pub(super) const NONE: Sheen = Sheen {
         color: Vec3::ZERO,
-        max: 0.0,
-        mean: 0.0,
         norm: 0.0,
         half_inv_alpha: 0.0,
-        fit: [0.0; 5],
+        t: 0.0,
         two_l_half: 0.0,
         k: 0,
         fy: 0.0,
@@ -88,24 +82,13 @@ impl Sheen {
     pub(super) fn new(color: Vec3, roughness: f32) -> Self {
         let r = roughness.clamp(MIN_ROUGHNESS, 1.0);
         let alpha = r * r;
-        let t = (1.0 - alpha) * (1.0 - alpha);
-        let mix = |x: f32, y: f32| x * (1.0 - t) + y * t;
-        let fit = [
-            mix(21.5473, 25.3245),
-            mix(3.82987, 3.32435),
-            mix(0.19823, 0.16801),
-            mix(-1.97760, -1.27393),
-            mix(-4.32054, -4.85967),
-        ];
         let y = ((r - MIN_ROUGHNESS) / (1.0 - MIN_ROUGHNESS)).clamp(0.0, 1.0) * (N_R - 1) as f32;
         let k = (y as usize).min(N_R - 2);
         let mut s = Sheen {
             color,
-            max: color.max_element(),
-            mean: color.element_sum() * (1.0 / 3.0),
             norm: (2.0 + 1.0 / alpha) / (2.0 * PI),
             half_inv_alpha: 0.5 / alpha,
-            fit,
+            t: (1.0 - alpha) * (1.0 - alpha),
             two_l_half: 0.0,
             k: k as u16,
             fy: (y - k as f32).clamp(0.0, 1.0),
@@ -114,10 +97,30 @@ impl Sheen {
         s
     }
 
-    /// The fitted L(x) = a / (1 + b x^c) + d x + e, x ∈ [0, 1].
+    /// max3(sheenColor), the albedo scaling's weight.
+    #[inline]
+    pub(super) fn max(&self) -> f32 {
+        self.color.max_element()
+    }
+
+    /// Mean of sheenColor over the channels (lobe selection).
+    #[inline]
+    pub(super) fn mean(&self) -> f32 {
+        self.color.element_sum() * (1.0 / 3.0)
+    }
+
+    /// The fitted L(x) = a / (1 + b x^c) + d x + e, x ∈ [0, 1], its coefficients interpolated
+    /// with (1 − α)² as the extension writes them.
     #[inline]
     fn l(&self, x: f32) -> f32 {
-        let [a, b, c, d, e] = self.fit;
+        let t = self.t;
+        let mix = |x: f32, y: f32| x * (1.0 - t) + y * t;
+        let (a, b, c) = (
+            mix(21.5473, 25.3245),
+            mix(3.82987, 3.32435),
+            mix(0.19823, 0.16801),
+        );
+        let (d, e) = (mix(-1.97760, -1.27393), mix(-4.32054, -4.85967));
         let xc = if x > 0.0 {
             det::exp(c * det::ln(x))
         } else {
@@ -170,6 +173,7 @@ impl Sheen {
 }
 
 #[rustfmt::skip]
+#[allow(clippy::excessive_precision)] // printed to 10⁻⁶ from f64; read as f32
 static SHEEN_ALBEDO: [[f32; N_MU]; N_R] = [
     // r = 0.0700
     [2.683242, 2.774712, 2.926222, 2.937220, 2.859216, 2.726216, 2.559862, 2.374540, 2.180127, 1.983545, 1.789695, 1.602057, 1.426741, 1.263381, 1.110870, 0.969218,
@@ -455,6 +459,7 @@ mod tests {
             })
             .collect();
         println!("#[rustfmt::skip]");
+        println!("#[allow(clippy::excessive_precision)] // printed to 10⁻⁶ from f64; read as f32");
         println!("static SHEEN_ALBEDO: [[f32; N_MU]; N_R] = [");
         for k in 0..nr {
             let row: Vec<String> = (0..nm)
