@@ -1,5 +1,5 @@
 //! Scattering at surfaces: the glTF 2.0 metallic-roughness BSDF (core spec Appendix B, with
-//! KHR_materials_specular, _ior and _transmission).
+//! KHR_materials_specular, _ior, _transmission, _clearcoat and _sheen).
 //!
 //! Contract of [`Bsdf`] (every implementation detail below serves it):
 //! - Directions are world-space unit vectors pointing *away* from the surface (`wo` towards the
@@ -38,19 +38,41 @@
 //!   reflection, smooth or rough (Walter et al. 2007) refraction through a volume, or thin-walled
 //!   transmission.
 //!
+//! Two layers go on top of f, in the order the extensions define (clear coat over sheen over the
+//! material):
+//!
+//!   f_layered = c F_c(|wo·nc|) · coat + (1 − c F_c(|wo·nc|)) · [sheen_color · sheen
+//!               + (1 − max(sheen_color) · E_sheen(cos θo)) · f],
+//!
+//! - coat (`clearcoat.rs`): KHR_materials_clearcoat's GGX layer of ior 1.5 (f0 = 0.04) with its
+//!   own roughness and normal (nc: its normal map, else the interpolated normal); the extension's
+//!   `fresnel_coat` weighs coat and base by the same Fresnel at the view direction, which conserves
+//!   energy as written, so it is used unchanged;
+//! - sheen (`sheen.rs`): KHR_materials_sheen's "Charlie" lobe (Estevez & Kulla 2017) with the
+//!   extension's albedo scaling of everything under it, in its wo-only form, E_sheen from a
+//!   conservative table (energy conserving as long as the table never underestimates the albedo);
+//!   where E_sheen exceeds 1 (grazing views, low roughness) the lobe is divided by it and E_sheen
+//!   in the base's weight is taken as 1.
+//!
 //! Sampling chooses one of three lobes — diffuse (cosine), GGX reflection (metal + specular layer,
 //! visible normals) and the interface (visible normals, then reflect or refract by the Fresnel split)
-//! — with probabilities proportional to their directional albedos at wo (exact, or from the albedo
-//! tables when rough), so no lobe that contributes is ever given probability zero. The pure
-//! Lambertian material (metallic = specular = transmission = 0) takes a short path everywhere.
+//! — plus, where the layers are on, the coat (GGX visible normals about nc, or its mirror) and the
+//! sheen (cosine), with probabilities proportional to their directional albedos at wo (exact, or
+//! from the albedo tables when rough), so no lobe that contributes is ever given probability zero.
+//! The layers' lobes take the top of the lobe choice's range, and everything about them sits behind
+//! one flag, so a material without them samples and evaluates to the same bits as before they
+//! existed. The pure Lambertian material (metallic = specular = transmission = clearcoat = 0 and a
+//! black sheen) takes a short path everywhere.
 
 mod albedo;
+mod clearcoat;
 mod conductor;
 mod dielectric;
 mod fresnel;
 mod lambert;
 pub mod microfacet;
 mod params;
+mod sheen;
 mod specular_layer;
 
 pub use params::PbrParams;
@@ -59,9 +81,11 @@ pub(crate) use lambert::at as lambert_at;
 
 use crate::math::Frame;
 use albedo::AlbedoRow;
+use clearcoat::{from_coat, to_coat, Coat};
 use dielectric::{refraction_half_vector, Interface, INDEX_MATCHED};
 use glam::{Vec2, Vec3};
 use microfacet::Ggx;
+use sheen::Sheen;
 use specular_layer::SpecularLayer;
 
 /// One sampled scattering direction.
@@ -103,6 +127,14 @@ pub struct Bsdf {
     diffuse_on: bool,
     spec_on: bool,
     trans_on: bool,
+    /// KHR_materials_clearcoat (`clearcoat.rs`).
+    coat: Coat,
+    /// KHR_materials_sheen (`sheen.rs`).
+    sheen: Sheen,
+    coat_on: bool,
+    sheen_on: bool,
+    /// A clear coat or a sheen: the base is weighted per wo and the layers' lobes are added.
+    layered: bool,
 }
 
 /// True when the geometric normal `ng` agrees with the shading frame (wo and wi at heights `lo_z`
@@ -120,6 +152,43 @@ struct WoTerms {
     kd: f32,
     /// Probabilities of choosing the diffuse, GGX-reflection and interface lobes.
     p: [f32; 3],
+    /// The layers' terms (neutral without layers).
+    layers: LayerTerms,
+}
+
+/// The quantities of the clear coat and the sheen that depend on wo only.
+#[derive(Clone, Copy, Debug)]
+struct LayerTerms {
+    /// Weight of everything under the layers:
+    /// (1 − clearcoat · F(wo · nc)) · (1 − max(sheenColor) · E_sheen(cos θo)).
+    base: f32,
+    /// Weight of the sheen lobe: 1 − clearcoat · F(wo · nc), divided by E_sheen(cos θo) where that
+    /// exceeds 1.
+    sheen_w: f32,
+    /// clearcoat · F(wo · nc), the coat lobe's weight.
+    coat_f: f32,
+    /// Probabilities of choosing the coat and the sheen lobes.
+    p_coat: f32,
+    p_sheen: f32,
+    /// Λ(cos θo) of the sheen's visibility.
+    sheen_lambda_o: f32,
+    /// The coat's frame (inside the shading frame) when its normal is not the shading normal, and
+    /// wo in it.
+    coat_frame: Option<Frame>,
+    oc: Vec3,
+}
+
+impl LayerTerms {
+    const NONE: LayerTerms = LayerTerms {
+        base: 1.0,
+        sheen_w: 1.0,
+        coat_f: 0.0,
+        p_coat: 0.0,
+        p_sheen: 0.0,
+        sheen_lambda_o: 0.0,
+        coat_frame: None,
+        oc: Vec3::Z,
+    };
 }
 
 /// The local frame of the lobes: the shading normal, oriented by the tangent where there is one.
@@ -145,9 +214,23 @@ impl Bsdf {
     /// `ns`: unit shading normal; `ng`: unit geometric normal, both on the front side;
     /// `tangent`: optional shading tangent (the model is isotropic: it only orients the frame).
     ///
-    /// Parameters are sanitised: factors clamped to [0, 1], base colour to ≥ 0, a non-finite ior
-    /// becomes 1.5 and an ior below 1 becomes 1. [`Bsdf::params`] returns the sanitised values.
+    /// Parameters are sanitised: factors clamped to [0, 1], base and sheen colours to ≥ 0, a
+    /// non-finite ior becomes 1.5 and an ior below 1 becomes 1. [`Bsdf::params`] returns the
+    /// sanitised values. The clear coat's normal is `ns` (see [`Bsdf::with_coat_normal`]).
     pub fn new(params: PbrParams, ns: Vec3, ng: Vec3, tangent: Option<Vec3>) -> Self {
+        Self::with_coat_normal(params, ns, ng, tangent, ns)
+    }
+
+    /// [`Bsdf::new`] with the clear coat's own unit normal `coat_normal` (front side): the
+    /// interpolated normal, or the one its clearcoatNormalTexture gives, while `ns` may carry the
+    /// base's normal map. Without a clear coat it plays no part.
+    pub fn with_coat_normal(
+        params: PbrParams,
+        ns: Vec3,
+        ng: Vec3,
+        tangent: Option<Vec3>,
+        coat_normal: Vec3,
+    ) -> Self {
         let frame = shading_frame(ns, tangent);
         let clamp01 = |x: f32| if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
         let p = PbrParams {
@@ -163,9 +246,16 @@ impl Bsdf {
             },
             transmission: clamp01(params.transmission),
             thin_walled: params.thin_walled,
+            clearcoat: clamp01(params.clearcoat),
+            clearcoat_roughness: clamp01(params.clearcoat_roughness),
+            sheen_color: params.sheen_color.max(Vec3::ZERO),
+            sheen_roughness: clamp01(params.sheen_roughness),
         };
         let base_max = p.base_color.max_element();
-        if p.metallic == 0.0 && p.specular == 0.0 && p.transmission == 0.0 {
+        let coat_on = p.clearcoat > 0.0;
+        let sheen_on = p.sheen_color.max_element() > 0.0;
+        if p.metallic == 0.0 && p.specular == 0.0 && p.transmission == 0.0 && !coat_on && !sheen_on
+        {
             // The pure Lambertian (the Cornell box): nothing else to precompute.
             return Bsdf {
                 frame,
@@ -185,6 +275,11 @@ impl Bsdf {
                 diffuse_on: base_max > 0.0,
                 spec_on: false,
                 trans_on: false,
+                coat: Coat::NONE,
+                sheen: Sheen::NONE,
+                coat_on: false,
+                sheen_on: false,
+                layered: false,
             };
         }
         let w_metal = p.metallic;
@@ -193,6 +288,23 @@ impl Bsdf {
         let layer = SpecularLayer::new(p.ior, p.specular, p.specular_color);
         let interface = Interface::new(p.ior, p.thin_walled, p.specular, p.specular_color);
         let spec_smooth = p.roughness == 0.0;
+        let coat = if coat_on {
+            // The coat normal in the shading frame, where it differs from the shading normal.
+            let n = if coat_normal == ns {
+                None
+            } else {
+                let n = frame.to_local(coat_normal).normalize_or_zero();
+                (n != Vec3::ZERO && n.is_finite() && n != Vec3::Z).then_some(n)
+            };
+            Coat::new(p.clearcoat, p.clearcoat_roughness, n)
+        } else {
+            Coat::NONE
+        };
+        let sheen = if sheen_on {
+            Sheen::new(p.sheen_color, p.sheen_roughness)
+        } else {
+            Sheen::NONE
+        };
         Bsdf {
             frame,
             ng,
@@ -212,12 +324,19 @@ impl Bsdf {
             spec_on: w_metal > 0.0 || (w_base > 0.0 && p.specular > 0.0),
             trans_on: w_trans > 0.0
                 && (base_max > 0.0 || p.specular * interface.tint.max_element() > 0.0),
+            coat,
+            sheen,
+            coat_on,
+            sheen_on,
+            layered: coat_on || sheen_on,
         }
     }
 
     /// The same BSDF at another surface point: exactly `Bsdf::new(params, ns, ng, tangent)` for the
     /// `params` this one was made from, without redoing the work that depends on them alone. A
     /// material whose parameters are not textured makes its BSDF once and moves it to each hit.
+    /// (A clear coat's own normal, kept relative to the shading frame, is not moved: only a BSDF
+    /// made by [`Bsdf::new`], whose coat normal is the shading normal, may be moved.)
     #[inline]
     pub fn at(&self, ns: Vec3, ng: Vec3, tangent: Option<Vec3>) -> Self {
         Bsdf {
@@ -241,6 +360,8 @@ impl Bsdf {
         self.diffuse_on
             || (self.spec_on && !self.spec_smooth)
             || (self.trans_on && !self.trans_smooth)
+            || (self.coat_on && !self.coat.smooth)
+            || self.sheen_on
     }
 
     /// True if a non-delta lobe transmits (direct lighting must consider both hemispheres).
@@ -277,8 +398,32 @@ impl Bsdf {
 
     /// The public queries of every material but the pure Lambertian, out of line: the
     /// Lambertian's short paths (`lambert.rs`) are inlined into the integrator, this is not.
+    /// Materials with layers take a copy of their own (`LAYERED`), so that the others run the code
+    /// they ran before the layers existed.
     #[inline(never)]
     fn general_eval_pdf<const EVAL: bool, const PDF: bool>(
+        &self,
+        wo: Vec3,
+        wi: Vec3,
+    ) -> (Vec3, f32) {
+        if self.layered {
+            return self.layered_eval_pdf::<EVAL, PDF>(wo, wi);
+        }
+        self.general_eval_pdf_in::<EVAL, PDF, false>(wo, wi)
+    }
+
+    /// [`Bsdf::general_eval_pdf`] of a material with layers.
+    #[inline(never)]
+    fn layered_eval_pdf<const EVAL: bool, const PDF: bool>(
+        &self,
+        wo: Vec3,
+        wi: Vec3,
+    ) -> (Vec3, f32) {
+        self.general_eval_pdf_in::<EVAL, PDF, true>(wo, wi)
+    }
+
+    #[inline(always)]
+    fn general_eval_pdf_in<const EVAL: bool, const PDF: bool, const LAYERED: bool>(
         &self,
         wo: Vec3,
         wi: Vec3,
@@ -287,8 +432,8 @@ impl Bsdf {
             return (Vec3::ZERO, 0.0);
         };
         let eta = self.interface.eta(entering);
-        let t = self.wo_terms(o.z, eta);
-        self.eval_pdf_local::<EVAL, PDF>(o, i, eta, &t)
+        let t = self.wo_terms::<LAYERED>(o, if entering { 1.0 } else { -1.0 }, eta);
+        self.eval_pdf_local::<EVAL, PDF, LAYERED>(o, i, eta, &t)
     }
 
     /// Samples wi. `u_lobe` chooses the lobe (and, remapped, reflection against refraction); `u`
@@ -301,9 +446,29 @@ impl Bsdf {
         self.general_sample(wo, u_lobe, u)
     }
 
-    /// [`Bsdf::sample`] for every material but the pure Lambertian, out of line.
+    /// [`Bsdf::sample`] for every material but the pure Lambertian, out of line (materials with
+    /// layers in a copy of their own).
     #[inline(never)]
     fn general_sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        if self.layered {
+            return self.layered_sample(wo, u_lobe, u);
+        }
+        self.general_sample_in::<false>(wo, u_lobe, u)
+    }
+
+    /// [`Bsdf::general_sample`] of a material with layers.
+    #[inline(never)]
+    fn layered_sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        self.general_sample_in::<true>(wo, u_lobe, u)
+    }
+
+    #[inline(always)]
+    fn general_sample_in<const LAYERED: bool>(
+        &self,
+        wo: Vec3,
+        u_lobe: f32,
+        u: Vec2,
+    ) -> Option<BsdfSample> {
         let lo = self.frame.to_local(wo);
         if lo.z == 0.0 || lo.z.is_nan() {
             return None;
@@ -311,18 +476,43 @@ impl Bsdf {
         let s = if lo.z > 0.0 { 1.0 } else { -1.0 };
         let o = Vec3::new(lo.x, lo.y, lo.z.abs());
         let eta = self.interface.eta(lo.z > 0.0);
-        let t = self.wo_terms(o.z, eta);
+        let t = self.wo_terms::<LAYERED>(o, s, eta);
         let [p_d, p_s, p_t] = t.p;
-        if p_d + p_s + p_t <= 0.0 {
+        let lt = &t.layers;
+        let p_base = p_d + p_s + p_t;
+        let p_layers = lt.p_coat + lt.p_sheen;
+        if p_base + p_layers <= 0.0 {
             return None;
         }
         let unflip = |i: Vec3| Vec3::new(i.x, i.y, i.z * s);
-        let (i, transmit) = if u_lobe < p_d {
+        let (i, transmit) = if LAYERED && p_layers > 0.0 && u_lobe >= p_base {
+            // The layers' lobes take the top of u_lobe's range, so that a material without them
+            // chooses among the others exactly as before.
+            if u_lobe < p_base + lt.p_coat || lt.p_sheen == 0.0 {
+                if self.coat.smooth {
+                    let i = from_coat(&lt.coat_frame, mirror(lt.oc));
+                    if i.z <= 0.0 {
+                        // Mirrored below the shading surface by a tilted coat normal: lost.
+                        return None;
+                    }
+                    let w = Vec3::splat(lt.coat_f / lt.p_coat);
+                    return self.finish(wo, lo.z, unflip(i), w, lt.p_coat, true);
+                }
+                let m = self.coat.ggx.sample_visible_normal(lt.oc, u);
+                (
+                    from_coat(&lt.coat_frame, dielectric::reflect(lt.oc, m)),
+                    false,
+                )
+            } else {
+                (lambert::sample(u), false)
+            }
+        } else if u_lobe < p_d {
             (lambert::sample(u), false)
         } else if u_lobe < p_d + p_s || p_t == 0.0 {
             if self.spec_smooth {
                 let m = self.w_metal * conductor::mirror(self.params.base_color, o.z)
                     + (self.w_base * self.layer.weight) * self.layer.fresnel(o.z);
+                let m = if LAYERED { m * lt.base } else { m };
                 return self.finish(wo, lo.z, unflip(mirror(o)), m / p_s, p_s, true);
             }
             (
@@ -333,6 +523,12 @@ impl Bsdf {
             let u2 = ((u_lobe - p_d - p_s) / p_t).clamp(0.0, 1.0);
             let base = self.params.base_color;
             if self.trans_smooth {
+                // Under the layers.
+                let w_trans = if LAYERED {
+                    self.w_trans * lt.base
+                } else {
+                    self.w_trans
+                };
                 let sp = self.interface.split(o.z, eta, base);
                 if u2 < sp.p_r {
                     let pdf = p_t * sp.p_r;
@@ -340,21 +536,21 @@ impl Bsdf {
                         wo,
                         lo.z,
                         unflip(mirror(o)),
-                        self.w_trans * sp.r / pdf,
+                        w_trans * sp.r / pdf,
                         pdf,
                         true,
                     );
                 }
                 let pdf = p_t * (1.0 - sp.p_r);
                 if self.interface.thin {
-                    return self.finish(wo, lo.z, -lo, self.w_trans * sp.t / pdf, pdf, true);
+                    return self.finish(wo, lo.z, -lo, w_trans * sp.t / pdf, pdf, true);
                 }
                 let i = fresnel::refract(o, Vec3::Z, eta)?;
                 return self.finish(
                     wo,
                     lo.z,
                     unflip(i),
-                    self.w_trans * sp.t / (eta * eta * pdf),
+                    w_trans * sp.t / (eta * eta * pdf),
                     pdf,
                     true,
                 );
@@ -384,7 +580,7 @@ impl Bsdf {
             return None;
         }
         let i = Vec3::new(li.x, li.y, li.z * s);
-        let (f, pdf) = self.eval_pdf_local::<true, true>(o, i, eta, &t);
+        let (f, pdf) = self.eval_pdf_local::<true, true, LAYERED>(o, i, eta, &t);
         if pdf.is_nan() || pdf <= 0.0 || crate::math::is_black(f) {
             return None;
         }
@@ -453,9 +649,16 @@ impl Bsdf {
         ))
     }
 
-    /// Diffuse weight and lobe probabilities for cos θo = `co` (> 0).
+    /// Diffuse weight and lobe probabilities for the local (mirrored) wo `o` (`o.z` > 0) on the
+    /// side `s` (±1) of the shading surface.
     #[inline]
-    fn wo_terms(&self, co: f32, eta: f32) -> WoTerms {
+    fn wo_terms<const LAYERED: bool>(&self, o: Vec3, s: f32, eta: f32) -> WoTerms {
+        let co = o.z;
+        let mut layers = LayerTerms::NONE;
+        let (mut est_c, mut est_sh) = (0.0, 0.0);
+        if LAYERED {
+            (layers, est_c, est_sh) = self.layer_terms(o, s);
+        }
         let base = self.params.base_color;
         let (kd, est_s) = if self.spec_smooth {
             let fl = self.layer.fresnel(co);
@@ -487,18 +690,112 @@ impl Bsdf {
         } else {
             0.0
         };
-        let sum = est_d + est_s + est_t;
+        let (est_d, est_s, est_t, sum) = if LAYERED {
+            let b = layers.base;
+            let (d, s, t) = (est_d * b, est_s * b, est_t * b);
+            (d, s, t, d + s + t + est_c + est_sh)
+        } else {
+            (est_d, est_s, est_t, est_d + est_s + est_t)
+        };
         let p = if sum > 0.0 {
             [est_d / sum, est_s / sum, est_t / sum]
         } else {
             [0.0; 3]
         };
-        WoTerms { kd, p }
+        if sum > 0.0 && LAYERED {
+            layers.p_coat = est_c / sum;
+            layers.p_sheen = est_sh / sum;
+        }
+        WoTerms { kd, p, layers }
+    }
+
+    /// The layers' wo terms, and the estimated albedos of the coat and the sheen lobes.
+    #[inline]
+    fn layer_terms(&self, o: Vec3, s: f32) -> (LayerTerms, f32, f32) {
+        let mut t = LayerTerms::NONE;
+        let (mut est_c, mut est_sh) = (0.0, 0.0);
+        if self.coat_on {
+            t.coat_frame = self.coat.frame(s);
+            t.oc = to_coat(&t.coat_frame, o);
+            t.coat_f = self.coat.weight_at(t.oc.z);
+            t.sheen_w = 1.0 - t.coat_f;
+            t.base = t.sheen_w;
+            if t.oc.z > 0.0 {
+                est_c = t.coat_f * self.coat.lobe_albedo(t.oc.z);
+            }
+        }
+        if self.sheen_on {
+            // Above an albedo of 1 (grazing views at low roughness, see `sheen.rs`) the lobe is
+            // scaled down to reflect at most its colour, and the base gets nothing.
+            let e = self.sheen.albedo(o.z);
+            let e1 = e.min(1.0);
+            est_sh = t.sheen_w * self.sheen.mean() * e1;
+            t.base *= 1.0 - self.sheen.max() * e1;
+            if e > 1.0 {
+                t.sheen_w /= e;
+            }
+            t.sheen_lambda_o = self.sheen.lambda(o.z);
+        }
+        (t, est_c, est_sh)
     }
 
     /// f·|cos θi| and/or the pdf of the non-delta lobes, in the local frame with `o.z > 0`.
     #[inline]
-    fn eval_pdf_local<const EVAL: bool, const PDF: bool>(
+    fn eval_pdf_local<const EVAL: bool, const PDF: bool, const LAYERED: bool>(
+        &self,
+        o: Vec3,
+        i: Vec3,
+        eta: f32,
+        t: &WoTerms,
+    ) -> (Vec3, f32) {
+        let (f, pdf) = self.base_eval_pdf_local::<EVAL, PDF>(o, i, eta, t);
+        if !LAYERED {
+            return (f, pdf);
+        }
+        self.layer_eval_pdf::<EVAL, PDF>(o, i, &t.layers, f, pdf)
+    }
+
+    /// Adds the clear coat's and the sheen's lobes to the base's `f` (scaled here by the layers'
+    /// base weight) and `pdf`.
+    #[inline(never)]
+    fn layer_eval_pdf<const EVAL: bool, const PDF: bool>(
+        &self,
+        o: Vec3,
+        i: Vec3,
+        t: &LayerTerms,
+        f: Vec3,
+        pdf: f32,
+    ) -> (Vec3, f32) {
+        let (mut f, mut pdf) = (f * t.base, pdf);
+        if i.z <= 0.0 {
+            return (f, pdf);
+        }
+        if self.coat_on && !self.coat.smooth && t.oc.z > 0.0 {
+            let (oc, ic) = (t.oc, to_coat(&t.coat_frame, i));
+            let h = (oc + ic).normalize_or_zero();
+            let g = &self.coat.ggx;
+            if EVAL && ic.z > 0.0 {
+                f += Vec3::splat(t.coat_f * g.d(h) * g.vis(oc, ic) * ic.z);
+            }
+            if PDF {
+                pdf += t.p_coat * g.reflection_pdf(oc, h);
+            }
+        }
+        if self.sheen_on {
+            if EVAL {
+                let e = self.sheen.eval(o, i, t.sheen_lambda_o);
+                f += (t.sheen_w * e) * self.sheen.color;
+            }
+            if PDF {
+                pdf += t.p_sheen * lambert::pdf(i.z);
+            }
+        }
+        (f, pdf)
+    }
+
+    /// [`Bsdf::eval_pdf_local`] of the material under the layers (all of it, without layers).
+    #[inline]
+    fn base_eval_pdf_local<const EVAL: bool, const PDF: bool>(
         &self,
         o: Vec3,
         i: Vec3,

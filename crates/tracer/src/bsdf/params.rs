@@ -22,6 +22,17 @@ pub struct PbrParams {
     /// Thin-walled transmission (no KHR_materials_volume): light passes straight through without
     /// bending. Otherwise the surface bounds a refracting volume.
     pub thin_walled: bool,
+    /// KHR_materials_clearcoat clearcoat (factor × texture R): weight of the clear coat on top of
+    /// everything else (0 removes it).
+    pub clearcoat: f32,
+    /// KHR_materials_clearcoat clearcoatRoughness (factor × texture G), perceptual; the coat's GGX α
+    /// is its square. Exactly 0 makes the coat a mirror.
+    pub clearcoat_roughness: f32,
+    /// KHR_materials_sheen sheenColor (factor × texture RGB), linear: the sheen lobe's tint (black
+    /// removes it).
+    pub sheen_color: Vec3,
+    /// KHR_materials_sheen sheenRoughness (factor × texture A), perceptual.
+    pub sheen_roughness: f32,
 }
 
 impl PbrParams {
@@ -36,6 +47,10 @@ impl PbrParams {
             ior: 1.5,
             transmission: 0.0,
             thin_walled: true,
+            clearcoat: 0.0,
+            clearcoat_roughness: 0.0,
+            sheen_color: Vec3::ZERO,
+            sheen_roughness: 0.0,
         }
     }
 }

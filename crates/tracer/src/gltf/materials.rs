@@ -1,8 +1,13 @@
 //! glTF materials → [`Material`]: metallic-roughness factors and textures, emissive ×
 //! KHR_materials_emissive_strength, normal map and scale, alpha mode and cutoff, double-sidedness,
-//! KHR_materials_specular, KHR_materials_ior, KHR_materials_transmission and KHR_materials_volume, with
-//! KHR_texture_transform on every texture reference. The occlusion texture is ignored (a path tracer
-//! computes occlusion).
+//! KHR_materials_specular, KHR_materials_ior, KHR_materials_transmission, KHR_materials_volume,
+//! KHR_materials_clearcoat and KHR_materials_sheen, with KHR_texture_transform on every texture
+//! reference. The occlusion texture is ignored (a path tracer computes occlusion).
+//!
+//! The `gltf` crate (1.4) has no types for KHR_materials_clearcoat and KHR_materials_sheen: they are
+//! read from the material's `extensions.others` JSON here, their texture references through the
+//! crate's own `textureInfo` / `normalTextureInfo` types, so they get the same checks and
+//! KHR_texture_transform as every other texture.
 
 use super::error::{label, GltfError, Warnings};
 use super::textures::TextureCache;
@@ -33,6 +38,9 @@ struct Converter<'c, 'r, 'a> {
     textures: &'c mut TextureCache<'r, 'a>,
     warnings: &'c mut Warnings,
     object: String,
+    /// How many textures the file has (for the texture indices inside extensions the `gltf` crate
+    /// does not validate).
+    texture_count: usize,
 }
 
 impl Converter<'_, '_, '_> {
@@ -106,6 +114,121 @@ impl Converter<'_, '_, '_> {
         self.reference(info.index.value(), info.tex_coord, transform, field)
             .map(Some)
     }
+
+    /// A normal map and its scale, from a `normalTextureInfo`.
+    fn normal_info(
+        &mut self,
+        nt: &json::material::NormalTexture,
+        field: &str,
+    ) -> Result<(TextureRef, f32), GltfError> {
+        let transform: Option<TextureTransform> = nt
+            .extensions
+            .as_ref()
+            .and_then(|e| e.others.get("KHR_texture_transform"))
+            .and_then(|v| json::deserialize::from_value(v.clone()).ok());
+        self.finite(&format!("{field} scale"), &[nt.scale])?;
+        let r = self.reference(nt.index.value(), nt.tex_coord, transform.as_ref(), field)?;
+        Ok((r, nt.scale))
+    }
+
+    /// An error naming the material and `field` of extension `ext`.
+    fn invalid(&self, ext: &str, field: &str, what: &str) -> GltfError {
+        GltfError::Object {
+            object: self.object.clone(),
+            reason: format!("{ext} {field} {what}"),
+        }
+    }
+
+    /// A number of an extension object (`default` when absent), refused when it is not a finite
+    /// number once read as f32.
+    fn number(
+        &self,
+        ext: &str,
+        obj: &json::Value,
+        field: &str,
+        default: f32,
+    ) -> Result<f32, GltfError> {
+        match obj.get(field) {
+            None => Ok(default),
+            Some(v) => match v.as_f64() {
+                Some(x) => {
+                    self.finite(&format!("{ext} {field}"), &[x as f32])?;
+                    Ok(x as f32)
+                }
+                None => Err(self.invalid(ext, field, "is not a number")),
+            },
+        }
+    }
+
+    /// An RGB array of an extension object (`default` when absent), every component finite.
+    fn rgb(
+        &self,
+        ext: &str,
+        obj: &json::Value,
+        field: &str,
+        default: Vec3,
+    ) -> Result<Vec3, GltfError> {
+        let Some(v) = obj.get(field) else {
+            return Ok(default);
+        };
+        let c: Vec<f32> = match v.as_array() {
+            Some(a) if a.len() == 3 => a
+                .iter()
+                .map(|x| x.as_f64().map(|x| x as f32))
+                .collect::<Option<_>>()
+                .ok_or_else(|| self.invalid(ext, field, "is not an array of 3 numbers"))?,
+            _ => return Err(self.invalid(ext, field, "is not an array of 3 numbers")),
+        };
+        self.finite(&format!("{ext} {field}"), &c)?;
+        Ok(Vec3::new(c[0], c[1], c[2]))
+    }
+
+    /// A `textureInfo` of an extension object.
+    fn ext_info(
+        &mut self,
+        ext: &str,
+        obj: &json::Value,
+        field: &str,
+    ) -> Result<Option<TextureRef>, GltfError> {
+        let Some(v) = obj.get(field) else {
+            return Ok(None);
+        };
+        let info: json::texture::Info = json::deserialize::from_value(v.clone())
+            .map_err(|e| self.invalid(ext, field, &format!("is not a textureInfo: {e}")))?;
+        self.check_index(ext, field, info.index.value())?;
+        self.info(Some(&info), field)
+    }
+
+    /// A `normalTextureInfo` of an extension object.
+    fn ext_normal_info(
+        &mut self,
+        ext: &str,
+        obj: &json::Value,
+        field: &str,
+    ) -> Result<Option<(TextureRef, f32)>, GltfError> {
+        let Some(v) = obj.get(field) else {
+            return Ok(None);
+        };
+        let nt: json::material::NormalTexture = json::deserialize::from_value(v.clone())
+            .map_err(|e| self.invalid(ext, field, &format!("is not a normalTextureInfo: {e}")))?;
+        self.check_index(ext, field, nt.index.value())?;
+        self.normal_info(&nt, field).map(Some)
+    }
+
+    /// The `gltf` crate validated the core's texture indices, not those inside extensions it does
+    /// not know.
+    fn check_index(&self, ext: &str, field: &str, index: usize) -> Result<(), GltfError> {
+        let count = self.texture_count;
+        if index < count {
+            Ok(())
+        } else {
+            Err(self.invalid(
+                ext,
+                field,
+                &format!("refers to texture {index}, but the file has {count} textures"),
+            ))
+        }
+    }
 }
 
 /// Converts glTF material `index`, decoding the textures it uses.
@@ -126,6 +249,7 @@ pub(crate) fn convert(
         textures,
         warnings,
         object,
+        texture_count: root.textures.len(),
     };
     let pbr = &m.pbr_metallic_roughness;
     cv.finite("baseColorFactor", &pbr.base_color_factor.0)?;
@@ -150,19 +274,7 @@ pub(crate) fn convert(
         ..Material::default()
     };
     if let Some(nt) = &m.normal_texture {
-        let transform: Option<TextureTransform> = nt
-            .extensions
-            .as_ref()
-            .and_then(|e| e.others.get("KHR_texture_transform"))
-            .and_then(|v| json::deserialize::from_value(v.clone()).ok());
-        cv.finite("normalTexture scale", &[nt.scale])?;
-        let r = cv.reference(
-            nt.index.value(),
-            nt.tex_coord,
-            transform.as_ref(),
-            "normalTexture",
-        )?;
-        out.normal_texture = Some((r, nt.scale));
+        out.normal_texture = Some(cv.normal_info(nt, "normalTexture")?);
     }
     out.alpha_mode = match m.alpha_mode {
         Checked::Valid(json::material::AlphaMode::Mask) => {
@@ -224,13 +336,67 @@ pub(crate) fn convert(
             out.volume = Some(Volume { sigma_a });
         }
     }
+    if let Some(cc) = ext.and_then(|e| e.others.get(CLEARCOAT)) {
+        clearcoat(&mut cv, cc, &mut out)?;
+    }
+    if let Some(sh) = ext.and_then(|e| e.others.get(SHEEN)) {
+        sheen(&mut cv, sh, &mut out)?;
+    }
     if let Some(ext) = ext {
         for name in ext.others.keys() {
-            cv.warnings
-                .once(format!("extension {name} is not supported; ignored"));
+            if name != CLEARCOAT && name != SHEEN {
+                cv.warnings
+                    .once(format!("extension {name} is not supported; ignored"));
+            }
         }
     }
     Ok(out)
+}
+
+const CLEARCOAT: &str = "KHR_materials_clearcoat";
+const SHEEN: &str = "KHR_materials_sheen";
+
+/// KHR_materials_clearcoat: clearcoatFactor (0) × clearcoatTexture R, clearcoatRoughnessFactor (0)
+/// × clearcoatRoughnessTexture G, clearcoatNormalTexture with its scale.
+fn clearcoat(
+    cv: &mut Converter<'_, '_, '_>,
+    obj: &json::Value,
+    out: &mut Material,
+) -> Result<(), GltfError> {
+    if !obj.is_object() {
+        return Err(cv.invalid(CLEARCOAT, "", "is not an object"));
+    }
+    out.clearcoat = cv
+        .number(CLEARCOAT, obj, "clearcoatFactor", 0.0)?
+        .clamp(0.0, 1.0);
+    out.clearcoat_texture = cv.ext_info(CLEARCOAT, obj, "clearcoatTexture")?;
+    out.clearcoat_roughness = cv
+        .number(CLEARCOAT, obj, "clearcoatRoughnessFactor", 0.0)?
+        .clamp(0.0, 1.0);
+    out.clearcoat_roughness_texture = cv.ext_info(CLEARCOAT, obj, "clearcoatRoughnessTexture")?;
+    out.clearcoat_normal_texture = cv.ext_normal_info(CLEARCOAT, obj, "clearcoatNormalTexture")?;
+    Ok(())
+}
+
+/// KHR_materials_sheen: sheenColorFactor ([0, 0, 0]) × sheenColorTexture RGB (sRGB),
+/// sheenRoughnessFactor (0) × sheenRoughnessTexture A.
+fn sheen(
+    cv: &mut Converter<'_, '_, '_>,
+    obj: &json::Value,
+    out: &mut Material,
+) -> Result<(), GltfError> {
+    if !obj.is_object() {
+        return Err(cv.invalid(SHEEN, "", "is not an object"));
+    }
+    out.sheen_color = cv
+        .rgb(SHEEN, obj, "sheenColorFactor", Vec3::ZERO)?
+        .max(Vec3::ZERO);
+    out.sheen_color_texture = cv.ext_info(SHEEN, obj, "sheenColorTexture")?;
+    out.sheen_roughness = cv
+        .number(SHEEN, obj, "sheenRoughnessFactor", 0.0)?
+        .clamp(0.0, 1.0);
+    out.sheen_roughness_texture = cv.ext_info(SHEEN, obj, "sheenRoughnessTexture")?;
+    Ok(())
 }
 
 #[cfg(test)]

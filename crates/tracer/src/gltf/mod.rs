@@ -30,8 +30,8 @@
 //!   (over 2 million triangles, or a point shared by thousands of corners: see `tangents.rs`) gets
 //!   per-triangle tangents from its UVs (dP/du) instead, with a warning naming it.
 //! - Materials: metallic-roughness, emissive × KHR_materials_emissive_strength, normal map, alpha
-//!   mode, double-sidedness, KHR_materials_specular, _ior, _transmission, _volume, and
-//!   KHR_texture_transform on every texture reference. Primitives without a material get
+//!   mode, double-sidedness, KHR_materials_specular, _ior, _transmission, _volume, _clearcoat (with
+//!   its own normal map) and _sheen, and KHR_texture_transform on every texture reference. Primitives without a material get
 //!   `Material::default()`, added once after the file's (used) materials.
 //! - Textures: PNG and JPEG, and WebP (lossy and lossless) through EXT_texture_webp, decoded once per
 //!   image with limits ([`MAX_IMAGE_SIZE`], [`MAX_IMAGE_BYTES`], [`MAX_SCENE_TEXTURE_BYTES`]), checked
@@ -59,7 +59,7 @@
 //!   vertices its triangles use. The loader's warnings stop after the first 100 distinct ones, with
 //!   one "… and N more warnings" for the rest.
 //! - Ignored with one warning each (in `SceneParts::warnings` and through `tracing::warn!`):
-//!   unsupported `extensionsUsed` (e.g. KHR_materials_clearcoat, _sheen, _unlit, KHR_texture_basisu
+//!   unsupported `extensionsUsed` (e.g. KHR_materials_iridescence, _unlit, KHR_texture_basisu
 //!   as optional), skins (bind pose), morph targets (base geometry), animations (rest pose), COLOR_0,
 //!   light `range`, TEXCOORD_2+ (TEXCOORD_1 is used). Occlusion textures, camera aspect ratio and
 //!   clip planes, and texture min filters are ignored silently.
@@ -251,7 +251,7 @@ fn load_parts_unguarded(
     let mut material_map: HashMap<usize, PrimitiveMaterial> = HashMap::new();
     for &i in &used_materials {
         let m = materials::convert(root, i, &mut texture_cache, &mut warnings)?;
-        let normal_map_uv = m.normal_texture.as_ref().map(|(r, _)| r.texcoord);
+        let normal_map_uv = m.tangent_space_map().map(|r| r.texcoord);
         material_map.insert(
             i,
             PrimitiveMaterial {
@@ -270,22 +270,10 @@ fn load_parts_unguarded(
         ..Needs::default()
     };
     for m in &materials {
-        let refs = [
-            &m.base_color_texture,
-            &m.metallic_roughness_texture,
-            &m.emissive_texture,
-            &m.specular_texture,
-            &m.specular_color_texture,
-            &m.transmission_texture,
-        ];
-        for r in refs
-            .into_iter()
-            .flatten()
-            .chain(m.normal_texture.as_ref().map(|(r, _)| r))
-        {
+        for r in m.texture_refs() {
             needs.uv[(r.texcoord as usize).min(1)] = true;
         }
-        needs.tangents |= m.normal_texture.is_some();
+        needs.tangents |= m.tangent_space_map().is_some();
     }
 
     let acc = Accessors::new(root, &res);

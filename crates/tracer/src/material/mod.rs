@@ -83,6 +83,22 @@ pub struct Material {
     pub transmission_texture: Option<TextureRef>,
     /// KHR_materials_volume with thickness > 0; `None` means thin-walled.
     pub volume: Option<Volume>,
+    /// KHR_materials_clearcoat clearcoatFactor and clearcoatTexture (R channel, linear).
+    pub clearcoat: f32,
+    pub clearcoat_texture: Option<TextureRef>,
+    /// KHR_materials_clearcoat clearcoatRoughnessFactor and clearcoatRoughnessTexture (G channel,
+    /// linear).
+    pub clearcoat_roughness: f32,
+    pub clearcoat_roughness_texture: Option<TextureRef>,
+    /// KHR_materials_clearcoat clearcoatNormalTexture and its scale: the coat's own normal map
+    /// (without it the coat takes the interpolated normal, not the base's normal map).
+    pub clearcoat_normal_texture: Option<(TextureRef, f32)>,
+    /// KHR_materials_sheen sheenColorFactor (linear) and sheenColorTexture (RGB, sRGB).
+    pub sheen_color: Vec3,
+    pub sheen_color_texture: Option<TextureRef>,
+    /// KHR_materials_sheen sheenRoughnessFactor and sheenRoughnessTexture (alpha channel, linear).
+    pub sheen_roughness: f32,
+    pub sheen_roughness_texture: Option<TextureRef>,
 }
 
 impl Default for Material {
@@ -108,6 +124,15 @@ impl Default for Material {
             transmission: 0.0,
             transmission_texture: None,
             volume: None,
+            clearcoat: 0.0,
+            clearcoat_texture: None,
+            clearcoat_roughness: 0.0,
+            clearcoat_roughness_texture: None,
+            clearcoat_normal_texture: None,
+            sheen_color: Vec3::ZERO,
+            sheen_color_texture: None,
+            sheen_roughness: 0.0,
+            sheen_roughness_texture: None,
         }
     }
 }
@@ -119,6 +144,9 @@ pub struct ShadingInputs {
     /// Perturbed (normal-mapped) shading normal, unit, world space; equals the interpolated normal
     /// when there is no normal map.
     pub normal: Vec3,
+    /// The clear coat's normal: the interpolated normal perturbed by the clearcoatNormalTexture, or
+    /// the interpolated normal itself (never the base's normal map).
+    pub coat_normal: Vec3,
 }
 
 impl Material {
@@ -187,7 +215,12 @@ impl Material {
             || self.specular_texture.is_some()
             || self.specular_color_texture.is_some()
             || self.transmission_texture.is_some()
-            || self.normal_texture.is_some();
+            || self.normal_texture.is_some()
+            || self.clearcoat_texture.is_some()
+            || self.clearcoat_roughness_texture.is_some()
+            || self.clearcoat_normal_texture.is_some()
+            || self.sheen_color_texture.is_some()
+            || self.sheen_roughness_texture.is_some();
         (!textured).then(|| self.shade(&[], &[Vec2::ZERO; 2], Vec3::Z, None).params)
     }
 
@@ -223,22 +256,32 @@ impl Material {
         if let Some(t) = &self.transmission_texture {
             transmission *= sample(textures, t, uv, ColorSpace::Linear).x;
         }
-        let mut n = normal;
-        if let (Some((t, scale)), Some(tan)) = (&self.normal_texture, tangent) {
-            let m = sample(textures, t, uv, ColorSpace::Linear);
-            let tn = Vec3::new(
-                (2.0 * m.x - 1.0) * scale,
-                (2.0 * m.y - 1.0) * scale,
-                2.0 * m.z - 1.0,
-            );
-            let t3 = tan.truncate();
-            let t3 = (t3 - normal * normal.dot(t3)).normalize_or_zero();
-            if t3 != Vec3::ZERO {
-                let b = normal.cross(t3) * if tan.w < 0.0 { -1.0 } else { 1.0 };
-                let mapped = (t3 * tn.x + b * tn.y + normal * tn.z).normalize_or_zero();
-                if mapped != Vec3::ZERO && mapped.is_finite() {
-                    n = mapped;
-                }
+        let n = match (&self.normal_texture, tangent) {
+            (Some((t, scale)), Some(tan)) => normal_mapped(textures, t, *scale, uv, normal, tan),
+            _ => normal,
+        };
+        // The layers, read only where they are on (a zero factor disables a layer whatever its
+        // textures say).
+        let (mut clearcoat, mut clearcoat_roughness) = (self.clearcoat, self.clearcoat_roughness);
+        let mut coat_normal = normal;
+        if clearcoat > 0.0 {
+            if let Some(t) = &self.clearcoat_texture {
+                clearcoat *= sample(textures, t, uv, ColorSpace::Linear).x;
+            }
+            if let Some(t) = &self.clearcoat_roughness_texture {
+                clearcoat_roughness *= sample(textures, t, uv, ColorSpace::Linear).y;
+            }
+            if let (Some((t, scale)), Some(tan)) = (&self.clearcoat_normal_texture, tangent) {
+                coat_normal = normal_mapped(textures, t, *scale, uv, normal, tan);
+            }
+        }
+        let (mut sheen_color, mut sheen_roughness) = (self.sheen_color, self.sheen_roughness);
+        if sheen_color.max_element() > 0.0 {
+            if let Some(t) = &self.sheen_color_texture {
+                sheen_color *= sample(textures, t, uv, ColorSpace::Srgb).truncate();
+            }
+            if let Some(t) = &self.sheen_roughness_texture {
+                sheen_roughness *= sample(textures, t, uv, ColorSpace::Linear).w;
             }
         }
         ShadingInputs {
@@ -251,10 +294,74 @@ impl Material {
                 ior: self.ior,
                 transmission: transmission.clamp(0.0, 1.0),
                 thin_walled: self.volume.is_none(),
+                clearcoat: clearcoat.clamp(0.0, 1.0),
+                clearcoat_roughness: clearcoat_roughness.clamp(0.0, 1.0),
+                sheen_color: sheen_color.max(Vec3::ZERO),
+                sheen_roughness: sheen_roughness.clamp(0.0, 1.0),
             },
             normal: n,
+            coat_normal,
         }
     }
+
+    /// Every texture the material reads, with the normal maps.
+    pub fn texture_refs(&self) -> impl Iterator<Item = &TextureRef> {
+        [
+            &self.base_color_texture,
+            &self.metallic_roughness_texture,
+            &self.emissive_texture,
+            &self.specular_texture,
+            &self.specular_color_texture,
+            &self.transmission_texture,
+            &self.clearcoat_texture,
+            &self.clearcoat_roughness_texture,
+            &self.sheen_color_texture,
+            &self.sheen_roughness_texture,
+        ]
+        .into_iter()
+        .flatten()
+        .chain(self.normal_texture.as_ref().map(|(r, _)| r))
+        .chain(self.clearcoat_normal_texture.as_ref().map(|(r, _)| r))
+    }
+
+    /// The normal map that decides the tangent frame's texture coordinates: the base's, else the
+    /// clear coat's.
+    pub fn tangent_space_map(&self) -> Option<&TextureRef> {
+        self.normal_texture
+            .as_ref()
+            .or(self.clearcoat_normal_texture.as_ref())
+            .map(|(r, _)| r)
+    }
+}
+
+/// `normal` (unit, interpolated) perturbed by the tangent-space normal map `t` of scale `scale`,
+/// with the interpolated tangent `tan` and its bitangent sign; `normal` itself where the frame or
+/// the result degenerates.
+#[inline]
+fn normal_mapped(
+    textures: &[Texture],
+    t: &TextureRef,
+    scale: f32,
+    uv: &[Vec2; 2],
+    normal: Vec3,
+    tan: Vec4,
+) -> Vec3 {
+    let m = sample(textures, t, uv, ColorSpace::Linear);
+    let tn = Vec3::new(
+        (2.0 * m.x - 1.0) * scale,
+        (2.0 * m.y - 1.0) * scale,
+        2.0 * m.z - 1.0,
+    );
+    let t3 = tan.truncate();
+    let t3 = (t3 - normal * normal.dot(t3)).normalize_or_zero();
+    if t3 != Vec3::ZERO {
+        let b = normal.cross(t3) * if tan.w < 0.0 { -1.0 } else { 1.0 };
+        let mapped = (t3 * tn.x + b * tn.y + normal * tn.z).normalize_or_zero();
+        if mapped != Vec3::ZERO && mapped.is_finite() {
+            return mapped;
+        }
+    }
+    normal
 }
 
 #[inline]

@@ -199,7 +199,13 @@ impl Scene {
         }
         let material = &self.materials[si.material as usize];
         let shading = material.shade(&self.textures, &si.uv, si.ns, si.tangent);
-        Bsdf::new(shading.params, shading.normal, si.ng, tangent)
+        Bsdf::with_coat_normal(
+            shading.params,
+            shading.normal,
+            si.ng,
+            tangent,
+            shading.coat_normal,
+        )
     }
 
     /// Lights the scene with an environment (`None` takes it away). The environment is part of the
@@ -311,11 +317,12 @@ mod tests {
                     };
                     let m = &scene.materials[material as usize];
                     let shading = m.shade(&scene.textures, &si.uv, ns, tangent);
-                    let made_here = Bsdf::new(
+                    let made_here = Bsdf::with_coat_normal(
                         shading.params,
                         shading.normal,
                         ng,
                         tangent.map(|t| t.truncate()),
+                        shading.coat_normal,
                     );
                     // Debug prints every field, floats to the last bit.
                     assert_eq!(

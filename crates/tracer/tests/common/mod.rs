@@ -1,6 +1,8 @@
 //! Scene builders and statistics shared by the integration tests.
 #![allow(dead_code)]
 
+pub mod bins;
+
 use glam::{Affine3A, Vec3, Vec4};
 use pathfarm_tracer::camera::{Camera, Perspective, Projection};
 use pathfarm_tracer::geometry::Mesh;
