@@ -448,7 +448,7 @@ def scene_hdr_outdoor():
         "covers": "An environment map only (world Environment Texture, equirect, default "
                   "mapping, strength 1): a gradient sky with a small sun disc of radiance 600 "
                   "(about 2/3 of the ground's irradiance), on objects and a ground plane.",
-        "exact_counterparts": False,
+        "exact_counterparts": True,
         "exact_note": "glTF cannot carry the world: the environment is given in 'environment' "
                       "(Blender's equirect convention, README). Cycles looks the map up with "
                       "bilinear interpolation ('Linear', the node's default) of pixel centres.",

@@ -7,7 +7,7 @@
 use crate::error::{write_file, BenchError};
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::light::Environment;
-use pathfarm_tracer::{render_image, Accumulation, RenderSettings};
+use pathfarm_tracer::{render_image, Accumulation, DirectStrategy, RenderSettings};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -21,8 +21,8 @@ pub struct SuiteScene {
     pub height: u32,
     /// The environment image, its strength and rotation (degrees about the up axis).
     pub environment: Option<(PathBuf, f32, f32)>,
-    /// Every material and light has an exact glTF counterpart (or, for the environment, is
-    /// given to the tracer as Blender's world): the image means must agree.
+    /// Every material and light has an exact glTF counterpart (Blender's world, which glTF cannot
+    /// carry, counts as one: it is given to the tracer as the environment): the means must agree.
     pub exact: bool,
     pub note: String,
     /// Cycles' image mean, per channel, and its standard error.
@@ -74,25 +74,20 @@ pub fn load_manifest(dir: &Path) -> Result<Vec<SuiteScene>, BenchError> {
     Ok(manifest
         .scenes
         .into_iter()
-        .map(|(name, s)| {
-            // The world is not glTF, but given to the tracer it is an exact counterpart.
-            let exact = s.exact_counterparts
-                || (s.environment.is_some() && name == "hdr_outdoor");
-            SuiteScene {
-                glb: dir.join(&s.glb),
-                width: s.width,
-                height: s.height,
-                environment: s.environment.map(|e| {
-                    (dir.join(e.file_exr), e.strength, e.rotation_degrees[2])
-                }),
-                exact,
-                note: s.exact_note,
-                cycles_mean: s.cycles.mean_rgb,
-                cycles_stderr: s.cycles.mean_rgb_stderr,
-                cycles_seconds: s.cycles.render_seconds,
-                cycles_spp: s.cycles.spp,
-                name,
-            }
+        .map(|(name, s)| SuiteScene {
+            glb: dir.join(&s.glb),
+            width: s.width,
+            height: s.height,
+            environment: s
+                .environment
+                .map(|e| (dir.join(e.file_exr), e.strength, e.rotation_degrees[2])),
+            exact: s.exact_counterparts,
+            note: s.exact_note,
+            cycles_mean: s.cycles.mean_rgb,
+            cycles_stderr: s.cycles.mean_rgb_stderr,
+            cycles_seconds: s.cycles.render_seconds,
+            cycles_spp: s.cycles.spp,
+            name,
         })
         .collect())
 }
@@ -197,6 +192,62 @@ pub fn render_scene(scene: &SuiteScene, spp: u32, seed: u64) -> Result<SuiteResu
     })
 }
 
+/// One direct-lighting strategy on an environment-lit scene: its noise after a fixed time.
+#[derive(Clone, Debug, Serialize)]
+pub struct EnvironmentStrategy {
+    pub strategy: String,
+    pub spp: u32,
+    pub seconds: f64,
+    /// The estimated relative error (RMS noise of the pixel means over the image's mean).
+    pub relative_error: f64,
+    /// That error scaled to one second of rendering (error ∝ 1/√time).
+    pub error_at_one_second: f64,
+}
+
+/// How much the environment's importance sampling buys on an environment-lit scene: the same
+/// scene rendered with BSDF sampling alone (the only way an unsampled environment is found) and
+/// with the default MIS, each error scaled to equal time.
+pub fn environment_strategies(
+    scene: &SuiteScene,
+    spp: u32,
+    seed: u64,
+) -> Result<Vec<EnvironmentStrategy>, BenchError> {
+    let err = |message: String| BenchError::Scene {
+        name: scene.name.clone(),
+        message,
+    };
+    let Some((path, strength, rotation)) = &scene.environment else {
+        return Ok(Vec::new());
+    };
+    let bytes = std::fs::read(&scene.glb).map_err(|e| BenchError::io(&scene.glb, e))?;
+    let image = std::fs::read(path).map_err(|e| BenchError::io(path, e))?;
+    let env =
+        Environment::from_image(&image, *strength, *rotation).map_err(|e| err(e.to_string()))?;
+    let loaded = gltf::load(&bytes, &NoExternalResources, &LoadOptions::default())
+        .map_err(|e| err(e.to_string()))?
+        .with_environment(Some(env));
+    let mut out = Vec::new();
+    for direct in [DirectStrategy::Bsdf, DirectStrategy::Mis] {
+        let settings = RenderSettings {
+            seed,
+            direct,
+            ..RenderSettings::new(scene.width, scene.height)
+        };
+        let t = Instant::now();
+        let acc = render_image(&loaded, &settings, 32, 0..spp, &|_| {});
+        let seconds = t.elapsed().as_secs_f64();
+        let relative_error = acc.relative_error().unwrap_or(f64::NAN);
+        out.push(EnvironmentStrategy {
+            strategy: direct.to_string(),
+            spp,
+            seconds,
+            relative_error,
+            error_at_one_second: relative_error * seconds.sqrt(),
+        });
+    }
+    Ok(out)
+}
+
 /// The report's table.
 pub fn markdown(results: &[SuiteResult], command_line: &str) -> String {
     let mut s = format!(
@@ -236,11 +287,26 @@ pub fn run(
 ) -> Result<(Vec<SuiteResult>, String), BenchError> {
     let scenes = load_manifest(dir)?;
     let mut results = Vec::new();
+    let mut strategies = Vec::new();
     for scene in &scenes {
         tracing::info!(scene = %scene.name, spp, "rendering");
         results.push(render_scene(scene, spp, seed)?);
+        for s in environment_strategies(scene, spp, seed)? {
+            strategies.push((scene.name.clone(), s));
+        }
     }
-    let md = markdown(&results, command_line);
+    let mut md = markdown(&results, command_line);
+    if !strategies.is_empty() {
+        md += "\n## Environment sampling: equal-time error\n\n\
+               | scene | strategy | spp | seconds | relative error | error after 1 s |\n\
+               |---|---|---:|---:|---:|---:|\n";
+        for (name, s) in &strategies {
+            md += &format!(
+                "| {name} | {} | {} | {:.2} | {:.4} | {:.4} |\n",
+                s.strategy, s.spp, s.seconds, s.relative_error, s.error_at_one_second
+            );
+        }
+    }
     write_file(&out.join("blender.md"), md.as_bytes())?;
     let json = serde_json::to_vec_pretty(&results)
         .map_err(|e| BenchError::Invalid(format!("blender.json: {e}")))?;

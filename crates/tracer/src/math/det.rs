@@ -209,6 +209,7 @@ pub fn atan2(y: f32, x: f32) -> f32 {
     } else {
         a
     }
+}
 
 /// arccos x in radians, for x ∈ [−1, 1] (NaN outside), computed in `f64` and rounded once: it
 /// agrees with `(x as f64).acos() as f32` (what the MikkTSpace reference computes, through the C
