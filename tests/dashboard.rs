@@ -563,6 +563,15 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
         .select_by_value("mis")
         .await
         .expect("choose MIS");
+    // A uniform environment, white at strength 0.5.
+    b.click("[data-testid=submit-environment-section] summary")
+        .await;
+    b.find("#env_kind")
+        .await
+        .select_by_value("uniform")
+        .await
+        .expect("choose a uniform environment");
+    b.type_into("#env_strength", "0.5").await;
     let scene = std::fs::canonicalize(SCENE).expect("scenes/cornell.gltf");
     b.find("#scene")
         .await
@@ -595,8 +604,29 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
         job1.settings
     );
     assert_eq!(job1.priority, 5);
+    let env = job1
+        .settings
+        .environment
+        .as_ref()
+        .expect("the form's environment");
+    assert_eq!(
+        (
+            env.radiance,
+            env.image.as_deref(),
+            env.strength,
+            env.rotation_degrees
+        ),
+        (Some([1.0, 1.0, 1.0]), None, 0.5, 0.0),
+        "{env:?}"
+    );
     b.wait_text("the job's name", "[data-testid=job-title]", |t| t == name)
         .await;
+    b.wait_text(
+        "the job's environment",
+        "[data-testid=job-environment]",
+        |t| t == "uniform 1, 1, 1, strength 0.5",
+    )
+    .await;
 
     // A second job, below the first in priority so it waits in the queue; cancelled later.
     let mut settings = JobSettings::new(WIDTH, HEIGHT, 4096);
