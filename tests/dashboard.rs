@@ -899,6 +899,36 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
     assert_eq!(lost.state, WorkerState::Lost);
     b.screenshot("workers-lost").await;
 
+    // ---- a scene with a feature the renderer ignores: its warning on the job page
+    let mut gltf: Value = serde_json::from_slice(&std::fs::read(&scene).expect("read the scene"))
+        .expect("the scene is JSON");
+    gltf["extensionsUsed"] = json!(["KHR_materials_iridescence"]);
+    let mut small = JobSettings::new(8, 8, 1);
+    small.name = Some(format!("iridescent-{variant}"));
+    let id3 = api
+        .submit(
+            serde_json::to_vec(&gltf).expect("encode the scene"),
+            "iridescent.gltf",
+            &small,
+        )
+        .await
+        .expect("submit the iridescent scene")
+        .id;
+    b.goto(&format!("{url}/#/jobs/{id3}")).await;
+    let warning = b
+        .wait_text("the scene's warning", "[data-testid=job-warning]", |t| {
+            !t.is_empty()
+        })
+        .await;
+    assert!(
+        warning.contains("KHR_materials_iridescence"),
+        "the job page shows {warning:?}"
+    );
+    b.wait_text("no environment", "[data-testid=job-environment]", |t| {
+        t == "none"
+    })
+    .await;
+
     // ---- a phone: one column, nothing wider than the screen
     b.client
         .set_window_size(390, 844)
