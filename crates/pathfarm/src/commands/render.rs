@@ -80,6 +80,9 @@ pub struct EnvironmentArgs {
     pub environment_rotation: f32,
 }
 
+/// A job's environment settings and the image to upload with them (bytes, file name), if any.
+pub type JobEnvironment = (EnvironmentSettings, Option<(Vec<u8>, String)>);
+
 /// What `--environment` names.
 pub enum EnvironmentSource {
     Radiance(glam::Vec3),
@@ -122,7 +125,7 @@ impl EnvironmentArgs {
 
     /// The environment as a job's settings, and the image to upload with it (its bytes and file
     /// name), for `submit`. The image's hash is set by the server from the uploaded part.
-    pub fn job_settings(&self) -> Result<Option<(EnvironmentSettings, Option<(Vec<u8>, String)>)>> {
+    pub fn job_settings(&self) -> Result<Option<JobEnvironment>> {
         let mut settings = EnvironmentSettings {
             strength: self.environment_strength,
             rotation_degrees: self.environment_rotation,
