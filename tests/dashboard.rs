@@ -563,6 +563,15 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
         .select_by_value("mis")
         .await
         .expect("choose MIS");
+    // A uniform environment, white at strength 0.5.
+    b.click("[data-testid=submit-environment-section] summary")
+        .await;
+    b.find("#env_kind")
+        .await
+        .select_by_value("uniform")
+        .await
+        .expect("choose a uniform environment");
+    b.type_into("#env_strength", "0.5").await;
     let scene = std::fs::canonicalize(SCENE).expect("scenes/cornell.gltf");
     b.find("#scene")
         .await
@@ -595,8 +604,29 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
         job1.settings
     );
     assert_eq!(job1.priority, 5);
+    let env = job1
+        .settings
+        .environment
+        .as_ref()
+        .expect("the form's environment");
+    assert_eq!(
+        (
+            env.radiance,
+            env.image.as_deref(),
+            env.strength,
+            env.rotation_degrees
+        ),
+        (Some([1.0, 1.0, 1.0]), None, 0.5, 0.0),
+        "{env:?}"
+    );
     b.wait_text("the job's name", "[data-testid=job-title]", |t| t == name)
         .await;
+    b.wait_text(
+        "the job's environment",
+        "[data-testid=job-environment]",
+        |t| t == "uniform 1, 1, 1, strength 0.5",
+    )
+    .await;
 
     // A second job, below the first in priority so it waits in the queue; cancelled later.
     let mut settings = JobSettings::new(WIDTH, HEIGHT, 4096);
@@ -868,6 +898,36 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
     let lost = ws.iter().find(|w| w.name == "local-2").expect("local-2");
     assert_eq!(lost.state, WorkerState::Lost);
     b.screenshot("workers-lost").await;
+
+    // ---- a scene with a feature the renderer ignores: its warning on the job page
+    let mut gltf: Value = serde_json::from_slice(&std::fs::read(&scene).expect("read the scene"))
+        .expect("the scene is JSON");
+    gltf["extensionsUsed"] = json!(["KHR_materials_iridescence"]);
+    let mut small = JobSettings::new(8, 8, 1);
+    small.name = Some(format!("iridescent-{variant}"));
+    let id3 = api
+        .submit(
+            serde_json::to_vec(&gltf).expect("encode the scene"),
+            "iridescent.gltf",
+            &small,
+        )
+        .await
+        .expect("submit the iridescent scene")
+        .id;
+    b.goto(&format!("{url}/#/jobs/{id3}")).await;
+    let warning = b
+        .wait_text("the scene's warning", "[data-testid=job-warning]", |t| {
+            !t.is_empty()
+        })
+        .await;
+    assert!(
+        warning.contains("KHR_materials_iridescence"),
+        "the job page shows {warning:?}"
+    );
+    b.wait_text("no environment", "[data-testid=job-environment]", |t| {
+        t == "none"
+    })
+    .await;
 
     // ---- a phone: one column, nothing wider than the screen
     b.client

@@ -501,3 +501,130 @@ async fn configuration_file_flags_win_over_it() {
         "{err}"
     );
 }
+
+/// A small equirectangular sky as a Radiance `.hdr` file, written into the test's directory.
+fn write_hdr_sky(path: &std::path::Path) {
+    let (width, height) = (16usize, 8usize);
+    let pixels: Vec<image::Rgb<f32>> = (0..width * height)
+        .map(|i| {
+            let (x, y) = (i % width, i / width);
+            if (x, y) == (4, 2) {
+                image::Rgb([30.0, 25.0, 20.0])
+            } else {
+                image::Rgb([0.2 + x as f32 / 16.0, 0.4, 1.0 - y as f32 / 10.0])
+            }
+        })
+        .collect();
+    let mut out = Vec::new();
+    image::codecs::hdr::HdrEncoder::new(&mut out)
+        .encode(&pixels, width, height)
+        .expect("encode the sky");
+    std::fs::write(path, out).expect("write the sky");
+}
+
+/// `pathfarm submit` with the environment flags of `pathfarm render` (an uploaded image, then a
+/// uniform radiance) gives an EXR byte-identical to `pathfarm render` with the same flags, and
+/// `pathfarm job ID` shows the environment and the scene loader's warnings.
+#[tokio::test(flavor = "multi_thread")]
+async fn submit_with_an_environment_matches_render_with_it() {
+    let farm = Farm::new("environment");
+    let _server = farm.serve("server", &[]).await;
+    let _worker = farm.worker("w", 3);
+    let sky = farm.dir.arg("sky.hdr");
+    write_hdr_sky(std::path::Path::new(&sky));
+    let flags = |env: &[&'static str]| {
+        let mut f = vec![
+            "--width", "32", "--height", "24", "--spp", "6", "--seed", "5",
+        ];
+        f.extend_from_slice(env);
+        f
+    };
+    let image_env = [
+        "--environment-strength",
+        "2.5",
+        "--environment-rotation",
+        "-40",
+    ];
+    let mut with_image: Vec<&str> = flags(&image_env);
+    with_image.extend_from_slice(&["--environment", &sky]);
+    let uniform = flags(&[
+        "--environment",
+        "0.3,0.5,0.8",
+        "--environment-strength",
+        "1.7",
+    ]);
+    for (what, settings) in [("image", with_image), ("uniform", uniform)] {
+        let reference = render_reference(&farm.dir, &format!("local-{what}.exr"), &settings);
+        let out_path = farm.dir.arg(&format!("farm-{what}.exr"));
+        let mut args = vec!["submit", SCENE, "--server", &farm.url];
+        args.extend_from_slice(&settings);
+        args.extend_from_slice(&["--tile", "16", "--wait", "--out", &out_path]);
+        let out = run_cli(&farm.dir, &args, Duration::from_secs(120)).await;
+        assert_success(&out, "pathfarm submit --environment --wait");
+        let id = String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_string();
+        let farm_exr = std::fs::read(&out_path).expect("read the farm's EXR");
+        let local = reference.await.expect("the local render task");
+        assert_same_bytes(&farm_exr, &local, what);
+
+        let shown = run_cli(
+            &farm.dir,
+            &["job", &id, "--server", &farm.url],
+            Duration::from_secs(30),
+        )
+        .await;
+        assert_success(&shown, "pathfarm job");
+        let text = String::from_utf8_lossy(&shown.stdout);
+        let expected = match what {
+            "image" => "environment: image ",
+            _ => "environment: radiance 0.3,0.5,0.8, strength 1.7",
+        };
+        assert!(text.contains(expected), "{what}: {text}");
+    }
+
+    // A scene with an extension the tracer ignores: `job` shows the warning, `job --json` has it.
+    let mut gltf: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(SCENE).unwrap()).unwrap();
+    gltf["extensionsUsed"] = serde_json::json!(["KHR_materials_iridescence"]);
+    let scene = farm.dir.arg("iridescent.gltf");
+    std::fs::write(&scene, serde_json::to_vec(&gltf).unwrap()).unwrap();
+    let out = run_cli(
+        &farm.dir,
+        &[
+            "submit", &scene, "--server", &farm.url, "--width", "8", "--height", "8", "--spp", "1",
+        ],
+        Duration::from_secs(30),
+    )
+    .await;
+    assert_success(&out, "pathfarm submit");
+    let id = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    let shown = run_cli(
+        &farm.dir,
+        &["job", &id, "--server", &farm.url],
+        Duration::from_secs(30),
+    )
+    .await;
+    let text = String::from_utf8_lossy(&shown.stdout);
+    assert!(
+        text.contains("scene warnings (") && text.contains("KHR_materials_iridescence"),
+        "{text}"
+    );
+    let json = run_cli(
+        &farm.dir,
+        &["job", &id, "--json", "--server", &farm.url],
+        Duration::from_secs(30),
+    )
+    .await;
+    let view: pathfarm_wire::api::JobView =
+        serde_json::from_slice(&json.stdout).expect("job --json is a job view");
+    assert!(
+        view.warnings
+            .iter()
+            .any(|w| w.contains("KHR_materials_iridescence")),
+        "{view:?}"
+    );
+}

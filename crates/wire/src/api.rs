@@ -99,6 +99,43 @@ fn default_tile() -> u32 {
     64
 }
 
+fn one() -> f32 {
+    1.0
+}
+
+/// A job's environment light: radiance from every direction a ray leaves the scene in, what
+/// `pathfarm render --environment` gives a local render. Exactly one of `radiance` (one linear
+/// colour) and `image` (the SHA-256 of an equirectangular OpenEXR or Radiance `.hdr` image the
+/// server stores: uploaded as the submission's `environment` part, which sets it, or one it already
+/// has). [`EnvironmentSettings::build`] makes the tracer's environment from it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvironmentSettings {
+    /// Linear RGB radiance, the same from every direction.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radiance: Option<[f32; 3]>,
+    /// Lowercase hexadecimal SHA-256 of the image's bytes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<String>,
+    /// Multiplies the radiance (`--environment-strength`).
+    #[serde(default = "one")]
+    pub strength: f32,
+    /// Turns the image about the up axis (`--environment-rotation`).
+    #[serde(default)]
+    pub rotation_degrees: f32,
+}
+
+impl Default for EnvironmentSettings {
+    fn default() -> Self {
+        EnvironmentSettings {
+            radiance: None,
+            image: None,
+            strength: 1.0,
+            rotation_degrees: 0.0,
+        }
+    }
+}
+
 /// Everything a job is rendered with besides its scene: the JSON `settings` part of a submission.
 /// The render-relevant fields mean exactly what the same `pathfarm render` flags mean, so a farm job
 /// and a local render with equal settings give bit-identical images.
@@ -144,6 +181,9 @@ pub struct JobSettings {
     /// Stop after this many seconds of rendering.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time_limit_s: Option<f64>,
+    /// The environment light; absent: none (rays that escape see black).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub environment: Option<EnvironmentSettings>,
 }
 
 impl JobSettings {
@@ -164,6 +204,7 @@ impl JobSettings {
             priority: 0,
             noise_target: None,
             time_limit_s: None,
+            environment: None,
         }
     }
 
@@ -313,6 +354,10 @@ pub struct JobView {
     /// Why a job ended early (noise target, time limit) or failed.
     pub message: Option<String>,
     pub leased_tasks: u64,
+    /// What the scene loader ignored (unsupported extensions and features), one line each, as the
+    /// server found them when the job was submitted.
+    #[serde(default)]
+    pub warnings: Vec<String>,
     /// Per-tile progress (only in the single-job view).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tiles: Option<Vec<TileProgress>>,

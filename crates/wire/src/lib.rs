@@ -6,11 +6,15 @@
 //! range) in [`slice`].
 
 pub mod api;
+pub mod environment;
 #[doc(hidden)]
 pub mod fuzzing; // the checks of the fuzz targets (fuzz/), shared with tests/fuzz_corpus.rs
 pub mod slice;
 mod varint;
 
+pub use environment::{
+    build_environment, is_sha256_hex, EnvironmentSettingsError, EnvironmentSource,
+};
 pub use slice::{
     decode_slice, decode_slice_header, encode_slice, max_sample_sums, max_slice_body_bytes, Slice,
     SliceError, SliceHeader, SliceLimits, SLICE_MAGIC, SLICE_VERSION,

@@ -273,9 +273,22 @@ impl ApiClient {
         file_name: &str,
         settings: &JobSettings,
     ) -> Result<JobCreated, ClientError> {
+        self.submit_with_environment(scene, file_name, settings, None)
+            .await
+    }
+
+    /// A submission with an `environment` part: the image's bytes and file name. The server sets
+    /// `settings.environment.image` to its hash (the settings may give its strength and rotation).
+    pub async fn submit_with_environment(
+        &self,
+        scene: Vec<u8>,
+        file_name: &str,
+        settings: &JobSettings,
+        environment: Option<(Vec<u8>, String)>,
+    ) -> Result<JobCreated, ClientError> {
         let settings =
             serde_json::to_vec(settings).map_err(|e| ClientError::Protocol(e.to_string()))?;
-        let form = reqwest::multipart::Form::new()
+        let mut form = reqwest::multipart::Form::new()
             .part(
                 "scene",
                 reqwest::multipart::Part::bytes(scene)
@@ -289,6 +302,15 @@ impl ApiClient {
                     .mime_str("application/json")
                     .map_err(ClientError::Transport)?,
             );
+        if let Some((bytes, name)) = environment {
+            form = form.part(
+                "environment",
+                reqwest::multipart::Part::bytes(bytes)
+                    .file_name(name)
+                    .mime_str("application/octet-stream")
+                    .map_err(ClientError::Transport)?,
+            );
+        }
         Self::json(
             self.request(Method::POST, "/api/v1/jobs")
                 .timeout(BULK_TIMEOUT)

@@ -355,7 +355,12 @@ async fn work_on(
 ) -> Result<(), TaskError> {
     let client = &session.client;
     let scene = match cache
-        .get(client, &lease.scene_hash, lease.settings.camera.clone())
+        .get(
+            client,
+            &lease.scene_hash,
+            lease.settings.camera.clone(),
+            lease.settings.environment.as_ref(),
+        )
         .await
     {
         Ok(s) => s,

@@ -1,9 +1,12 @@
 //! Scenes by content hash: in memory (the last few, loaded) and on disk (the bytes), so a worker
-//! fetches each scene once and loads it once however many of its tasks it renders.
+//! fetches each scene once and loads it once however many of its tasks it renders. A job's
+//! environment image is fetched and cached the same way (by its hash, from the same route), and a
+//! loaded scene is kept per (scene hash, camera, environment settings), lit by its environment.
 
 use crate::client::{ApiClient, ClientError};
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::Scene;
+use pathfarm_wire::api::EnvironmentSettings;
 use sha2::{Digest, Sha256};
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -18,6 +21,8 @@ pub enum SceneError {
     Hash { hash: String, got: String },
     #[error("scene {hash}: {message}")]
     Load { hash: String, message: String },
+    #[error("environment of scene {hash}: {message}")]
+    Environment { hash: String, message: String },
     #[error("scene {hash} failed {failures} time(s) in a row; not tried again for {left:?}")]
     CoolingDown {
         hash: String,
@@ -35,7 +40,8 @@ const LOADED: usize = 2;
 pub const COOLDOWN: Duration = Duration::from_secs(2);
 pub const COOLDOWN_MAX: Duration = Duration::from_secs(60);
 
-type Key = (String, Option<String>);
+/// (scene hash, camera, environment settings as JSON): what a loaded scene is for.
+type Key = (String, Option<String>, Option<String>);
 
 struct Failure {
     count: u32,
@@ -44,7 +50,7 @@ struct Failure {
 
 pub struct SceneCache {
     dir: Option<PathBuf>,
-    loaded: Vec<(String, Option<String>, Arc<Scene>)>,
+    loaded: Vec<(Key, Arc<Scene>)>,
     failed: HashMap<Key, Failure>,
 }
 
@@ -62,15 +68,20 @@ impl SceneCache {
         }
     }
 
-    /// The loaded scene `hash` with `camera`, fetched from the server when it is not cached.
-    /// Fails at once, with [`SceneError::CoolingDown`], while an earlier failure's cooldown lasts.
+    /// The loaded scene `hash` with `camera`, lit by `environment`, fetched from the server (the
+    /// scene and the environment image) when it is not cached. Fails at once, with
+    /// [`SceneError::CoolingDown`], while an earlier failure's cooldown lasts.
     pub async fn get(
         &mut self,
         client: &ApiClient,
         hash: &str,
         camera: Option<String>,
+        environment: Option<&EnvironmentSettings>,
     ) -> Result<Arc<Scene>, SceneError> {
-        let key = (hash.to_string(), camera.clone());
+        // The settings' JSON: equal settings (to the bit: the numbers are written exactly) give
+        // equal keys.
+        let env_key = environment.map(|e| serde_json::to_string(e).unwrap_or_default());
+        let key = (hash.to_string(), camera, env_key);
         let now = Instant::now();
         if let Some(f) = self.failed.get(&key) {
             if now < f.until {
@@ -81,7 +92,7 @@ impl SceneCache {
                 });
             }
         }
-        let result = self.fetch_and_load(client, hash, camera).await;
+        let result = self.fetch_and_load(client, &key, environment).await;
         match &result {
             Ok(_) => {
                 self.failed.remove(&key);
@@ -109,23 +120,77 @@ impl SceneCache {
     async fn fetch_and_load(
         &mut self,
         client: &ApiClient,
-        hash: &str,
-        camera: Option<String>,
+        key: &Key,
+        environment: Option<&EnvironmentSettings>,
     ) -> Result<Arc<Scene>, SceneError> {
-        if let Some((_, _, s)) = self
-            .loaded
-            .iter()
-            .find(|(h, c, _)| h == hash && *c == camera)
-        {
+        if let Some((_, s)) = self.loaded.iter().find(|(k, _)| k == key) {
             return Ok(s.clone());
         }
+        let (hash, camera) = (key.0.as_str(), key.1.clone());
+        let bytes = self.bytes(client, hash, "scene").await?;
+        let image = match environment.and_then(|e| e.image.as_deref()) {
+            Some(image) => Some(self.bytes(client, image, "environment").await.map_err(
+                |e| match e {
+                    SceneError::Load { message, .. } => SceneError::Environment {
+                        hash: hash.into(),
+                        message: format!("image {image}: {message}"),
+                    },
+                    e => e,
+                },
+            )?),
+            None => None,
+        };
+        let environment = environment.cloned();
+        let scene = tokio::task::spawn_blocking(move || {
+            let scene = gltf::load(
+                &bytes,
+                &NoExternalResources,
+                &LoadOptions {
+                    camera,
+                    ..LoadOptions::default()
+                },
+            )
+            .map_err(|e| e.to_string())?;
+            // The environment exactly as `pathfarm render` builds it (one function, in the wire
+            // crate), so the job's image keeps the local render's bits.
+            let env = environment
+                .map(|e| e.build(image.as_deref()))
+                .transpose()
+                .map_err(|e| e.to_string())?;
+            Ok::<_, String>(scene.with_environment(env))
+        })
+        .await
+        .map_err(|e| SceneError::Load {
+            hash: hash.into(),
+            message: e.to_string(),
+        })?
+        .map_err(|message| SceneError::Load {
+            hash: hash.into(),
+            message,
+        })?;
+        let scene = Arc::new(scene);
+        if self.loaded.len() >= LOADED {
+            self.loaded.remove(0);
+        }
+        self.loaded.push((key.clone(), scene.clone()));
+        Ok(scene)
+    }
+
+    /// The bytes of the blob `hash` (a scene or an environment image), from the disk cache or
+    /// the server, checked against their hash. `what` names the cache file's kind.
+    async fn bytes(
+        &self,
+        client: &ApiClient,
+        hash: &str,
+        what: &str,
+    ) -> Result<Vec<u8>, SceneError> {
         if !is_hash(hash) {
             return Err(SceneError::Load {
                 hash: hash.into(),
-                message: "not a scene hash".into(),
+                message: format!("not a {what} hash"),
             });
         }
-        let path = self.dir.as_ref().map(|d| d.join(format!("{hash}.scene")));
+        let path = self.dir.as_ref().map(|d| d.join(format!("{hash}.{what}")));
         let cached = match &path {
             Some(p) => tokio::task::spawn_blocking({
                 let p = p.clone();
@@ -136,66 +201,42 @@ impl SceneCache {
             .flatten(),
             None => None,
         };
-        let bytes = match cached.filter(|b| hex::encode(Sha256::digest(b)) == hash) {
-            Some(b) => b,
-            None => {
-                let b = client.scene(hash).await?;
-                let got = hex::encode(Sha256::digest(&b));
-                if got != hash {
-                    return Err(SceneError::Hash {
-                        hash: hash.into(),
-                        got,
-                    });
-                }
-                match (&path, &self.dir) {
-                    (Some(p), Some(dir)) => {
-                        // A cache that cannot be written only costs a fetch next time.
-                        let (p, dir) = (p.clone(), dir.clone());
-                        let (b, written) = tokio::task::spawn_blocking(move || {
-                            let written = std::fs::create_dir_all(&dir)
-                                .and_then(|_| crate::files::write_atomic(&p, &b))
-                                .map_err(|e| format!("{}: {e}", dir.display()));
-                            (b, written)
-                        })
-                        .await
-                        .map_err(|e| SceneError::Load {
+        Ok(
+            match cached.filter(|b| hex::encode(Sha256::digest(b)) == hash) {
+                Some(b) => b,
+                None => {
+                    let b = client.scene(hash).await?;
+                    let got = hex::encode(Sha256::digest(&b));
+                    if got != hash {
+                        return Err(SceneError::Hash {
                             hash: hash.into(),
-                            message: e.to_string(),
-                        })?;
-                        if let Err(e) = written {
-                            tracing::warn!(error = %e, "cannot cache the scene on disk");
-                        }
-                        b
+                            got,
+                        });
                     }
-                    _ => b,
+                    match (&path, &self.dir) {
+                        (Some(p), Some(dir)) => {
+                            // A cache that cannot be written only costs a fetch next time.
+                            let (p, dir) = (p.clone(), dir.clone());
+                            let (b, written) = tokio::task::spawn_blocking(move || {
+                                let written = std::fs::create_dir_all(&dir)
+                                    .and_then(|_| crate::files::write_atomic(&p, &b))
+                                    .map_err(|e| format!("{}: {e}", dir.display()));
+                                (b, written)
+                            })
+                            .await
+                            .map_err(|e| SceneError::Load {
+                                hash: hash.into(),
+                                message: e.to_string(),
+                            })?;
+                            if let Err(e) = written {
+                                tracing::warn!(error = %e, "cannot cache the {what} on disk");
+                            }
+                            b
+                        }
+                        _ => b,
+                    }
                 }
-            }
-        };
-        let cam = camera.clone();
-        let scene = tokio::task::spawn_blocking(move || {
-            gltf::load(
-                &bytes,
-                &NoExternalResources,
-                &LoadOptions {
-                    camera: cam,
-                    ..LoadOptions::default()
-                },
-            )
-        })
-        .await
-        .map_err(|e| SceneError::Load {
-            hash: hash.into(),
-            message: e.to_string(),
-        })?
-        .map_err(|e| SceneError::Load {
-            hash: hash.into(),
-            message: e.to_string(),
-        })?;
-        let scene = Arc::new(scene);
-        if self.loaded.len() >= LOADED {
-            self.loaded.remove(0);
-        }
-        self.loaded.push((hash.to_string(), camera, scene.clone()));
-        Ok(scene)
+            },
+        )
     }
 }

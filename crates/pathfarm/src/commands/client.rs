@@ -1,10 +1,10 @@
 //! The command-line client: `submit`, `jobs`, `job`, `cancel`.
 
-use super::render::SettingsArgs;
+use super::render::{EnvironmentArgs, SettingsArgs};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use pathfarm_wire::api::{JobSettings, JobView};
+use pathfarm_wire::api::{EnvironmentSettings, JobSettings, JobView};
 use pathfarm_worker::client::{ApiClient, ClientError};
 use std::future::Future;
 use std::path::{Path, PathBuf};
@@ -36,6 +36,8 @@ pub struct SubmitArgs {
     pub scene: PathBuf,
     #[command(flatten)]
     pub settings: SettingsArgs,
+    #[command(flatten)]
+    pub environment: EnvironmentArgs,
     /// Tile size in pixels (does not change the result).
     #[arg(long, default_value_t = 64)]
     pub tile: u32,
@@ -123,6 +125,10 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
     let client = args.client.client()?;
     let bytes = std::fs::read(&args.scene)
         .with_context(|| format!("cannot read {}", args.scene.display()))?;
+    let (environment, environment_image) = match args.environment.job_settings()? {
+        Some((settings, image)) => (Some(settings), image),
+        None => (None, None),
+    };
     let s = &args.settings;
     let mut settings = JobSettings::new(s.width, s.height, s.spp);
     settings.seed = s.seed;
@@ -136,13 +142,14 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
     settings.priority = args.priority;
     settings.name = args.name.clone();
     settings.camera = args.camera.clone();
+    settings.environment = environment;
     let file_name = args
         .scene
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "scene".into());
     let created = client
-        .submit(bytes, &file_name, &settings)
+        .submit_with_environment(bytes, &file_name, &settings, environment_image)
         .await
         .with_context(|| format!("submitting {}", args.scene.display()))?;
     println!("{}", created.id);
@@ -205,6 +212,33 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
         bail!("job {} ended {}", job.id, job.state.as_str());
     }
     Ok(())
+}
+
+/// One line: the environment as `render` flags would give it.
+fn environment_line(e: &EnvironmentSettings) -> String {
+    let source = match (&e.radiance, &e.image) {
+        (Some([r, g, b]), _) => format!("radiance {r},{g},{b}"),
+        (None, Some(hash)) => format!("image {hash}"),
+        (None, None) => "none".into(),
+    };
+    format!(
+        "{source}, strength {}, rotation {}°",
+        e.strength, e.rotation_degrees
+    )
+}
+
+/// The job's summary, its environment and the scene loader's warnings.
+fn print_details(j: &JobView) {
+    print_summary(j);
+    if let Some(e) = &j.settings.environment {
+        println!("environment: {}", environment_line(e));
+    }
+    if !j.warnings.is_empty() {
+        println!("scene warnings ({}):", j.warnings.len());
+        for w in &j.warnings {
+            println!("  {w}");
+        }
+    }
 }
 
 fn print_summary(j: &JobView) {
@@ -283,7 +317,7 @@ pub async fn job(args: JobArgs) -> Result<()> {
     if args.json {
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
-        print_summary(&j);
+        print_details(&j);
     }
     Ok(())
 }

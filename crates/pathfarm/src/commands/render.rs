@@ -11,6 +11,8 @@ use pathfarm_tracer::{
     render_image, render_sample, Accumulation, DirectStrategy, RenderSettings, RussianRoulette,
     SamplerKind, Scene,
 };
+use pathfarm_wire::api::EnvironmentSettings;
+use pathfarm_wire::{build_environment, EnvironmentSource as WireSource};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -78,6 +80,9 @@ pub struct EnvironmentArgs {
     pub environment_rotation: f32,
 }
 
+/// A job's environment settings and the image to upload with them (bytes, file name), if any.
+pub type JobEnvironment = (EnvironmentSettings, Option<(Vec<u8>, String)>);
+
 /// What `--environment` names.
 pub enum EnvironmentSource {
     Radiance(glam::Vec3),
@@ -96,27 +101,57 @@ impl EnvironmentArgs {
         })
     }
 
-    /// The environment for a local render, or None.
+    /// The environment for a local render, or None. Built by the wire crate's
+    /// `build_environment`, the function a farm worker builds a job's environment with, so a
+    /// render and a farm job with the same flags light the scene with the same bits.
     pub fn load(&self) -> Result<Option<Environment>> {
+        let (strength, rotation) = (self.environment_strength, self.environment_rotation);
         let env = match self.source() {
             None => return Ok(None),
             Some(EnvironmentSource::Radiance(l)) => {
-                Environment::uniform(l * self.environment_strength)
+                build_environment(WireSource::Radiance(l.to_array()), strength, rotation)
                     .context("invalid --environment radiance or --environment-strength")?
             }
             Some(EnvironmentSource::Image(path)) => {
                 let bytes = std::fs::read(&path).with_context(|| {
                     format!("cannot read the environment image {}", path.display())
                 })?;
-                Environment::from_image(
-                    &bytes,
-                    self.environment_strength,
-                    self.environment_rotation,
-                )
-                .with_context(|| format!("cannot load the environment {}", path.display()))?
+                build_environment(WireSource::Image(&bytes), strength, rotation)
+                    .with_context(|| format!("cannot load the environment {}", path.display()))?
             }
         };
         Ok(Some(env))
+    }
+
+    /// The environment as a job's settings, and the image to upload with it (its bytes and file
+    /// name), for `submit`. The image's hash is set by the server from the uploaded part.
+    pub fn job_settings(&self) -> Result<Option<JobEnvironment>> {
+        let mut settings = EnvironmentSettings {
+            strength: self.environment_strength,
+            rotation_degrees: self.environment_rotation,
+            ..EnvironmentSettings::default()
+        };
+        Ok(Some(match self.source() {
+            None => return Ok(None),
+            Some(EnvironmentSource::Radiance(l)) => {
+                settings.radiance = Some(l.to_array());
+                settings.validate().context(
+                    "invalid --environment radiance, --environment-strength or \
+                     --environment-rotation",
+                )?;
+                (settings, None)
+            }
+            Some(EnvironmentSource::Image(path)) => {
+                let bytes = std::fs::read(&path).with_context(|| {
+                    format!("cannot read the environment image {}", path.display())
+                })?;
+                let name = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "environment".into());
+                (settings, Some((bytes, name)))
+            }
+        }))
     }
 }
 

@@ -122,10 +122,11 @@ export const api = {
   setPriority: (id, priority) =>
     sendJson('PATCH', `/jobs/${encodeURIComponent(id)}`, { priority }).then((r) => r.json()),
   remove: (id) => sendJson('DELETE', `/jobs/${encodeURIComponent(id)}`),
-  submit: (sceneFile, settings) => {
+  submit: (sceneFile, settings, environmentFile) => {
     const form = new FormData();
     form.append('scene', sceneFile, sceneFile.name);
     form.append('settings', new Blob([JSON.stringify(settings)], { type: 'application/json' }));
+    if (environmentFile) form.append('environment', environmentFile, environmentFile.name);
     return request('/jobs', { method: 'POST', body: form }).then((r) => r.json());
   },
 };

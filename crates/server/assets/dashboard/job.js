@@ -66,6 +66,8 @@ export function mount(root, pageSignal, _query, id) {
   const stats = el('dl', { class: 'stats', dataset: { testid: 'job-stats' } });
   const settings = el('dl', { class: 'settings', dataset: { testid: 'job-settings' } });
   const message = el('p', { class: 'message', hidden: true, dataset: { testid: 'job-message' } });
+  // What the scene loader ignored, as the server found it at submission (it never changes).
+  const warnings = el('section', { class: 'warnings', hidden: true, 'aria-labelledby': 'warnings-title', dataset: { testid: 'job-warnings' } });
   const errorBox = el('div', { class: 'chart', dataset: { testid: 'error-chart', points: '0' } });
   const errorSummary = el('p', { class: 'muted chart-summary' });
   const rateBox = el('div', { class: 'chart', dataset: { testid: 'rate-chart', points: '0' } });
@@ -83,6 +85,7 @@ export function mount(root, pageSignal, _query, id) {
   root.replaceChildren(el('article', { class: 'job', 'aria-labelledby': 'job-title' },
     el('div', { class: 'page-head' }, el('p', { class: 'crumb' }, el('a', { href: '#/jobs' }, '← Jobs')), title, badge, headActions),
     message,
+    warnings,
     el('div', { class: 'job-grid' },
       el('section', { class: 'preview-section', 'aria-label': 'Progress image' },
         el('figure', { class: 'preview' }, stage, caption), controls),
@@ -181,6 +184,7 @@ export function mount(root, pageSignal, _query, id) {
       el('span', { class: 'priority-box' }, el('label', { for: 'job-priority' }, 'Priority '), priority),
       actionButtons(() => job, after));
     fillSettings(settings, job);
+    fillWarnings(warnings, job);
   }
 
   function fill() {
@@ -257,6 +261,28 @@ function fillStats(dl, job) {
   dl.querySelector('progress').value = p;
 }
 
+// The environment light as the render flags give it: a colour or an image (by its hash), its
+// strength and rotation.
+export function environmentText(e) {
+  if (!e) return 'none';
+  const source = e.radiance
+    ? `uniform ${e.radiance.map((c) => String(c)).join(', ')}`
+    : `image ${String(e.image).slice(0, 12)}…`;
+  const parts = [source];
+  if (e.strength !== 1) parts.push(`strength ${e.strength}`);
+  if (e.rotation_degrees) parts.push(`rotated ${e.rotation_degrees}°`);
+  return parts.join(', ');
+}
+
+function fillWarnings(section, job) {
+  const list = job.warnings || [];
+  section.hidden = list.length === 0;
+  section.replaceChildren(
+    el('h2', { id: 'warnings-title' }, `Scene warnings (${list.length})`),
+    el('p', { class: 'muted' }, 'Features of the scene the renderer ignored:'),
+    el('ul', {}, list.map((w) => el('li', { dataset: { testid: 'job-warning' } }, w))));
+}
+
 function fillSettings(dl, job) {
   const s = job.settings;
   const rows = [
@@ -271,6 +297,7 @@ function fillSettings(dl, job) {
     ['Camera', s.camera ?? 'first in the scene'],
     ['Noise target', s.noise_target ? fmtError(s.noise_target) : '–'],
     ['Time limit', s.time_limit_s ? fmtDuration(s.time_limit_s) : '–'],
+    ['Environment', el('span', { title: s.environment?.image ?? '', dataset: { testid: 'job-environment' } }, environmentText(s.environment))],
     ['Scene', el('code', { title: job.scene_hash }, job.scene_hash.slice(0, 12) + '…')],
     ['Submitted', fmtTime(job.created_at_ms)],
     ['Started', fmtTime(job.started_at_ms)],

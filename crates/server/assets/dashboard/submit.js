@@ -1,6 +1,7 @@
 // The submit page: a scene file and its render settings, sent as POST /jobs (multipart `scene` +
-// `settings`). The server loads the scene before accepting it, so a broken one comes back as a
-// 422 whose message is shown next to the form.
+// `settings`, and `environment` when an environment image is chosen). The server loads the scene
+// and the environment before accepting them, so a broken one comes back as a 422 whose message is
+// shown next to the form.
 
 import { api } from './api.js';
 import { el } from './util.js';
@@ -56,6 +57,18 @@ export function mount(root) {
       el('div', { class: 'row' },
         field('time_limit_s', 'Time limit (s)', num({ min: 0, step: 'any', placeholder: 'none', inputmode: 'decimal' })),
         field('camera', 'Camera', el('input', { type: 'text', placeholder: 'the first one' })))),
+    el('details', { dataset: { testid: 'submit-environment-section' } }, el('summary', {}, 'Environment light'),
+      field('env_kind', 'Environment', el('select', {},
+        el('option', { value: 'none' }, 'None (rays that leave the scene see black)'),
+        el('option', { value: 'image' }, 'Image (.exr or .hdr, equirectangular)'),
+        el('option', { value: 'uniform' }, 'Uniform colour'))),
+      field('env_image', 'Environment image',
+        el('input', { type: 'file', accept: '.exr,.hdr,image/x-exr,image/vnd.radiance' }),
+        'Mapped as Blender’s Environment Texture maps it (its centre faces +X, its top row is up).'),
+      el('div', { class: 'row' },
+        field('env_color', 'Colour', el('input', { type: 'color', value: '#ffffff' }), 'Linear RGB, 0–1 per channel.'),
+        field('env_strength', 'Strength', num({ min: 0, step: 'any', value: 1, inputmode: 'decimal' })),
+        field('env_rotation', 'Rotation (°)', num({ step: 'any', value: 0, inputmode: 'decimal' }), 'About the up axis.'))),
     error,
     el('div', { class: 'buttons' }, button));
 
@@ -81,10 +94,30 @@ export function mount(root) {
     if (v('max_depth')) settings.max_depth = Number(v('max_depth'));
     if (v('camera')) settings.camera = v('camera');
     const file = form.elements.scene.files[0];
+    // The environment: a uniform colour in the settings, or an image uploaded as its own part
+    // (the server fills in its hash); strength and rotation ride in the settings either way.
+    let envFile = null;
+    const kind = v('env_kind');
+    if (kind !== 'none') {
+      const env = { strength: Number(v('env_strength') || 1), rotation_degrees: Number(v('env_rotation') || 0) };
+      if (kind === 'uniform') {
+        const hex = v('env_color');
+        env.radiance = [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16) / 255);
+      } else {
+        envFile = form.elements.env_image.files[0];
+        if (!envFile) {
+          error.textContent = 'Choose an environment image, or set the environment to none.';
+          error.hidden = false;
+          error.focus();
+          return;
+        }
+      }
+      settings.environment = env;
+    }
     button.disabled = true;
     button.textContent = 'Submitting…';
     try {
-      const created = await api.submit(file, settings);
+      const created = await api.submit(file, settings, envFile);
       location.hash = `#/jobs/${created.id}`;
     } catch (e) {
       // The server's own words: it loaded the scene and knows what is wrong with it.

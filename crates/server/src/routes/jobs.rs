@@ -46,9 +46,49 @@ fn multipart_error(e: MultipartError, state: &AppState) -> ApiError {
     }
 }
 
-/// `POST /api/v1/jobs`: multipart with a `scene` part (.glb or .gltf with embedded data) and a
-/// `settings` part (JSON [`JobSettings`]). The scene is loaded here, so a broken one is refused
-/// with a 422 before any job exists.
+/// Most bytes of scene-loader warnings kept with a job (each warning is also cut to
+/// [`MAX_WARNING_BYTES`]); the loader reports at most 100.
+pub const MAX_WARNINGS_BYTES: usize = 16 << 10;
+/// Most bytes of one warning kept.
+pub const MAX_WARNING_BYTES: usize = 1024;
+
+/// The loader's warnings as a job keeps them: control characters (NUL included, which no store
+/// takes) removed, each cut to [`MAX_WARNING_BYTES`] and all together to [`MAX_WARNINGS_BYTES`]
+/// (a last line then says how many were left out).
+pub(crate) fn clean_warnings(warnings: &[String]) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut total = 0;
+    for (i, w) in warnings.iter().enumerate() {
+        let mut w: String = w.chars().filter(|c| !c.is_control()).collect();
+        if w.len() > MAX_WARNING_BYTES {
+            let mut end = MAX_WARNING_BYTES;
+            while !w.is_char_boundary(end) {
+                end -= 1;
+            }
+            w.truncate(end);
+            w.push('…');
+        }
+        if total + w.len() > MAX_WARNINGS_BYTES {
+            out.push(format!("… and {} more warnings", warnings.len() - i));
+            break;
+        }
+        total += w.len();
+        out.push(w);
+    }
+    out
+}
+
+/// Why a submission's scene or environment cannot be rendered (found on a blocking thread).
+enum CheckError {
+    Scene(String),
+    Environment(String),
+}
+
+/// `POST /api/v1/jobs`: multipart with a `scene` part (.glb or .gltf with embedded data), a
+/// `settings` part (JSON [`JobSettings`]) and optionally an `environment` part (an equirectangular
+/// .exr or .hdr image, which becomes `settings.environment.image`). The scene and the environment
+/// are loaded here, as a worker will load them, so a broken one is refused with a 422 before any
+/// job exists.
 pub async fn submit(
     _: ClientAuth,
     State(state): State<AppState>,
@@ -63,6 +103,7 @@ pub async fn submit(
     })?;
     let mut scene: Option<Bytes> = None;
     let mut settings: Option<JobSettings> = None;
+    let mut environment: Option<Bytes> = None;
     let mut file_name: Option<String> = None;
     while let Some(field) = multipart
         .next_field()
@@ -88,10 +129,21 @@ pub async fn submit(
                     ApiError::unprocessable("invalid_settings", format!("settings: {e}"))
                 })?);
             }
+            Some("environment") => {
+                environment = Some(
+                    field
+                        .bytes()
+                        .await
+                        .map_err(|e| multipart_error(e, &state))?,
+                );
+            }
             Some(other) => {
                 return Err(ApiError::bad_request(
                     "bad_multipart",
-                    format!("unexpected part {other:?} (expected `scene` and `settings`)"),
+                    format!(
+                        "unexpected part {other:?} (expected `scene`, `settings` and optionally \
+                         `environment`)"
+                    ),
                 ))
             }
             None => return Err(ApiError::bad_request("bad_multipart", "a part has no name")),
@@ -99,22 +151,29 @@ pub async fn submit(
     }
     let scene =
         scene.ok_or_else(|| ApiError::bad_request("bad_multipart", "missing the `scene` part"))?;
-    let settings = settings
+    let mut settings = settings
         .ok_or_else(|| ApiError::bad_request("bad_multipart", "missing the `settings` part"))?;
     validate(&state, &settings, scene.len())?;
+    let uploaded = environment_part(&state, &mut settings, environment)?;
 
     // Load the scene exactly as a worker will (no external resources: a URI in a submitted scene
-    // never reads the server's files or the network).
+    // never reads the server's files or the network), then the environment, as the worker builds
+    // it; one after the other, so that each check holds only one of them in memory.
     let camera = settings.camera.clone();
     let max_triangles = state.config.limits.max_scene_triangles;
     let scene_for_load = scene.clone();
+    let environment_settings = settings.environment.clone();
     let _permit = state
         .scene_checks
         .acquire()
         .await
         .map_err(|e| ApiError::internal(format!("scene validation: {e}")))?;
-    let loaded = tokio::task::spawn_blocking(move || {
-        gltf::load(
+    // A stored image the settings name is read under the permit too: like an upload, at most
+    // `scene_checks` of them are in memory at once.
+    let environment = environment_image(&state, &settings, uploaded).await?;
+    let image_for_load = environment.as_ref().map(|(_, b)| b.clone());
+    let checked = tokio::task::spawn_blocking(move || {
+        let warnings = gltf::load(
             &scene_for_load,
             &NoExternalResources,
             &LoadOptions {
@@ -122,16 +181,31 @@ pub async fn submit(
                 max_triangles,
             },
         )
-        .map(|s| s.info.triangles)
+        .map(|s| s.info.warnings)
+        .map_err(|e| CheckError::Scene(e.to_string()))?;
+        if let Some(env) = environment_settings {
+            env.build(image_for_load.as_deref())
+                .map_err(|e| CheckError::Environment(e.to_string()))?;
+        }
+        Ok(warnings)
     })
     .await
     .map_err(|e| ApiError::internal(format!("scene validation: {e}")))?;
-    if let Err(e) = loaded {
-        return Err(ApiError::unprocessable(
-            "invalid_scene",
-            format!("the scene cannot be loaded: {e}"),
-        ));
-    }
+    let warnings = match checked {
+        Ok(w) => clean_warnings(&w),
+        Err(CheckError::Scene(e)) => {
+            return Err(ApiError::unprocessable(
+                "invalid_scene",
+                format!("the scene cannot be loaded: {e}"),
+            ))
+        }
+        Err(CheckError::Environment(e)) => {
+            return Err(ApiError::unprocessable(
+                "invalid_environment",
+                format!("the environment cannot be loaded: {e}"),
+            ))
+        }
+    };
     let hash = hex::encode(Sha256::digest(&scene));
     // `validate` checked the plan's size against the limits; a large plan still takes a while to
     // build, so it is built off the async workers.
@@ -164,6 +238,8 @@ pub async fn submit(
             settings,
             scene_hash: hash.clone(),
             scene_bytes: scene.to_vec(),
+            environment: environment.map(|(h, b)| (h, b.to_vec())),
+            warnings,
             tiles,
             tasks,
             samples_planned,
@@ -179,6 +255,87 @@ pub async fn submit(
             samples_planned,
         }),
     ))
+}
+
+/// The uploaded `environment` part, checked (size) and named in the settings: its hash becomes
+/// `settings.environment.image` (the settings may give `strength` and `rotation_degrees`, not
+/// `radiance`, nor another `image`). Then the settings' environment is checked: exactly one of
+/// radiance and image, finite values.
+fn environment_part(
+    state: &AppState,
+    settings: &mut JobSettings,
+    part: Option<Bytes>,
+) -> ApiResult<Option<(String, Bytes)>> {
+    let bad = |m: String| ApiError::unprocessable("invalid_settings", m);
+    let uploaded = match part {
+        Some(bytes) => {
+            let limit = state.config.limits.max_scene_bytes;
+            if bytes.is_empty() {
+                return Err(ApiError::unprocessable(
+                    "invalid_environment",
+                    "the environment part is empty",
+                ));
+            }
+            if bytes.len() > limit {
+                return Err(ApiError::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    "too_large",
+                    format!(
+                        "environment image of {} bytes exceeds the limit of {}",
+                        bytes.len(),
+                        bytes_and_mib(limit)
+                    ),
+                ));
+            }
+            let hash = hex::encode(Sha256::digest(&bytes));
+            let env = settings.environment.get_or_insert_with(Default::default);
+            if env.radiance.is_some() {
+                return Err(bad(
+                    "environment: an `environment` part was uploaded and `radiance` given; \
+                     give one"
+                        .into(),
+                ));
+            }
+            if env.image.as_ref().is_some_and(|named| *named != hash) {
+                return Err(bad(format!(
+                    "environment: `image` names another image than the uploaded part's \
+                     (SHA-256 {hash})"
+                )));
+            }
+            env.image = Some(hash.clone());
+            Some((hash, bytes))
+        }
+        None => None,
+    };
+    if let Some(env) = &settings.environment {
+        env.validate().map_err(|e| bad(e.to_string()))?;
+    }
+    Ok(uploaded)
+}
+
+/// The environment image a job uses, with its hash: the uploaded part, or the stored image that
+/// `settings.environment.image` names (422 `invalid_environment` when the server has none).
+async fn environment_image(
+    state: &AppState,
+    settings: &JobSettings,
+    uploaded: Option<(String, Bytes)>,
+) -> ApiResult<Option<(String, Bytes)>> {
+    let named = settings.environment.as_ref().and_then(|e| e.image.as_ref());
+    match (uploaded, named) {
+        (Some(u), _) => Ok(Some(u)),
+        (None, Some(hash)) => match state.store.scene(hash).await {
+            Ok(bytes) => Ok(Some((hash.clone(), Bytes::from(bytes)))),
+            Err(e) if e.status == StatusCode::NOT_FOUND => Err(ApiError::unprocessable(
+                "invalid_environment",
+                format!(
+                    "environment: the server has no image {hash} (upload it as the \
+                     `environment` part)"
+                ),
+            )),
+            Err(e) => Err(e),
+        },
+        (None, None) => Ok(None),
+    }
 }
 
 fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<()> {
@@ -317,6 +474,7 @@ pub(crate) fn view(job: JobRow, tiles: Option<Vec<TileProgress>>) -> JobView {
         finished_at_ms: job.finished_ms,
         message: job.message,
         leased_tasks: job.leased_tasks,
+        warnings: job.warnings,
         tiles,
     }
 }
@@ -448,4 +606,28 @@ pub async fn resume(
     Path(id): Path<String>,
 ) -> ApiResult<Json<JobView>> {
     event(&state, &id, JobEvent::Resume { started: false }).await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn warnings_lose_control_characters_and_are_capped() {
+        let w = clean_warnings(&["extension X\0 is\n not\u{1b}[31m supported".into()]);
+        assert_eq!(w, ["extension X is not[31m supported"]);
+        let long = "é".repeat(MAX_WARNING_BYTES);
+        let w = clean_warnings(std::slice::from_ref(&long));
+        assert!(w[0].len() <= MAX_WARNING_BYTES + '…'.len_utf8() && w[0].ends_with('…'));
+        let many: Vec<String> = (0..100)
+            .map(|i| format!("{i}{}", "x".repeat(900)))
+            .collect();
+        let w = clean_warnings(&many);
+        let kept: usize = w[..w.len() - 1].iter().map(String::len).sum();
+        assert!(kept <= MAX_WARNINGS_BYTES, "{kept}");
+        assert_eq!(
+            w.last().unwrap(),
+            &format!("… and {} more warnings", 101 - w.len())
+        );
+    }
 }

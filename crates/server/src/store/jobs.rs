@@ -11,7 +11,7 @@ use sqlx::Row;
 
 const JOB_COLUMNS: &str = "id, name, scene_hash, settings, priority, state, samples_planned, \
     samples_done, queued_tasks, leased_tasks, version, rel_error, rel_error_version, created_ms, \
-    started_ms, finished_ms, message";
+    started_ms, finished_ms, message, warnings";
 
 /// A job as stored.
 #[derive(Clone, Debug)]
@@ -35,6 +35,8 @@ pub struct JobRow {
     pub started_ms: Option<i64>,
     pub finished_ms: Option<i64>,
     pub message: Option<String>,
+    /// What the scene loader ignored, as found at submission.
+    pub warnings: Vec<String>,
 }
 
 impl JobRow {
@@ -60,6 +62,8 @@ impl JobRow {
             started_ms: row.try_get("started_ms")?,
             finished_ms: row.try_get("finished_ms")?,
             message: row.try_get("message")?,
+            warnings: serde_json::from_str(&row.try_get::<String, _>("warnings")?)
+                .map_err(|e| sqlx::Error::Decode(Box::new(e)))?,
         })
     }
 }
@@ -112,6 +116,11 @@ pub struct NewJob {
     pub settings: JobSettings,
     pub scene_hash: String,
     pub scene_bytes: Vec<u8>,
+    /// The environment image named by `settings.environment.image`: its hash and bytes, stored
+    /// once per hash beside the scenes.
+    pub environment: Option<(String, Vec<u8>)>,
+    /// The scene loader's warnings, already cleaned and capped ([`crate::routes`]).
+    pub warnings: Vec<String>,
     pub tiles: Vec<Tile>,
     pub tasks: Vec<PlannedTask>,
     pub samples_planned: u64,
@@ -121,25 +130,33 @@ pub struct NewJob {
 const INSERT_BATCH: usize = 500;
 
 impl Store {
-    /// Stores the scene (once per content hash), the job, its tiles and its tasks, atomically.
+    /// Stores the scene and the environment image (each once per content hash), the job, its
+    /// tiles and its tasks, atomically.
     pub async fn create_job(&self, job: NewJob) -> ApiResult<()> {
         let settings = serde_json::to_string(&job.settings)
             .map_err(|e| ApiError::internal(format!("cannot encode settings: {e}")))?;
+        let warnings = serde_json::to_string(&job.warnings)
+            .map_err(|e| ApiError::internal(format!("cannot encode warnings: {e}")))?;
         let now = now_ms();
         let mut w = self.write().await?;
-        sqlx::query(
-            "INSERT INTO scenes (hash, bytes, size, created_ms) VALUES ($1, $2, $3, $4) \
-             ON CONFLICT (hash) DO NOTHING",
-        )
-        .bind(&job.scene_hash)
-        .bind(&job.scene_bytes)
-        .bind(job.scene_bytes.len() as i64)
-        .bind(now)
-        .execute(&mut *w.tx)
-        .await?;
+        let blobs = std::iter::once((&job.scene_hash, &job.scene_bytes))
+            .chain(job.environment.as_ref().map(|(h, b)| (h, b)));
+        for (hash, bytes) in blobs {
+            sqlx::query(
+                "INSERT INTO scenes (hash, bytes, size, created_ms) VALUES ($1, $2, $3, $4) \
+                 ON CONFLICT (hash) DO NOTHING",
+            )
+            .bind(hash)
+            .bind(bytes)
+            .bind(bytes.len() as i64)
+            .bind(now)
+            .execute(&mut *w.tx)
+            .await?;
+        }
         sqlx::query(
             "INSERT INTO jobs (id, name, scene_hash, settings, priority, state, samples_planned, \
-             queued_tasks, created_ms) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9)",
+             queued_tasks, created_ms, environment_hash, warnings) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
         )
         .bind(&job.id)
         .bind(&job.name)
@@ -150,6 +167,8 @@ impl Store {
         .bind(job.samples_planned as i64)
         .bind(job.tasks.len() as i64)
         .bind(now)
+        .bind(job.environment.as_ref().map(|(h, _)| h.as_str()))
+        .bind(&warnings)
         .execute(&mut *w.tx)
         .await?;
         for (chunk_index, chunk) in job.tiles.chunks(INSERT_BATCH).enumerate() {
@@ -387,7 +406,8 @@ impl Store {
         self.job(id).await
     }
 
-    /// Deletes a job in any state, with its tiles and tasks; its scene too once no job uses it.
+    /// Deletes a job in any state, with its tiles and tasks; its scene and environment image too
+    /// once no job uses them.
     pub async fn delete_job(&self, id: &str) -> ApiResult<()> {
         let mut w = self.write().await?;
         sqlx::query("DELETE FROM tasks WHERE job_id = $1")
@@ -398,22 +418,26 @@ impl Store {
             .bind(id)
             .execute(&mut *w.tx)
             .await?;
-        let row = sqlx::query("DELETE FROM jobs WHERE id = $1 RETURNING scene_hash")
-            .bind(id)
-            .fetch_optional(&mut *w.tx)
-            .await?;
+        let row =
+            sqlx::query("DELETE FROM jobs WHERE id = $1 RETURNING scene_hash, environment_hash")
+                .bind(id)
+                .fetch_optional(&mut *w.tx)
+                .await?;
         let Some(row) = row else {
             return Err(ApiError::not_found("job", id));
         };
         free_job_workers(&mut w, id).await?;
-        let hash: String = row.try_get("scene_hash")?;
-        sqlx::query(
-            "DELETE FROM scenes WHERE hash = $1 AND NOT EXISTS \
-             (SELECT 1 FROM jobs WHERE scene_hash = $1)",
-        )
-        .bind(&hash)
-        .execute(&mut *w.tx)
-        .await?;
+        let scene: String = row.try_get("scene_hash")?;
+        let environment: Option<String> = row.try_get("environment_hash")?;
+        for hash in std::iter::once(scene).chain(environment) {
+            sqlx::query(
+                "DELETE FROM scenes WHERE hash = $1 AND NOT EXISTS \
+                 (SELECT 1 FROM jobs WHERE scene_hash = $1 OR environment_hash = $1)",
+            )
+            .bind(&hash)
+            .execute(&mut *w.tx)
+            .await?;
+        }
         w.commit().await?;
         Ok(())
     }

@@ -22,12 +22,21 @@ macro_rules! migration_files {
 }
 
 /// The SQLite schema's migrator.
-pub(super) static SQLITE: LazyLock<Migrator> =
-    LazyLock::new(|| migrator(migration_files!("sqlite": "0001_init.sql", "0002_convergence.sql")));
+pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
+    migrator(migration_files!(
+        "sqlite": "0001_init.sql",
+        "0002_convergence.sql",
+        "0003_environment_and_warnings.sql",
+    ))
+});
 
 /// The PostgreSQL schema's migrator.
 pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
-    migrator(migration_files!("postgres": "0001_init.sql", "0002_convergence.sql"))
+    migrator(migration_files!(
+        "postgres": "0001_init.sql",
+        "0002_convergence.sql",
+        "0003_environment_and_warnings.sql",
+    ))
 });
 
 fn migrator(files: &'static [File]) -> Migrator {
