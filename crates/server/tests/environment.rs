@@ -10,8 +10,6 @@ mod common;
 use axum::http::StatusCode;
 use common::*;
 use glam::Vec3;
-use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
-use pathfarm_tracer::render_image;
 use pathfarm_wire::api::{EnvironmentSettings, ErrorBody, JobList, JobSettings, JobView};
 use sha2::{Digest, Sha256};
 use std::io::Cursor;
@@ -69,23 +67,7 @@ fn local_render_lit(scene: &[u8], s: &JobSettings, image: Option<&[u8]>) -> Vec<
         .environment
         .as_ref()
         .map(|e| e.build(image).expect("a valid environment"));
-    let scene = gltf::load(
-        scene,
-        &NoExternalResources,
-        &LoadOptions {
-            camera: s.camera.clone(),
-            ..LoadOptions::default()
-        },
-    )
-    .unwrap()
-    .with_environment(env);
-    exr(&render_image(
-        &scene,
-        &s.render_settings(),
-        32,
-        0..s.spp,
-        &|_| {},
-    ))
+    exr(&local_render_with(scene, s, env))
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]

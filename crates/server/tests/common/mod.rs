@@ -156,6 +156,15 @@ pub fn settings(width: u32, height: u32, spp: u32, tile: u32) -> JobSettings {
 
 /// What `pathfarm render` computes for the same job: one accumulation of the whole image.
 pub fn local_render(scene: &[u8], s: &JobSettings) -> Accumulation {
+    local_render_with(scene, s, None)
+}
+
+/// [`local_render`] of the scene lit by `environment`.
+pub fn local_render_with(
+    scene: &[u8],
+    s: &JobSettings,
+    environment: Option<pathfarm_tracer::light::Environment>,
+) -> Accumulation {
     let scene = gltf::load(
         scene,
         &NoExternalResources,
@@ -164,7 +173,8 @@ pub fn local_render(scene: &[u8], s: &JobSettings) -> Accumulation {
             ..LoadOptions::default()
         },
     )
-    .unwrap();
+    .unwrap()
+    .with_environment(environment);
     render_image(&scene, &s.render_settings(), 32, 0..s.spp, &|_| {})
 }
 
