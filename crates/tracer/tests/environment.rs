@@ -240,8 +240,12 @@ fn environment_sampling_matches_its_pdf() {
 /// A one-sided Lambertian square of half-size 3 facing `normal`, filling the view of a camera one
 /// unit in front of it: every pixel sees the plane, and every point of it the whole hemisphere.
 fn plane_facing(normal: Vec3, rho: f32, extra: Vec<[Vec3; 3]>, extra_le: f32) -> Scene {
+    plane_of_size(normal, 3.0, rho, extra, extra_le)
+}
+
+/// [`plane_facing`] with half-size `s`.
+fn plane_of_size(normal: Vec3, s: f32, rho: f32, extra: Vec<[Vec3; 3]>, extra_le: f32) -> Scene {
     let rotation = Quat::from_rotation_arc(Vec3::Z, normal);
-    let s = 3.0;
     let c = |x: f32, y: f32| rotation * Vec3::new(x, y, 0.0);
     let mut mesh = Mesh::default();
     mesh.positions.push([c(-s, -s), c(s, -s), c(s, s)]);
@@ -309,6 +313,38 @@ fn a_plane_under_a_uniform_environment_reflects_its_albedo() {
                 let what = format!("{name} {direct} {sampler}");
                 assert_close(&what, render_mean(&scene, direct, sampler, 16), rho as f64);
             }
+        }
+    }
+}
+
+/// A ground plane far larger than the camera's distance to it (a Blender plane scaled to a
+/// horizon): its vertices are thousands of times farther from the hit point than the camera, so
+/// the hit point interpolated from them carries an error that many times larger than one scaled to
+/// the hit point alone. Spawned rays must still leave the surface: with BSDF sampling under a
+/// uniform environment every sample is exactly ρ, and a ray that re-hits its own plane makes it ρ².
+#[test]
+fn rays_leave_a_huge_plane_near_the_camera() {
+    let rho = 0.8f32;
+    let env = Environment::uniform(Vec3::ONE).unwrap();
+    for half_size in [1e3f32, 1e4, 1e5] {
+        for normal in [Vec3::Y, Vec3::new(0.3, 1.0, -0.2).normalize()] {
+            let scene = plane_of_size(normal, half_size, rho, vec![], 0.0)
+                .with_environment(Some(env.clone()));
+            let settings = RenderSettings {
+                direct: DirectStrategy::Bsdf,
+                seed: 3,
+                ..RenderSettings::new(24, 24)
+            };
+            let acc = render_image(&scene, &settings, 8, 0..64, &|_| {});
+            let short = acc
+                .pixels
+                .iter()
+                .filter(|p| (p.mean()[1] - rho as f64).abs() > 1e-5)
+                .count();
+            assert_eq!(
+                short, 0,
+                "half-size {half_size}, normal {normal}: {short} of 576 pixels lost light"
+            );
         }
     }
 }

@@ -4,7 +4,8 @@
 mod common;
 
 use common::*;
-use glam::Vec3;
+use glam::{Affine3A, Quat, Vec3};
+use pathfarm_tracer::camera::{Camera, Perspective, Projection};
 use pathfarm_tracer::gltf::{load, LoadOptions, NoExternalResources};
 use pathfarm_tracer::scene::SceneParts;
 use pathfarm_tracer::{render_image, render_sample, DirectStrategy, RenderSettings, Scene};
@@ -78,5 +79,72 @@ fn shared_furnace_scenes_are_two_everywhere_for_every_strategy() {
             assert!(z.abs() < 3.0, "{file}, {direct}: {mean} ± {se}");
             assert!(se < 0.02, "{file}, {direct}: test too weak ({se})");
         }
+    }
+}
+
+/// A ceiling just above a two-sided lamp panel (a Blender export's area light under its ceiling),
+/// seen from below: light sampling must find the light that BSDF sampling finds. The
+/// shadow ray's origin is moved off the ceiling along its normal; on a segment that meets the lamp
+/// obliquely and close by, that move once carried the segment past the lamp's surface, which then
+/// blocked its own light, and the ceiling came out black under light sampling alone.
+#[test]
+fn light_sampling_lights_a_ceiling_just_above_a_lamp() {
+    let quad = |y: f32, s: f32| -> [[Vec3; 3]; 2] {
+        let c = |x: f32, z: f32| Vec3::new(x, y, z);
+        [
+            [c(-s, -s), c(s, s), c(s, -s)],
+            [c(-s, -s), c(-s, s), c(s, s)],
+        ]
+    };
+    for gap in [0.05f32, 0.3] {
+        let mut mesh = pathfarm_tracer::geometry::Mesh::default();
+        for t in quad(1.0 + gap, 2.0) {
+            mesh.positions.push(t);
+            mesh.material.push(0);
+        }
+        for t in quad(1.0, 0.25) {
+            mesh.positions.push(t);
+            mesh.material.push(1);
+        }
+        let mut ceiling = lambert(0.7, 0.0);
+        ceiling.double_sided = true;
+        let mut lamp = lambert(0.0, 12.0);
+        lamp.double_sided = true;
+        let scene = Scene::build(SceneParts {
+            mesh,
+            materials: vec![ceiling, lamp],
+            // Looking straight up from below the lamp.
+            camera: Some(Camera::new(
+                Projection::Perspective(Perspective::new(90f32.to_radians())),
+                Affine3A::from_rotation_translation(
+                    Quat::from_rotation_x(90f32.to_radians()),
+                    Vec3::new(0.0, 0.2, 0.0),
+                ),
+            )),
+            ..SceneParts::default()
+        })
+        .expect("scene builds");
+        let mean = |direct| {
+            let settings = RenderSettings {
+                direct,
+                max_depth: Some(1),
+                seed: 9,
+                ..RenderSettings::new(16, 16)
+            };
+            let acc = render_image(&scene, &settings, 8, 0..512, &|_| {});
+            assert_eq!(acc.invalid_count, 0);
+            image_mean_and_stderr(&acc)
+        };
+        let (light, light_se) = mean(DirectStrategy::Light);
+        let (bsdf, bsdf_se) = mean(DirectStrategy::Bsdf);
+        let z = (light - bsdf) / (light_se * light_se + bsdf_se * bsdf_se).sqrt();
+        eprintln!(
+            "gap {gap}: light {light:.5} ± {light_se:.5}, bsdf {bsdf:.5} ± {bsdf_se:.5}, z {z:+.2}"
+        );
+        assert!(
+            z.abs() < 4.0,
+            "gap {gap}: light sampling {light} against BSDF sampling {bsdf} (z = {z:.1})"
+        );
+        assert!(bsdf_se < 0.05 * bsdf, "gap {gap}: test too weak");
     }
 }

@@ -3,7 +3,7 @@
 
 use crate::bsdf::Bsdf;
 use crate::geometry::Ray;
-use crate::math::{is_black, offset_ray_origin, Frame};
+use crate::math::{is_black, offset_ray_origin, offset_unit_normal, Frame};
 use crate::sampler::{dims, PixelSampler};
 use crate::sampling::{
     cosine_hemisphere_pdf, power_heuristic, sample_cosine_hemisphere, sample_uniform_hemisphere,
@@ -16,6 +16,8 @@ use glam::{Vec2, Vec3};
 /// The path vertex being lit.
 pub(crate) struct Vertex<'a> {
     pub p: Vec3,
+    /// How far from the surface rays spawned here start ([`crate::math::spawn_clearance`]).
+    pub clearance: f32,
     /// Unit geometric normal (front side).
     pub ng: Vec3,
     pub wo: Vec3,
@@ -33,7 +35,7 @@ impl Vertex<'_> {
         } else {
             -self.ng
         };
-        Ray::new(offset_ray_origin(self.p, side), wi)
+        Ray::new(offset_ray_origin(self.p, side, self.clearance), wi)
     }
 
     #[inline]
@@ -176,9 +178,11 @@ fn area_light_query(
         v.transmittance(g.dist),
         mis,
     )?;
+    let origin = v.spawn(g.wi).o;
+    let (d, t_max) = g.shadow_segment(origin, ls.point, ls.normal);
     Some(ShadowQuery {
-        ray: v.spawn(g.wi),
-        t_max: g.dist * (1.0 - SHADOW_EPSILON),
+        ray: Ray::new(origin, d),
+        t_max,
         alpha_u: s.bounce1(depth, dims::ALPHA),
         value,
     })
@@ -210,6 +214,23 @@ impl LightGeometry {
             dist2,
             cos_l,
         }
+    }
+
+    /// The shadow ray's direction and t_max from `origin` (the vertex's spawned origin, moved off
+    /// its surface towards the light) to the light `point` of unit `normal`, that end moved off the
+    /// light's surface towards the vertex likewise and the segment ending [`SHADOW_EPSILON`] short
+    /// of it. The segment is taken between the two moved ends, not along `wi` from the vertex for
+    /// `dist`: the origin's offset is measured from the vertex's own surface, and on a path that
+    /// meets the light obliquely and close by it would otherwise carry the segment past the light's
+    /// surface, which would then block its own light (a ceiling just above a two-sided lamp panel
+    /// got no light-sampled light).
+    #[inline(always)]
+    pub(crate) fn shadow_segment(&self, origin: Vec3, point: Vec3, normal: Vec3) -> (Vec3, f32) {
+        let side = if self.cos_l > 0.0 { normal } else { -normal };
+        let end = offset_unit_normal(point, side, 0.0);
+        let d = end - origin;
+        let dist = d.length();
+        (d / dist, dist * (1.0 - SHADOW_EPSILON))
     }
 
     /// What the light sample contributes if its shadow ray is clear: f · Le · T / pdf, with the

@@ -102,6 +102,7 @@ pub fn trace_path(
         let wo = -ray.d;
         let vertex = Vertex {
             p: si.p,
+            clearance: si.clearance,
             ng: si.ng,
             wo,
             bsdf: &bsdf,
@@ -205,7 +206,7 @@ pub fn trace_path(
         } else {
             -si.ng
         };
-        ray = Ray::new(offset_ray_origin(si.p, side), bs.wi);
+        ray = Ray::new(offset_ray_origin(si.p, side, si.clearance), bs.wi);
         depth += 1;
         if let Some(q) = shadow {
             out.rays += 1;

@@ -5,8 +5,8 @@ mod frame;
 mod offset;
 
 pub use frame::Frame;
-pub use offset::offset_ray_origin;
 pub(crate) use offset::offset_unit_normal;
+pub use offset::{offset_ray_origin, spawn_clearance};
 
 use glam::Vec3;
 

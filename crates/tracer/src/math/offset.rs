@@ -1,12 +1,30 @@
 use glam::Vec3;
 
-/// Moves a ray origin `p` off the surface with geometric normal `n`, to the side `n` points to, by an
-/// amount that scales with the magnitude of `p` (Wächter & Binder, "A Fast and Robust Method for
-/// Avoiding Self-Intersection", Ray Tracing Gems, 2019). Integer ULP steps keep the offset tiny near the
-/// origin and proportionate far away, so secondary rays neither re-hit their own surface (acne) nor
-/// skip a nearby one (light leaks).
+/// γ₇ = 7u / (1 − 7u) with u = 2⁻²⁴: the relative error bound of a point interpolated from three
+/// vertices by barycentric weights (pbrt-v4, §6.8.5).
+const GAMMA_7: f32 = 7.0 * (f32::EPSILON / 2.0) / (1.0 - 7.0 * (f32::EPSILON / 2.0));
+
+/// How far a ray spawned at a hit on the triangle `corners` must start from the surface, beyond
+/// the offset [`offset_ray_origin`] scales with the hit point, so that neither the hit point's
+/// rounding (interpolated from the corners) nor the intersection test's (on the corners relative
+/// to the new origin) can put its own triangle in front of it: both scale with the corners'
+/// magnitudes, which can be thousands of times the hit point's (a ground plane scaled to the
+/// horizon, seen from close by). γ₇ (pbrt-v4's bound for a point interpolated from three
+/// vertices) times the sum of the corners' largest coordinates; on a triangle no larger than
+/// its distance from the origin this is a small fraction of the ULP offset.
+#[inline(always)]
+pub fn spawn_clearance(corners: [Vec3; 3]) -> f32 {
+    GAMMA_7 * (corners[0].abs() + corners[1].abs() + corners[2].abs()).max_element()
+}
+
+/// Moves a ray origin `p` off the surface with geometric normal `n`, to the side `n` points to:
+/// first by `clearance` ([`spawn_clearance`]), then by an amount that scales with the magnitude of `p` (Wächter & Binder, "A Fast
+/// and Robust Method for Avoiding Self-Intersection", Ray Tracing Gems, 2019). Integer ULP steps
+/// keep the offset tiny near the origin and proportionate far away, so secondary rays neither
+/// re-hit their own surface (acne) nor skip a nearby one (light leaks).
 #[inline]
-pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
+pub fn offset_ray_origin(p: Vec3, n: Vec3, clearance: f32) -> Vec3 {
+    let p = p + n * clearance;
     #[cfg(target_arch = "x86_64")]
     {
         // SAFETY: SSE2 is part of the x86-64 baseline: every x86-64 processor has it.
@@ -41,7 +59,8 @@ fn offset_scalar(p: Vec3, n: Vec3) -> Vec3 {
 /// read off the bits of 1.5 · 2²³ + trunc(256 n), which holds them exactly. The same bits as
 /// [`offset_ray_origin`] for every unit normal (tested).
 #[inline(always)]
-pub(crate) fn offset_unit_normal(p: Vec3, n: Vec3) -> Vec3 {
+pub(crate) fn offset_unit_normal(p: Vec3, n: Vec3, clearance: f32) -> Vec3 {
+    let p = p + n * clearance;
     const MAGIC: f32 = 12_582_912.0; // 1.5 · 2²³: the sum's low mantissa bits are the integer
     let int =
         |v: f32| ((MAGIC + (INT_SCALE * v).trunc()).to_bits() as i32).wrapping_sub(0x4b40_0000);
@@ -121,7 +140,7 @@ mod tests {
             };
             let scale = [1e-6, 0.01, 1.0, 100.0, 1e6][case % 5];
             let p = Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5) * scale;
-            let (a, b) = (offset_unit_normal(p, n), offset_scalar(p, n));
+            let (a, b) = (offset_unit_normal(p, n, 0.0), offset_scalar(p, n));
             assert_eq!(
                 [a.x.to_bits(), a.y.to_bits(), a.z.to_bits()],
                 [b.x.to_bits(), b.y.to_bits(), b.z.to_bits()],
@@ -135,7 +154,7 @@ mod tests {
         for scale in [1e-3f32, 0.5, 3.0, 1e3, 1e5] {
             let p = Vec3::new(scale, -scale * 0.5, scale * 0.25);
             let n = Vec3::new(0.2, 0.9, -0.3).normalize();
-            let q = offset_ray_origin(p, n);
+            let q = offset_ray_origin(p, n, 0.0);
             assert!((q - p).dot(n) > 0.0, "scale {scale}");
             assert!(
                 (q - p).length() < scale.max(1.0) * 1e-3,

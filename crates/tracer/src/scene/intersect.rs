@@ -32,6 +32,9 @@ impl Hit {
 #[derive(Clone, Copy, Debug)]
 pub struct SurfaceInteraction {
     pub p: Vec3,
+    /// How far from the surface rays spawned here start, beyond the ULP offset
+    /// ([`crate::math::spawn_clearance`]).
+    pub clearance: f32,
     /// Unit geometric normal on the front (counter-clockwise) side.
     pub ng: Vec3,
     /// Unit interpolated shading normal, on the same side as `ng` (equal to it without normals).
@@ -215,6 +218,7 @@ impl Scene {
         });
         SurfaceInteraction {
             p,
+            clearance: crate::math::spawn_clearance([a, b, c]),
             ng,
             ns,
             uv: self.uv_at(tri, b1, b2),

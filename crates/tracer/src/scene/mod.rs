@@ -307,6 +307,7 @@ mod tests {
                 for u in [0.1f32, 0.9] {
                     let si = SurfaceInteraction {
                         p: Vec3::ZERO,
+                        clearance: 0.0,
                         ng,
                         ns,
                         uv: [Vec2::new(u, 0.5), Vec2::ZERO],
@@ -336,6 +337,7 @@ mod tests {
         // The texture is really read: its two texels give two different BSDFs.
         let at = |u: f32| SurfaceInteraction {
             p: Vec3::ZERO,
+            clearance: 0.0,
             ng,
             ns,
             uv: [Vec2::new(u, 0.5), Vec2::ZERO],

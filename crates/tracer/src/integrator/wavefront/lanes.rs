@@ -34,10 +34,10 @@ use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::geometry::Ray;
-use crate::integrator::direct::{LightGeometry, SHADOW_EPSILON};
+use crate::integrator::direct::LightGeometry;
 use crate::integrator::path::survival;
 use crate::integrator::PathResult;
-use crate::math::{is_black, offset_unit_normal, Frame};
+use crate::math::{is_black, offset_unit_normal, spawn_clearance, Frame};
 use crate::sampler::{bounce_dim, dims, owen_sobol_group_lanewise};
 use crate::sampling::power_heuristic;
 use crate::scene::{Hit, Scene};
@@ -109,6 +109,8 @@ pub(super) struct Lanes<'a> {
 
     // Set by `shade_hit`.
     p: V3,
+    /// How far from the surface rays spawned at `p` start (`spawn_clearance`).
+    clearance: F,
     ng: V3,
     /// The path goes on from this vertex (it is within the depth limit).
     go: B,
@@ -177,6 +179,7 @@ impl<'a> Lanes<'a> {
             diffuse_on: [false; LANES],
             light_density: [0.0; LANES],
             p: V3::ZERO,
+            clearance: [0.0; LANES],
             ng: V3::ZERO,
             go: [false; LANES],
             u_light_select: [0.0; LANES],
@@ -281,6 +284,7 @@ impl<'a> Lanes<'a> {
         );
         let (mut ls, betas, mut vertices, depths) = (self.l, self.beta, self.vertices, self.depth);
         let (mut go, mut ps, mut ngs) = ([false; LANES], V3::ZERO, V3::ZERO);
+        let mut clearances = [0.0; LANES];
         let (keys, revs) = (self.key, self.index_rev);
         let (mut u_select, mut u_light) = ([0.0; LANES], [[0.0; LANES]; 2]);
         let limit = self.depth_limit;
@@ -308,6 +312,7 @@ impl<'a> Lanes<'a> {
             vertices[i] += u32::from(on);
             go[i] = on && depths[i] < limit;
             ps.set(i, p);
+            clearances[i] = spawn_clearance([a, b, c]);
             ngs.set(i, ng);
         }
         // The light sample's values in a loop of their own (see `scatter`).
@@ -323,6 +328,7 @@ impl<'a> Lanes<'a> {
             (u_light[0][i], u_light[1][i], u_select[i]) = (point0, point1, select);
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
+        self.clearance = clearances;
         (self.u_light_select, self.u_light) = (u_select, u_light);
         if let Some(lights) = self.lights {
             // `sample_lights`, in the lanes.
@@ -386,6 +392,7 @@ impl<'a> Lanes<'a> {
     fn scatter(&mut self, rr: RussianRoulette) {
         // Copied to locals, as in `shade_hit`.
         let (gos, ps, ngs, ds, albedos) = (self.go, self.p, self.ng, self.d, self.albedo);
+        let clearances = self.clearance;
         let (mut betas, depths, keys, revs) = (self.beta, self.depth, self.key, self.index_rev);
         let (light_ok, light_point, light_normal, light_pdf) = (
             self.light_ok,
@@ -401,13 +408,14 @@ impl<'a> Lanes<'a> {
         for i in 0..LANES {
             let go = gos[i];
             let p = ps.get(i);
+            let clearance = clearances[i];
             let ng = ngs.get(i);
             let wo = -ds.get(i);
             let albedo = albedos.get(i);
             let beta = betas.get(i);
             let spawn = |wi: Vec3| {
                 let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
-                offset_unit_normal(p, side)
+                offset_unit_normal(p, side, clearance)
             };
 
             // 2. Direct lighting: the light sample's contribution, if its shadow ray is clear.
@@ -418,15 +426,16 @@ impl<'a> Lanes<'a> {
                 light_back.get(i)
             };
             let (f, bsdf_pdf) = lambert_at::eval_pdf(ng, ng, albedo, wo, g.wi);
-            let query = g
-                .value(light_pdf[i], le, f, bsdf_pdf, Vec3::ONE, true)
-                .map(|value| (g.wi, g.dist, value));
+            let query = g.value(light_pdf[i], le, f, bsdf_pdf, Vec3::ONE, true);
             let shadow = go && light_ok[i] && query.is_some();
-            let (wi_l, dist, value) = query.unwrap_or((Vec3::Z, 0.0, Vec3::ZERO));
+            let value = query.unwrap_or(Vec3::ZERO);
+            // The segment of a lane without a shadow ray is never traced (its values may be NaN).
+            let origin = spawn(g.wi);
+            let (d, t_max) = g.shadow_segment(origin, light_point.get(i), light_normal.get(i));
             shadows[i] = shadow;
-            shadow_o.set(i, spawn(wi_l));
-            shadow_d.set(i, wi_l);
-            shadow_t_max[i] = dist * (1.0 - SHADOW_EPSILON);
+            shadow_o.set(i, origin);
+            shadow_d.set(i, d);
+            shadow_t_max[i] = t_max;
             shadow_value.set(i, beta * value);
             rays[i] += u32::from(shadow);
         }
@@ -464,12 +473,13 @@ impl<'a> Lanes<'a> {
         for i in 0..LANES {
             let go = gos[i];
             let p = ps.get(i);
+            let clearance = clearances[i];
             let ng = ngs.get(i);
             let beta = betas.get(i);
             let depth = depths[i];
             let spawn = |wi: Vec3| {
                 let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
-                offset_unit_normal(p, side)
+                offset_unit_normal(p, side, clearance)
             };
             let (wi, weight, pdf, sampled) = (
                 sampled_wi.get(i),
