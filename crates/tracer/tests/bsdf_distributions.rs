@@ -8,14 +8,15 @@
 mod common;
 
 use common::bins::{Binning, HemiGrid};
+use common::bsdf_chi2::{
+    check_view_angles, p_right_and_wrong, run_chi2, wo_at, Frame, RunStats, MIN_P,
+};
 use common::Pcg32;
 use glam::{DVec3, Vec2, Vec3};
 use pathfarm_tracer::bsdf::microfacet::Ggx;
 use pathfarm_tracer::bsdf::{Bsdf, PbrParams};
 use pathfarm_tracer::stats::{chi_square_test, SphereBins};
 use std::f64::consts::PI;
-
-const MIN_P: f64 = 1e-4;
 
 // ---------------------------------------------------------------------------------------------
 // Configurations
@@ -49,12 +50,6 @@ fn glass(base: Vec3, roughness: f32, thin: bool) -> PbrParams {
         thin_walled: thin,
         ..PbrParams::diffuse(base)
     }
-}
-
-/// wo at cos θ = `cos` (front side) or −`cos` (back side), in the xz plane.
-fn wo_at(cos: f32, front: bool) -> Vec3 {
-    let sin = (1.0 - cos * cos).max(0.0).sqrt();
-    Vec3::new(sin, 0.0, if front { cos } else { -cos })
 }
 
 fn bsdf(p: PbrParams) -> Bsdf {
@@ -126,17 +121,8 @@ fn binning_for(p: &PbrParams, wo: Vec3, wide: bool) -> Binning {
     )))
 }
 
-struct RunStats {
-    p_value: f64,
-    dof: usize,
-    max_weight_err: f64,
-    max_pdf_err: f64,
-    non_delta: usize,
-}
-
-/// Draws `n` samples, histograms the non-delta ones, checks weight = eval/pdf and pdf = pdf(wo, wi)
-/// per sample, and runs the chi-square test against ∫ pdf over the bins.
-fn run_chi2(
+/// The chi-square run of `p` on a surface of normal `normal`, at `wo_local` in its frame.
+fn run_chi2_tilted(
     p: PbrParams,
     normal: Vec3,
     wo_local: Vec3,
@@ -148,94 +134,26 @@ fn run_chi2(
     let b = Bsdf::new(p, frame.n, frame.n, None);
     let wo = frame.to_world(wo_local);
     let bins = binning_for(&p, wo_local, wide);
-    let mut observed = vec![0.0f64; bins.len()];
-    let mut rng = Pcg32::new(seed, 7);
-    let (mut max_weight_err, mut max_pdf_err, mut non_delta) = (0.0f64, 0.0f64, 0usize);
-    for _ in 0..n {
-        let u_lobe = rng.f32();
-        let u = Vec2::new(rng.f32(), rng.f32());
-        let Some(s) = b.sample(wo, u_lobe, u) else {
-            continue;
-        };
-        assert!(
-            s.weight.is_finite() && s.weight.min_element() >= 0.0 && s.pdf > 0.0,
-            "bad sample {s:?}"
-        );
-        assert!((s.wi.length() - 1.0).abs() < 1e-4);
-        if s.delta {
-            continue;
+    let (to_local, to_world) = (|v| frame.to_local(v), |v| frame.to_world(v));
+    let frames = Frame {
+        to_local: &to_local,
+        to_world: &to_world,
+    };
+    run_chi2(&b, wo, &bins, &frames, n, seed, &|s, _| {
+        if !s.delta {
+            assert_eq!(
+                s.transmitted,
+                (s.wi.dot(frame.n) > 0.0) != (wo.dot(frame.n) > 0.0)
+            );
         }
-        non_delta += 1;
-        let k = bins
-            .bin(frame.to_local(s.wi))
-            .unwrap_or_else(|| panic!("sample outside the bins: {:?}", s.wi));
-        observed[k] += 1.0;
-        let e = b.eval(wo, s.wi);
-        let pdf = b.pdf(wo, s.wi);
-        let (ep, combined_pdf) = b.eval_pdf(wo, s.wi);
-        assert_eq!(ep, e, "eval_pdf disagrees with eval");
-        assert_eq!(combined_pdf, pdf, "eval_pdf disagrees with pdf");
-        max_pdf_err = max_pdf_err.max(((pdf - s.pdf) / s.pdf).abs() as f64);
-        let scale = s.weight.max_element().max(1e-6);
-        let w = e / pdf;
-        max_weight_err = max_weight_err.max(((w - s.weight).abs().max_element() / scale) as f64);
-        assert_eq!(
-            s.transmitted,
-            (s.wi.dot(frame.n) > 0.0) != (wo.dot(frame.n) > 0.0)
-        );
-    }
-    let expected: Vec<f64> = bins
-        .integrate(|w| b.pdf(wo, frame.to_world(w)) as f64, &observed)
-        .iter()
-        .map(|e| e * n as f64)
-        .collect();
-    let chi = chi_square_test(&observed, &expected, 5.0);
-    RunStats {
-        p_value: chi.p_value,
-        dof: chi.dof,
-        max_weight_err,
-        max_pdf_err,
-        non_delta,
-    }
+    })
 }
 
 /// Runs every wo of a configuration and asserts p > 1e-4 and the per-sample consistency.
 fn check_config(name: &str, p: PbrParams, normal: Vec3, wide: bool, sides: &[bool], seed: u64) {
-    const COS: [f32; 4] = [0.95, 0.6, 0.25, 0.05];
-    let mut failures = Vec::new();
-    for (si, &front) in sides.iter().enumerate() {
-        for (ci, &c) in COS.iter().enumerate() {
-            let wo = wo_at(c, front);
-            let st = run_chi2(
-                p,
-                normal,
-                wo,
-                wide,
-                1_000_000,
-                seed * 1000 + (si * 10 + ci) as u64,
-            );
-            println!(
-                "{name:<28} {} cos {c:<4}: p = {:.4} (dof {:4}), non-delta {:7}, max |w − eval/pdf| {:.1e}, max pdf err {:.1e}",
-                if front { "front" } else { "back " },
-                st.p_value,
-                st.dof,
-                st.non_delta,
-                st.max_weight_err,
-                st.max_pdf_err
-            );
-            if st.p_value <= MIN_P
-                || st.max_weight_err > 1e-3
-                || st.max_pdf_err > 1e-3
-                || st.non_delta < 1000
-            {
-                failures.push(format!(
-                    "{name} front={front} cos={c}: p={} w_err={} pdf_err={}",
-                    st.p_value, st.max_weight_err, st.max_pdf_err
-                ));
-            }
-        }
-    }
-    assert!(failures.is_empty(), "{failures:#?}");
+    check_view_angles(name, sides, seed, |wo, seed| {
+        run_chi2_tilted(p, normal, wo, wide, 1_000_000, seed)
+    });
 }
 
 const TINT: Vec3 = Vec3::new(0.9, 0.6, 0.3);
@@ -397,31 +315,12 @@ fn chi_square_rejects_a_slightly_wrong_pdf() {
     ] {
         let (b, wrong) = (bsdf(drawn), bsdf(claimed));
         let bins = binning_for(&drawn, wo, false);
-        let mut observed = vec![0.0f64; bins.len()];
-        let mut rng = Pcg32::new(99, 1);
-        let n = 1_000_000;
-        for _ in 0..n {
-            if let Some(s) = b.sample(wo, rng.f32(), Vec2::new(rng.f32(), rng.f32())) {
-                observed[bins.bin(s.wi).unwrap()] += 1.0;
-            }
-        }
-        let expect = |bsdf: &Bsdf| -> Vec<f64> {
-            bins.integrate(|w| bsdf.pdf(wo, w) as f64, &observed)
-                .iter()
-                .map(|e| e * n as f64)
-                .collect()
-        };
-        let right = chi_square_test(&observed, &expect(&b), 5.0);
-        let bad = chi_square_test(&observed, &expect(&wrong), 5.0);
-        println!(
-            "{name}: p(right) = {:.4}, p(wrong) = {:.3e}",
-            right.p_value, bad.p_value
-        );
-        assert!(right.p_value > MIN_P);
+        let (right, bad) = p_right_and_wrong(&b, &wrong, wo, &bins, 1_000_000);
+        println!("{name}: p(right) = {right:.4}, p(wrong) = {bad:.3e}");
+        assert!(right > MIN_P, "{name}: p(right) = {right}");
         assert!(
-            bad.p_value < 1e-6,
-            "{name}: the wrong pdf was not rejected (p = {})",
-            bad.p_value
+            bad < 1e-6,
+            "{name}: the wrong pdf was not rejected (p = {bad})"
         );
     }
 }

@@ -10,12 +10,11 @@
 mod common;
 
 use common::bins::{Binning, HemiGrid};
+use common::bsdf_chi2::{check_view_angles, p_right_and_wrong, run_chi2, wo_at, MIN_P, WORLD};
 use common::Pcg32;
 use glam::{DVec3, Vec2, Vec3};
 use pathfarm_tracer::bsdf::{Bsdf, PbrParams};
-use pathfarm_tracer::stats::{chi_square_test, SphereBins};
-
-const MIN_P: f64 = 1e-4;
+use pathfarm_tracer::stats::SphereBins;
 const TINT: Vec3 = Vec3::new(0.9, 0.6, 0.3);
 
 /// A Lambertian of albedo `base` under a clear coat.
@@ -34,12 +33,6 @@ fn sheened(base: Vec3, color: Vec3, roughness: f32) -> PbrParams {
         sheen_roughness: roughness,
         ..PbrParams::diffuse(base)
     }
-}
-
-/// wo at cos θ = `cos` (front side) or −`cos` (back side), in the xz plane.
-fn wo_at(cos: f32, front: bool) -> Vec3 {
-    let sin = (1.0 - cos * cos).max(0.0).sqrt();
-    Vec3::new(sin, 0.0, if front { cos } else { -cos })
 }
 
 /// A BSDF on the z = 0 plane; the clear coat's normal is `coat_normal` (on the front side).
@@ -77,66 +70,6 @@ fn bins(wo: Vec3, normal: Vec3, roughness: f32, wide: bool) -> Binning {
     )))
 }
 
-struct RunStats {
-    p_value: f64,
-    dof: usize,
-    max_weight_err: f64,
-    max_pdf_err: f64,
-    non_delta: usize,
-}
-
-/// Draws `n` samples, histograms the non-delta ones, checks weight = eval/pdf and pdf = pdf(wo, wi)
-/// per sample, and runs the chi-square test against ∫ pdf over the bins.
-fn run_chi2(b: &Bsdf, wo: Vec3, bins: &Binning, n: usize, seed: u64) -> RunStats {
-    let mut observed = vec![0.0f64; bins.len()];
-    let mut rng = Pcg32::new(seed, 7);
-    let (mut max_weight_err, mut max_pdf_err, mut non_delta) = (0.0f64, 0.0f64, 0usize);
-    for _ in 0..n {
-        let u_lobe = rng.f32();
-        let u = Vec2::new(rng.f32(), rng.f32());
-        let Some(s) = b.sample(wo, u_lobe, u) else {
-            continue;
-        };
-        assert!(
-            s.weight.is_finite() && s.weight.min_element() >= 0.0 && s.pdf > 0.0,
-            "bad sample {s:?}"
-        );
-        assert!((s.wi.length() - 1.0).abs() < 1e-4);
-        assert!(!s.transmitted, "an opaque layered material transmitted");
-        if s.delta {
-            continue;
-        }
-        non_delta += 1;
-        let k = bins
-            .bin(s.wi)
-            .unwrap_or_else(|| panic!("sample outside the bins: {:?}", s.wi));
-        observed[k] += 1.0;
-        let e = b.eval(wo, s.wi);
-        let pdf = b.pdf(wo, s.wi);
-        let (ep, combined_pdf) = b.eval_pdf(wo, s.wi);
-        assert_eq!(ep, e, "eval_pdf disagrees with eval");
-        assert_eq!(combined_pdf, pdf, "eval_pdf disagrees with pdf");
-        assert_eq!(pdf, s.pdf, "the sample's pdf is not pdf(wo, wi)");
-        max_pdf_err = max_pdf_err.max(((pdf - s.pdf) / s.pdf).abs() as f64);
-        let scale = s.weight.max_element().max(1e-6);
-        let w = e / pdf;
-        max_weight_err = max_weight_err.max(((w - s.weight).abs().max_element() / scale) as f64);
-    }
-    let expected: Vec<f64> = bins
-        .integrate(|w| b.pdf(wo, w) as f64, &observed)
-        .iter()
-        .map(|e| e * n as f64)
-        .collect();
-    let chi = chi_square_test(&observed, &expected, 5.0);
-    RunStats {
-        p_value: chi.p_value,
-        dof: chi.dof,
-        max_weight_err,
-        max_pdf_err,
-        non_delta,
-    }
-}
-
 /// Runs every wo of a configuration and asserts p > 1e-4 and the per-sample consistency. The bins
 /// zoom on the coat's lobe, or with `zoom` on the mirror lobe of that normal and roughness.
 fn check_config(
@@ -167,42 +100,14 @@ fn check_config_zoomed(
     sides: &[bool],
     seed: u64,
 ) {
-    const COS: [f32; 4] = [0.95, 0.6, 0.25, 0.05];
     let b = bsdf_with(p, coat_normal);
-    let mut failures = Vec::new();
-    for (si, &front) in sides.iter().enumerate() {
-        for (ci, &c) in COS.iter().enumerate() {
-            let wo = wo_at(c, front);
-            let bins = bins(wo, zoom.0, zoom.1, wide);
-            let st = run_chi2(
-                &b,
-                wo,
-                &bins,
-                1_000_000,
-                seed * 1000 + (si * 10 + ci) as u64,
-            );
-            println!(
-                "{name:<34} {} cos {c:<4}: p = {:.4} (dof {:4}), non-delta {:7}, max |w − eval/pdf| {:.1e}, max pdf err {:.1e}",
-                if front { "front" } else { "back " },
-                st.p_value,
-                st.dof,
-                st.non_delta,
-                st.max_weight_err,
-                st.max_pdf_err
-            );
-            if st.p_value <= MIN_P
-                || st.max_weight_err > 1e-3
-                || st.max_pdf_err > 1e-3
-                || st.non_delta < 1000
-            {
-                failures.push(format!(
-                    "{name} front={front} cos={c}: p={} w_err={} pdf_err={} non-delta={}",
-                    st.p_value, st.max_weight_err, st.max_pdf_err, st.non_delta
-                ));
-            }
-        }
-    }
-    assert!(failures.is_empty(), "{failures:#?}");
+    check_view_angles(name, sides, seed, |wo, seed| {
+        let bins = bins(wo, zoom.0, zoom.1, wide);
+        run_chi2(&b, wo, &bins, &WORLD, 1_000_000, seed, &|s, pdf| {
+            assert!(!s.transmitted, "an opaque layered material transmitted");
+            assert_eq!(pdf, s.pdf, "the sample's pdf is not pdf(wo, wi)");
+        })
+    });
 }
 
 /// A coat normal tilted 25° from the shading normal.
@@ -372,37 +277,12 @@ fn chi_square_rejects_a_slightly_wrong_layer_pdf() {
             drawn.clearcoat_roughness
         };
         let bins = bins(wo, Vec3::Z, r, false);
-        let mut observed = vec![0.0f64; bins.len()];
-        let mut rng = Pcg32::new(99, 1);
-        let n = 1_000_000;
-        for _ in 0..n {
-            if let Some(s) = b.sample(wo, rng.f32(), Vec2::new(rng.f32(), rng.f32())) {
-                if !s.delta {
-                    observed[bins.bin(s.wi).unwrap()] += 1.0;
-                }
-            }
-        }
-        let expect = |bsdf: &Bsdf| -> Vec<f64> {
-            bins.integrate(|w| bsdf.pdf(wo, w) as f64, &observed)
-                .iter()
-                .map(|e| e * n as f64)
-                .collect()
-        };
-        let right = chi_square_test(&observed, &expect(&b), 5.0);
-        let bad = chi_square_test(&observed, &expect(&wrong), 5.0);
-        println!(
-            "{name}: p(right) = {:.4}, p(wrong) = {:.3e}",
-            right.p_value, bad.p_value
-        );
+        let (right, bad) = p_right_and_wrong(&b, &wrong, wo, &bins, 1_000_000);
+        println!("{name}: p(right) = {right:.4}, p(wrong) = {bad:.3e}");
+        assert!(right > MIN_P, "{name}: p(right) = {right}");
         assert!(
-            right.p_value > MIN_P,
-            "{name}: p(right) = {}",
-            right.p_value
-        );
-        assert!(
-            bad.p_value < 1e-6,
-            "{name}: the wrong pdf was not rejected (p = {})",
-            bad.p_value
+            bad < 1e-6,
+            "{name}: the wrong pdf was not rejected (p = {bad})"
         );
     }
 }

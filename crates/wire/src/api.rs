@@ -560,6 +560,45 @@ mod tests {
         assert_eq!(back, s);
     }
 
+    /// The environment's floats reach the worker as JSON text; a render is the same bits as a local
+    /// one only if every finite f32 comes back exactly (serde_json writes the shortest digits that
+    /// round to the f32, and reads them back through a correctly rounded f64).
+    #[test]
+    fn environment_floats_survive_json_bit_for_bit() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            f32::from_bits((state >> 32) as u32)
+        };
+        let mut checked = 0;
+        while checked < 200_000 {
+            let v = [next(), next(), next(), next(), next()];
+            if v.iter().any(|x| !x.is_finite()) {
+                continue;
+            }
+            let mut s = JobSettings::new(8, 8, 1);
+            s.environment = Some(EnvironmentSettings {
+                radiance: Some([v[0], v[1], v[2]]),
+                image: None,
+                strength: v[3],
+                rotation_degrees: v[4],
+            });
+            let back: JobSettings = serde_json::from_str(&serde_json::to_string(&s).unwrap())
+                .unwrap_or_else(|e| panic!("{v:?}: {e}"));
+            let env = back.environment.expect("environment kept");
+            let got = [
+                env.radiance.expect("radiance kept"),
+                [env.strength, env.rotation_degrees, 0.0],
+            ];
+            let bits = |x: f32| x.to_bits();
+            assert_eq!(got[0].map(bits), [v[0], v[1], v[2]].map(bits), "{v:?}");
+            assert_eq!([got[1][0], got[1][1]].map(bits), [v[3], v[4]].map(bits));
+            checked += 1;
+        }
+    }
+
     #[test]
     fn settings_defaults_and_errors() {
         let s: JobSettings = serde_json::from_str(r#"{"width":8,"height":4,"spp":2}"#).unwrap();

@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod bins;
+pub mod bsdf_chi2;
 
 use glam::{Affine3A, Vec3, Vec4};
 use pathfarm_tracer::camera::{Camera, Perspective, Projection};
