@@ -49,6 +49,17 @@ SPP = {
 }
 
 
+# The part of a scene's difference from Cycles that its rough Principled dielectrics make: appended
+# to the note of every scene that has them. `documented_difference` (in the scenes' returns) is
+# the tracer's image-mean luminance against Cycles', (ours - Cycles) / Cycles, as `pathfarm bench
+# blender --spp 64` measured it; tests/blender_suite.rs holds every scene to it within 1 %.
+LAYER_NOTE = (" Not exact: the rough Principled dielectric differs by convention (Cycles: exact "
+              "dielectric Fresnel, and a diffuse under the specular layer that loses up to 2.8 % at "
+              "roughness 1; glTF: Schlick Fresnel, and the tracer gives the diffuse all the layer "
+              "does not reflect), measured material by material by material_furnace.py "
+              "(docs/blender-suite.md).")
+
+
 # ----------------------------------------------------------------------------------------------
 # Helpers
 
@@ -321,11 +332,12 @@ def scene_product_point():
         "covers": "Point lamps (KHR point, candela) and an emissive panel (emissiveFactor x "
                   "KHR_materials_emissive_strength) on diffuse, rough-gold and near-mirror "
                   "metal Principled objects: the lamp/emitter unit balance.",
-        "exact_counterparts": True,
+        "exact_counterparts": False,
         "exact_note": "Principled dielectric/metal with GGX (single scattering) -> glTF "
                       "metallic-roughness; Cycles' dielectric layering (albedo-scaled diffuse "
                       "under the specular layer) is not exactly glTF's fresnel_mix, so small "
-                      "differences on rough dielectrics are expected.",
+                      "differences on rough dielectrics are expected." + LAYER_NOTE,
+        "documented_difference": 0.031,
     }
 
 
@@ -359,6 +371,7 @@ def scene_product_spot():
                       "(cos inner - cos outer))^2 clamped. Match Cycles by recovering size and "
                       "blend from the cone angles (see README). Caustics from the delta spot "
                       "through glass are unreachable by path tracing in both renderers.",
+        "documented_difference": -0.2673,
     }
 
 
@@ -448,10 +461,10 @@ def scene_hdr_outdoor():
         "covers": "An environment map only (world Environment Texture, equirect, default "
                   "mapping, strength 1): a gradient sky with a small sun disc of radiance 600 "
                   "(about 2/3 of the ground's irradiance), on objects and a ground plane.",
-        "exact_counterparts": True,
+        "exact_counterparts": False,
         "exact_note": "glTF cannot carry the world: the environment is given in 'environment' "
                       "(Blender's equirect convention, README). Cycles looks the map up with "
-                      "bilinear interpolation ('Linear', the node's default) of pixel centres.",
+                      "bilinear interpolation ('Linear', the node's default) of pixel centres." + LAYER_NOTE,
         "environment": {
             "file": "env/sky.hdr",
             "file_exr": "env/sky.exr",
@@ -464,6 +477,7 @@ def scene_hdr_outdoor():
             "sun_direction_gltf": [round(sun[0], 6), round(sun[2], 6), round(-sun[1], 6)],
             "sun_angular_radius_degrees": 2.5,
         },
+        "documented_difference": -0.0009,
     }
 
 
@@ -511,6 +525,7 @@ def scene_glass_volume():
                                                for c in (0.3, 0.8, 0.75)],
                           "sigma_a_per_m": [round((1 - c) * 1.5, 6) for c in (0.3, 0.8, 0.75)]},
         },
+        "documented_difference": -0.0019,
     }
 
 
@@ -597,11 +612,12 @@ def scene_textured_pbr():
         "covers": "Textured PBR: sRGB base colour, tangent-space normal map and "
                   "metallic-roughness map (512 x 512, generated), on a floor, a cube (normal "
                   "mapped) and a smooth sphere (no normal map), under two point lamps.",
-        "exact_counterparts": True,
+        "exact_counterparts": False,
         "exact_note": "Textures and maps map exactly. Tangents are not exported (exporter "
                       "default export_tangents=False): Cycles uses MikkTSpace tangents; normal "
                       "maps are only on flat faces, where per-triangle tangents from the UVs "
-                      "agree. Cycles filters textures bilinearly ('Linear').",
+                      "agree. Cycles filters textures bilinearly ('Linear')." + LAYER_NOTE,
+        "documented_difference": 0.0107,
     }
 
 
@@ -639,6 +655,7 @@ def scene_clearcoat():
                       "attenuates the base by its Fresnel albedo (energy-conserving layering) and "
                       "sheen is Cycles' microfibre model, not glTF's Charlie sheen. The tracer "
                       "ignores both extensions (warning) today.",
+        "documented_difference": 0.0261,
     }
 
 
@@ -683,8 +700,10 @@ def scene_instanced():
         "covers": "200 linked duplicates of two meshes (a smooth monkey and an ico sphere) on a "
                   "floor: the exporter writes each mesh once, referenced by many nodes with their "
                   "own TRS; a sun lamp plus a point fill lamp.",
-        "exact_counterparts": True,
-        "exact_note": "Principled clay/steel with GGX -> metallic-roughness; sun angle 0.",
+        "exact_counterparts": False,
+        "exact_note": ("Principled clay/steel with GGX -> metallic-roughness; sun angle 0."
+                       + LAYER_NOTE),
+        "documented_difference": -0.002,
     }
 
 
@@ -901,6 +920,11 @@ def write_manifest(manifest_path, manifest, conv):
         "volume_absorption": "Cycles Volume Absorption (C, D): sigma_a = (1 - C) * D per metre; "
                              "exported attenuationColor = C, attenuationDistance = 1 / D, which "
                              "glTF reads as sigma_a = -ln(C) * D.",
+        "principled_dielectric": "Cycles' Principled dielectric reflects with the exact dielectric "
+                                "Fresnel and scales the diffuse under it by an albedo estimate that "
+                                "loses energy at high roughness; glTF (KHR_materials_specular) "
+                                "writes Schlick's Fresnel. Metals agree (F82 tint with a white "
+                                "tint is Schlick). Measured by material_furnace.py.",
     }
     if conv is not None:
         manifest["equirect_check"] = conv

@@ -1,7 +1,9 @@
 //! The Blender suite against its Cycles references (`scenes/suite/`): every scene loads and renders
-//! without an invalid sample, and where every material and light has an exact glTF counterpart the
-//! image mean agrees with Cycles' within 2 % (plus four standard errors of both means). The full
-//! comparison, with more samples and the figures, is `pathfarm bench blender`.
+//! without an invalid sample; where every material and light has an exact glTF counterpart the
+//! image mean agrees with Cycles' within 2 % (plus four standard errors of both means), and where
+//! they are not exact it is the difference `docs/blender-suite.md` explains within 1 % (plus four
+//! standard errors), so a change that moves any scene is seen. The full comparison, with more
+//! samples and the figures, is `pathfarm bench blender`.
 
 use pathfarm_bench::blender_suite::{load_manifest, render_scene};
 use std::path::PathBuf;
@@ -11,7 +13,14 @@ fn blender_exports_render_at_cycles_brightness() {
     let dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/suite"));
     let scenes = load_manifest(&dir).expect("manifest");
     assert!(scenes.len() >= 8, "{} scenes", scenes.len());
-    assert!(scenes.iter().filter(|s| s.exact).count() >= 5);
+    assert!(scenes.iter().any(|s| s.exact));
+    for s in scenes.iter().filter(|s| !s.exact) {
+        assert!(
+            s.documented_difference.is_some(),
+            "{} is not exact and has no documented difference",
+            s.name
+        );
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)
         .build()
@@ -37,6 +46,16 @@ fn blender_exports_render_at_cycles_brightness() {
                 "{}: image mean {:+.2} % from Cycles' (standard error {:.2} %)",
                 r.name,
                 r.relative_difference * 100.0,
+                se * 100.0
+            );
+        }
+        if let Some(documented) = r.documented_difference {
+            assert!(
+                (r.relative_difference - documented).abs() < 0.01 + 4.0 * se,
+                "{}: image mean {:+.2} % from Cycles', documented {:+.2} % (standard error {:.2} %)",
+                r.name,
+                r.relative_difference * 100.0,
+                documented * 100.0,
                 se * 100.0
             );
         }
