@@ -3,7 +3,7 @@
 
 use crate::bsdf::Bsdf;
 use crate::geometry::Ray;
-use crate::math::{is_black, offset_ray_origin, offset_unit_normal, Frame};
+use crate::math::{is_black, offset_ray_origin, Frame};
 use crate::sampler::{dims, PixelSampler};
 use crate::sampling::{
     cosine_hemisphere_pdf, power_heuristic, sample_cosine_hemisphere, sample_uniform_hemisphere,
@@ -179,7 +179,7 @@ fn area_light_query(
         mis,
     )?;
     let origin = v.spawn(g.wi).o;
-    let (d, t_max) = g.shadow_segment(origin, ls.point, ls.normal);
+    let (d, t_max) = LightGeometry::shadow_segment(origin, ls.point);
     Some(ShadowQuery {
         ray: Ray::new(origin, d),
         t_max,
@@ -217,18 +217,15 @@ impl LightGeometry {
     }
 
     /// The shadow ray's direction and t_max from `origin` (the vertex's spawned origin, moved off
-    /// its surface towards the light) to the light `point` of unit `normal`, that end moved off the
-    /// light's surface towards the vertex likewise and the segment ending [`SHADOW_EPSILON`] short
-    /// of it. The segment is taken between the two moved ends, not along `wi` from the vertex for
-    /// `dist`: the origin's offset is measured from the vertex's own surface, and on a path that
-    /// meets the light obliquely and close by it would otherwise carry the segment past the light's
-    /// surface, which would then block its own light (a ceiling just above a two-sided lamp panel
-    /// got no light-sampled light).
+    /// its surface towards the light) to the light `point`, ending [`SHADOW_EPSILON`] short of it.
+    /// The segment is taken from the moved origin, not along `wi` from the vertex for `dist`: the
+    /// origin's offset is measured from the vertex's own surface, and on a path that meets the
+    /// light obliquely and close by it would otherwise carry the segment past the light's surface,
+    /// which would then block its own light (a ceiling just above a two-sided lamp panel got no
+    /// light-sampled light).
     #[inline(always)]
-    pub(crate) fn shadow_segment(&self, origin: Vec3, point: Vec3, normal: Vec3) -> (Vec3, f32) {
-        let side = if self.cos_l > 0.0 { normal } else { -normal };
-        let end = offset_unit_normal(point, side, 0.0);
-        let d = end - origin;
+    pub(crate) fn shadow_segment(origin: Vec3, point: Vec3) -> (Vec3, f32) {
+        let d = point - origin;
         let dist = d.length();
         (d / dist, dist * (1.0 - SHADOW_EPSILON))
     }

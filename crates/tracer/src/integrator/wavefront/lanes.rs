@@ -109,8 +109,6 @@ pub(super) struct Lanes<'a> {
 
     // Set by `shade_hit`.
     p: V3,
-    /// How far from the surface rays spawned at `p` start (`spawn_clearance`).
-    clearance: F,
     ng: V3,
     /// The path goes on from this vertex (it is within the depth limit).
     go: B,
@@ -179,7 +177,6 @@ impl<'a> Lanes<'a> {
             diffuse_on: [false; LANES],
             light_density: [0.0; LANES],
             p: V3::ZERO,
-            clearance: [0.0; LANES],
             ng: V3::ZERO,
             go: [false; LANES],
             u_light_select: [0.0; LANES],
@@ -284,7 +281,6 @@ impl<'a> Lanes<'a> {
         );
         let (mut ls, betas, mut vertices, depths) = (self.l, self.beta, self.vertices, self.depth);
         let (mut go, mut ps, mut ngs) = ([false; LANES], V3::ZERO, V3::ZERO);
-        let mut clearances = [0.0; LANES];
         let (keys, revs) = (self.key, self.index_rev);
         let (mut u_select, mut u_light) = ([0.0; LANES], [[0.0; LANES]; 2]);
         let limit = self.depth_limit;
@@ -312,7 +308,6 @@ impl<'a> Lanes<'a> {
             vertices[i] += u32::from(on);
             go[i] = on && depths[i] < limit;
             ps.set(i, p);
-            clearances[i] = spawn_clearance([a, b, c]);
             ngs.set(i, ng);
         }
         // The light sample's values in a loop of their own (see `scatter`).
@@ -328,7 +323,6 @@ impl<'a> Lanes<'a> {
             (u_light[0][i], u_light[1][i], u_select[i]) = (point0, point1, select);
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
-        self.clearance = clearances;
         (self.u_light_select, self.u_light) = (u_select, u_light);
         if let Some(lights) = self.lights {
             // `sample_lights`, in the lanes.
@@ -392,7 +386,11 @@ impl<'a> Lanes<'a> {
     fn scatter(&mut self, rr: RussianRoulette) {
         // Copied to locals, as in `shade_hit`.
         let (gos, ps, ngs, ds, albedos) = (self.go, self.p, self.ng, self.d, self.albedo);
-        let clearances = self.clearance;
+        // How far from the surface rays spawned at the hit start (`spawn_clearance`), from the
+        // hit triangles' corners, which are still in place.
+        let (ca, cb, cc) = (self.corner_a, self.corner_b, self.corner_c);
+        let clearances: F =
+            std::array::from_fn(|i| spawn_clearance([ca.get(i), cb.get(i), cc.get(i)]));
         let (mut betas, depths, keys, revs) = (self.beta, self.depth, self.key, self.index_rev);
         let (light_ok, light_point, light_normal, light_pdf) = (
             self.light_ok,
@@ -403,20 +401,16 @@ impl<'a> Lanes<'a> {
         let (light_front, light_back, mut rays) = (self.light_front, self.light_back, self.rays);
         let (mut shadows, mut shadow_o, mut shadow_d) = ([false; LANES], V3::ZERO, V3::ZERO);
         let (mut shadow_t_max, mut shadow_value) = ([0.0; LANES], V3::ZERO);
+        let mut light_wi = V3::ZERO;
         let (mut os, mut new_ds, mut pdfs, mut mis) = (self.o, ds, self.bsdf_pdf, self.mis);
         let (mut new_depths, mut conts) = (depths, [false; LANES]);
         for i in 0..LANES {
             let go = gos[i];
             let p = ps.get(i);
-            let clearance = clearances[i];
             let ng = ngs.get(i);
             let wo = -ds.get(i);
             let albedo = albedos.get(i);
             let beta = betas.get(i);
-            let spawn = |wi: Vec3| {
-                let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
-                offset_unit_normal(p, side, clearance)
-            };
 
             // 2. Direct lighting: the light sample's contribution, if its shadow ray is clear.
             let g = LightGeometry::new(p, light_point.get(i), light_normal.get(i));
@@ -429,15 +423,22 @@ impl<'a> Lanes<'a> {
             let query = g.value(light_pdf[i], le, f, bsdf_pdf, Vec3::ONE, true);
             let shadow = go && light_ok[i] && query.is_some();
             let value = query.unwrap_or(Vec3::ZERO);
-            // The segment of a lane without a shadow ray is never traced (its values may be NaN).
-            let origin = spawn(g.wi);
-            let (d, t_max) = g.shadow_segment(origin, light_point.get(i), light_normal.get(i));
             shadows[i] = shadow;
+            light_wi.set(i, g.wi);
+            shadow_value.set(i, beta * value);
+            rays[i] += u32::from(shadow);
+        }
+        // The shadow segments in a loop of their own, which the compiler vectorises (in the loop
+        // above they made it scalar). A lane without a shadow ray is never traced: its segment
+        // may be NaN.
+        for i in 0..LANES {
+            let (p, ng, wi) = (ps.get(i), ngs.get(i), light_wi.get(i));
+            let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
+            let origin = offset_unit_normal(p, side, clearances[i]);
+            let (d, t_max) = LightGeometry::shadow_segment(origin, light_point.get(i));
             shadow_o.set(i, origin);
             shadow_d.set(i, d);
             shadow_t_max[i] = t_max;
-            shadow_value.set(i, beta * value);
-            rays[i] += u32::from(shadow);
         }
         let mut sampled_wi = V3::ZERO;
         let mut sampled_weight = V3::ZERO;
