@@ -18,10 +18,11 @@ pub fn spawn_clearance(corners: [Vec3; 3]) -> f32 {
 }
 
 /// Moves a ray origin `p` off the surface with geometric normal `n`, to the side `n` points to:
-/// first by `clearance` ([`spawn_clearance`]), then by an amount that scales with the magnitude of `p` (Wächter & Binder, "A Fast
-/// and Robust Method for Avoiding Self-Intersection", Ray Tracing Gems, 2019). Integer ULP steps
-/// keep the offset tiny near the origin and proportionate far away, so secondary rays neither
-/// re-hit their own surface (acne) nor skip a nearby one (light leaks).
+/// first by `clearance` ([`spawn_clearance`]), then by an amount that scales with the magnitude
+/// of `p` (Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection", Ray
+/// Tracing Gems, 2019). Integer ULP steps keep the offset tiny near the origin and proportionate
+/// far away, so secondary rays neither re-hit their own surface (acne) nor skip a nearby one
+/// (light leaks).
 #[inline]
 pub fn offset_ray_origin(p: Vec3, n: Vec3, clearance: f32) -> Vec3 {
     let p = p + n * clearance;

@@ -428,9 +428,9 @@ impl<'a> Lanes<'a> {
             shadow_value.set(i, beta * value);
             rays[i] += u32::from(shadow);
         }
-        // The shadow segments in a loop of their own, which the compiler vectorises (in the loop
-        // above they made it scalar). A lane without a shadow ray is never traced: its segment
-        // may be NaN.
+        // The shadow segments in a loop of their own (inside the loop above they cost more;
+        // docs/benchmarks.md, November 27). A lane without a shadow ray is never traced: its
+        // segment may be NaN.
         for i in 0..LANES {
             let (p, ng, wi) = (ps.get(i), ngs.get(i), light_wi.get(i));
             let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
