@@ -562,7 +562,7 @@ mod tests {
 
     /// The environment's floats reach the worker as JSON text; a render is the same bits as a local
     /// one only if every finite f32 comes back exactly (serde_json writes the shortest digits that
-    /// round to the f32, and reads them back through a correctly rounded f64).
+    /// round to the f32, and the f64 it reads them into rounds back to the same f32).
     #[test]
     fn environment_floats_survive_json_bit_for_bit() {
         let mut state = 0x9e37_79b9_7f4a_7c15_u64;
