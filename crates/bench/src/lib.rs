@@ -14,6 +14,7 @@ pub mod metrics;
 pub mod reference;
 pub mod render;
 pub mod report;
+pub mod scale;
 pub mod scenes;
 pub mod speed;
 pub mod study;

@@ -12,7 +12,7 @@ use pathfarm_tracer::gltf::{
 };
 use pathfarm_tracer::light::PunctualLight;
 use pathfarm_tracer::material::{AlphaMode, ColorSpace, WrapMode};
-use pathfarm_tracer::scene::SceneParts;
+use pathfarm_tracer::scene::{Scene, SceneParts};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -416,7 +416,9 @@ fn negative_scale_flips_winding_and_keeps_normals_outward() {
     let inner = d.node(j(r#"{"mesh":0,"scale":[1,-1,1]}"#));
     let outer = d.node(j(&format!(r#"{{"scale":[-1,1,1],"children":[{inner}]}}"#)));
     d.root(outer);
-    let parts = parts(&d.gltf());
+    // Placed twice, the mesh is kept instanced; flattened, as the loader flattens a mesh placed
+    // once.
+    let parts = parts(&d.gltf()).flatten_instances();
     let mesh = &parts.mesh;
     assert_eq!(mesh.len(), 2);
     // Mirrored in X: corners (0,0,0), (−1,0,0), (0,1,0), two swapped so the front (+Z) is kept.
@@ -596,7 +598,10 @@ fn primitives_keep_only_the_vertices_they_use_with_identical_triangles() {
         [&renumber(&idx0), &renumber(&idx1)],
     );
 
-    let (a, b) = (parts(&full.gltf()), parts(&cut.glb()));
+    let (a, b) = (
+        parts(&full.gltf()).flatten_instances(),
+        parts(&cut.glb()).flatten_instances(),
+    );
     assert_eq!(a.mesh.len(), 10, "5 triangles on each of 2 nodes");
     assert_eq!(a.mesh.positions, b.mesh.positions);
     assert_eq!(a.mesh.material, b.mesh.material);
@@ -1594,14 +1599,30 @@ fn degenerate_triangles_are_dropped_as_they_are_read() {
     d.root(a);
     let b = d.node(j(r#"{"mesh":0,"scale":[1,0,1]}"#));
     d.root(b);
+    // Placed twice, the mesh is kept instanced: its two degenerate triangles are dropped once,
+    // and the placement that flattens it is dropped at build, its triangle counted as dropped.
     let loaded = parts(&d.gltf());
-    assert_eq!(loaded.mesh.len(), 1, "only the real triangle is kept");
-    assert_eq!(loaded.degenerate_dropped, 5);
+    assert_eq!(loaded.mesh.len(), 0);
+    assert_eq!(loaded.prototypes.len(), 1);
+    assert_eq!(
+        loaded.prototypes[0].len(),
+        1,
+        "only the real triangle is kept"
+    );
+    assert_eq!(loaded.degenerate_dropped, 2);
     let scene = load(&d.gltf(), &NoExternalResources, &LoadOptions::default()).expect("loads");
     assert_eq!(
-        (scene.info.triangles, scene.info.degenerate_dropped),
-        (1, 5)
+        (
+            scene.info.triangles,
+            scene.info.degenerate_dropped,
+            scene.info.instances
+        ),
+        (1, 3, 1)
     );
+    // Flattened, as the loader flattens a mesh placed once: the zero scale collapses the real
+    // triangle of the second copy.
+    let flat = Scene::build(loaded.flatten_instances()).expect("builds");
+    assert_eq!((flat.info.triangles, flat.info.degenerate_dropped), (1, 3));
 
     // Nothing but degenerate triangles: an error, not an empty scene. Instancing makes 100 × 2
     // triangles out of two.
@@ -1617,17 +1638,28 @@ fn degenerate_triangles_are_dropped_as_they_are_read() {
     }
     assert_contains(
         &error_of(&d.gltf()),
-        &["all 200 triangles of the scene are degenerate"],
+        &["all 2 triangles of the scene are degenerate"],
     );
-    // The declared count is checked from the JSON before anything is read: 100 instances of two
-    // triangles against a limit of 199.
+    // The declared count is checked from the JSON before anything is read: 100 placements of a
+    // mesh of two triangles kept instanced store two, against a limit of 1.
+    let options = LoadOptions {
+        max_triangles: 1,
+        ..LoadOptions::default()
+    };
+    assert_contains(
+        &error_with(&d.gltf(), &NoExternalResources, &options),
+        &["the scene declares 2 triangles to store (100 mesh instances; 1 instanced meshes stored once), over the limit of 1"],
+    );
+    // An emissive mesh is flattened however often it is placed: 200 triangles to store.
+    d.json["materials"] = j(r#"[{"emissiveFactor":[1,1,1]}]"#);
+    d.json["meshes"][0]["primitives"][0]["material"] = Value::from(0);
     let options = LoadOptions {
         max_triangles: 199,
         ..LoadOptions::default()
     };
     assert_contains(
         &error_with(&d.gltf(), &NoExternalResources, &options),
-        &["the scene declares 200 triangles (100 mesh instances), over the limit of 199"],
+        &["the scene declares 200 triangles to store (100 mesh instances; 0 instanced meshes stored once), over the limit of 199"],
     );
 }
 
@@ -2815,4 +2847,74 @@ fn webp_fallback_and_errors() {
         &error_of(&d.gltf()),
         &["texture 0", "no source image", "KHR_texture_basisu"],
     );
+}
+
+/// A mesh placed by two or more nodes is kept once and placed (a prototype in object space);
+/// one placed once is flattened; an emissive one is flattened however often it is placed, so
+/// that light sampling sees every emitting triangle. Loaded and built, the scene renders the
+/// instanced mesh through its placements.
+#[test]
+fn meshes_placed_twice_are_kept_instanced_unless_they_emit() {
+    let mut d = Doc::new();
+    let p = d.positions(&TRI);
+    d.json["materials"] = j(r#"[{"name":"Grey"},{"name":"Lamp","emissiveFactor":[1,0.5,0]}]"#);
+    for (name, material) in [("Shared", 0), ("Single", 0), ("Lamp", 1)] {
+        d.mesh(
+            name,
+            j(&format!(
+                r#"[{{"attributes":{{"POSITION":{p}}},"material":{material}}}]"#
+            )),
+        );
+    }
+    let place = |d: &mut Doc, mesh: usize, x: f32, mirror: bool| {
+        let sx = if mirror { -1.0 } else { 1.0 };
+        let n = d.node(j(&format!(
+            r#"{{"mesh":{mesh},"translation":[{x},0,-3],"scale":[{sx},2,1]}}"#
+        )));
+        d.root(n);
+    };
+    for (k, x) in [0.0, 2.0, 4.0].into_iter().enumerate() {
+        place(&mut d, 0, x, k == 1);
+    }
+    place(&mut d, 1, 6.0, false);
+    place(&mut d, 2, 8.0, false);
+    place(&mut d, 2, 10.0, false);
+    let loaded = parts(&d.gltf());
+    assert_eq!(
+        loaded.prototypes.len(),
+        1,
+        "only the shared, non-emissive mesh"
+    );
+    assert_eq!(loaded.prototypes[0].positions, vec![TRI.map(Vec3::from)]);
+    assert_eq!(loaded.placements.len(), 3);
+    let x: Vec<f64> = loaded
+        .placements
+        .iter()
+        .map(|p| p.to_world.w_axis.x)
+        .collect();
+    assert_eq!(x, [0.0, 2.0, 4.0]);
+    assert_eq!(
+        loaded.placements[1].to_world.x_axis.x, -1.0,
+        "the mirror is kept"
+    );
+    assert_eq!(
+        loaded.mesh.len(),
+        3,
+        "the single mesh and both lamps, flattened"
+    );
+    let scene = Scene::build(loaded).expect("builds");
+    assert_eq!(scene.info.instances, 3);
+    assert_eq!(scene.info.instanced_triangles, 3);
+    assert_eq!(scene.info.emissive_triangles, 2);
+    // A ray down the middle of each placed triangle hits it, mirrored or not, from its front.
+    for (k, x) in [0.0f32, 2.0, 4.0].into_iter().enumerate() {
+        let sx = if k == 1 { -1.0 } else { 1.0 };
+        let o = Vec3::new(x + 0.25 * sx, 0.5, 0.0);
+        let ray = pathfarm_tracer::geometry::Ray::new(o, -Vec3::Z);
+        let hit = scene.intersect(&ray, f32::INFINITY, 0.5).expect("hit");
+        assert_eq!(hit.t, 3.0);
+        let si = scene.surface(&ray, &hit);
+        assert!((si.p - Vec3::new(o.x, 0.5, -3.0)).length() < 1e-6);
+        assert!(si.front && si.ng.z > 0.999, "placement {k}: {:?}", si.ng);
+    }
 }

@@ -12,6 +12,10 @@ fn scenes() -> Vec<(&'static str, Scene)> {
     vec![
         ("furnace box", furnace_box(0.7, 0.5)),
         ("point-lit sphere", sphere_with_point_light(1.0, 0.6, 5.0)),
+        (
+            "instanced room",
+            Scene::build(instanced_room()).expect("scene builds"),
+        ),
     ]
 }
 

@@ -27,6 +27,11 @@ pub enum Suite {
     /// load time, samples/s and image mean against Cycles'. Writes blender.md and blender.json.
     /// Not part of `all`.
     Blender,
+    /// Scenes at scale, written as .glb files and loaded as users' files are: ten million
+    /// triangles in one mesh, 10,000 placements of a 100k-triangle mesh, 400 of a 2.5k one (also
+    /// built flattened): load and BVH build seconds, memory, samples/s. Writes scale.md and
+    /// scale.json. Smaller cases with --quick. Not part of `all`.
+    Scale,
 }
 
 #[derive(Args, Debug)]
@@ -44,7 +49,8 @@ pub struct BenchArgs {
     /// Small images, fixed sample counts and short farm runs: a smoke run of a minute or two.
     #[arg(long)]
     pub quick: bool,
-    /// Render threads (default: every core; 2 for `speed`, the threads its targets are set for).
+    /// Render threads (default: every core; 2 for `speed` and `scale`, the threads their targets
+    /// are set for).
     #[arg(long)]
     pub threads: Option<usize>,
     #[arg(long, default_value_t = 1)]
@@ -122,6 +128,22 @@ fn speed(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn scale(args: BenchArgs) -> anyhow::Result<()> {
+    let threads = args.threads.unwrap_or(2);
+    anyhow::ensure!(threads > 0, "--threads must be at least 1");
+    let opts = pathfarm_bench::scale::ScaleOptions {
+        out_dir: args.out.clone(),
+        threads,
+        quick: args.quick,
+        seed: args.seed,
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let (_, markdown) = pathfarm_bench::scale::run(&opts).context("scale benchmark failed")?;
+    println!("{markdown}");
+    eprintln!("report in {}", args.out.join("scale.md").display());
+    Ok(())
+}
+
 fn blender(args: BenchArgs) -> anyhow::Result<()> {
     let dir = args.scenes_dir.join("suite");
     anyhow::ensure!(
@@ -151,6 +173,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         Suite::Soak => return soak(args),
         Suite::Speed => return speed(args),
         Suite::Blender => return blender(args),
+        Suite::Scale => return scale(args),
         Suite::All | Suite::Tracer | Suite::Farm => {}
     }
     for s in &args.scenes {

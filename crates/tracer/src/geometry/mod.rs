@@ -1,11 +1,15 @@
 //! Rays, triangles, the triangle mesh as the renderer stores it, and the BVH over it.
 
 mod bvh;
+mod instances;
 mod mesh;
 mod ray;
 mod triangle;
 
 pub use bvh::{Bvh, RayQuery};
+pub use instances::{
+    flatten_into, Instance, InstanceError, InstanceHit, Instances, Placement, Prototype,
+};
 pub use mesh::{renderable, Mesh, MeshError};
 pub use ray::Ray;
 pub(crate) use triangle::box_reciprocal;

@@ -110,25 +110,36 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Glb<'_>, GltfError> {
     })
 }
 
+/// A `.glb` of a JSON document and an optional binary buffer (each chunk padded to four bytes:
+/// JSON with spaces, the buffer with zeros), for tools that generate scenes. `None` when a chunk is
+/// over the format's 4 GiB.
+pub fn encode(json: &[u8], bin: Option<&[u8]>) -> Option<Vec<u8>> {
+    let padded = |len: usize| len.div_ceil(4) * 4;
+    let mut out = Vec::with_capacity(28 + padded(json.len()) + bin.map_or(0, |b| padded(b.len())));
+    out.extend(MAGIC);
+    out.extend(2u32.to_le_bytes());
+    out.extend(0u32.to_le_bytes());
+    out.extend(u32::try_from(padded(json.len())).ok()?.to_le_bytes());
+    out.extend(b"JSON");
+    out.extend(json);
+    out.resize(out.len() + padded(json.len()) - json.len(), b' ');
+    if let Some(bin) = bin {
+        out.extend(u32::try_from(padded(bin.len())).ok()?.to_le_bytes());
+        out.extend(b"BIN\0");
+        out.extend(bin);
+        out.resize(out.len() + padded(bin.len()) - bin.len(), 0);
+    }
+    let n = u32::try_from(out.len()).ok()?;
+    out[8..12].copy_from_slice(&n.to_le_bytes());
+    Some(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn glb(json: &[u8], bin: Option<&[u8]>) -> Vec<u8> {
-        let mut out = b"glTF".to_vec();
-        out.extend(2u32.to_le_bytes());
-        out.extend(0u32.to_le_bytes());
-        out.extend((json.len() as u32).to_le_bytes());
-        out.extend(b"JSON");
-        out.extend(json);
-        if let Some(bin) = bin {
-            out.extend((bin.len() as u32).to_le_bytes());
-            out.extend(b"BIN\0");
-            out.extend(bin);
-        }
-        let n = out.len() as u32;
-        out[8..12].copy_from_slice(&n.to_le_bytes());
-        out
+        encode(json, bin).unwrap()
     }
 
     #[test]

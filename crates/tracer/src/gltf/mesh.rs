@@ -1,4 +1,5 @@
-//! Mesh primitives → world-space triangles.
+//! Mesh primitives → world-space triangles, or (for a mesh the loader keeps instanced, see
+//! `instancing`) object-space prototypes and their placements.
 //!
 //! Each mesh is read once (however many nodes instance it) into local vertex arrays and index
 //! triples, validated (every index below the vertex count, every float finite), then emitted per
@@ -27,7 +28,7 @@ use super::compact::{compact, gather};
 use super::draco;
 use super::error::{label, GltfError, Warnings};
 use super::tangents::{self, Tangents};
-use crate::geometry::{renderable, Mesh};
+use crate::geometry::{renderable, Mesh, Placement};
 use glam::{DMat3, DMat4, Vec2, Vec3, Vec4};
 use gltf::json;
 use json::mesh::{Mode, Semantic};
@@ -35,7 +36,8 @@ use json::validation::Checked;
 use std::collections::HashMap;
 use std::rc::Rc;
 
-/// The most triangles a scene may have (instancing can multiply a small file's triangles).
+/// The most triangles a scene may store (flattened instances count once per node; a mesh kept
+/// instanced counts once).
 pub const MAX_TRIANGLES: usize = 100_000_000;
 
 pub(crate) fn mesh_label(root: &json::Root, mesh: usize) -> String {
@@ -173,6 +175,24 @@ pub(crate) struct MeshBuilder<'r, 'a> {
     far: Option<Far>,
     /// Each mesh's primitives that have triangles.
     cache: HashMap<usize, Rc<Vec<Primitive>>>,
+    /// Instanced meshes, in object space, with their object-space corner bounds.
+    prototypes: Vec<(Mesh, Vec3, Vec3)>,
+    /// glTF mesh → its prototype.
+    prototype_of: HashMap<usize, u32>,
+    placements: Vec<Placement>,
+}
+
+/// What the builder made.
+pub(crate) struct Built {
+    /// The world-space triangles.
+    pub mesh: Mesh,
+    /// Instanced meshes in object space, and where nodes place them.
+    pub prototypes: Vec<Mesh>,
+    pub placements: Vec<Placement>,
+    /// Triangles dropped as degenerate.
+    pub dropped: usize,
+    /// The first corner (or instance box corner) beyond ±`MAX_COORDINATE`.
+    pub far: Option<Far>,
 }
 
 impl<'r, 'a> MeshBuilder<'r, 'a> {
@@ -192,6 +212,9 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             transformed: 0,
             far: None,
             cache: HashMap::new(),
+            prototypes: Vec::new(),
+            prototype_of: HashMap::new(),
+            placements: Vec::new(),
         }
     }
 
@@ -201,10 +224,108 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         self.transformed
     }
 
-    /// The triangles, how many were dropped as degenerate, and the first kept corner beyond
-    /// ±`MAX_COORDINATE` (with the node and primitive it came from).
-    pub fn finish(self) -> (Mesh, usize, Option<Far>) {
-        (self.mesh, self.dropped, self.far)
+    /// The triangles, the prototypes and placements, how many triangles were dropped as
+    /// degenerate, and the first kept corner beyond ±`MAX_COORDINATE` (with the node and primitive
+    /// it came from).
+    pub fn finish(self) -> Built {
+        Built {
+            mesh: self.mesh,
+            prototypes: self.prototypes.into_iter().map(|(m, _, _)| m).collect(),
+            placements: self.placements,
+            dropped: self.dropped,
+            far: self.far,
+        }
+    }
+
+    /// Triangles stored so far (world-space and prototypes), with the dropped ones.
+    fn stored(&self) -> usize {
+        self.mesh.len() + self.dropped + self.prototypes.iter().map(|p| p.0.len()).sum::<usize>()
+    }
+
+    /// Places mesh `mesh` at node `node` (world transform `world`) as an instance of its prototype,
+    /// made in object space on its first placement.
+    pub fn add_placement(
+        &mut self,
+        node: usize,
+        mesh: usize,
+        world: &DMat4,
+        material: &dyn Fn(Option<usize>) -> PrimitiveMaterial,
+        warnings: &mut Warnings,
+    ) -> Result<(), GltfError> {
+        let prototype = match self.prototype_of.get(&mesh) {
+            Some(&p) => p,
+            None => {
+                let index = self.prototypes.len() as u32;
+                self.prototypes
+                    .push((self.empty_mesh(), Vec3::ZERO, Vec3::ZERO));
+                self.prototype_of.insert(mesh, index);
+                let prims = self.primitives(mesh, material, warnings)?;
+                for p in prims.iter() {
+                    self.check_limit(p)?;
+                    let m = material(p.info.material);
+                    self.emit(p, &DMat4::IDENTITY, m, node, mesh, Some(index), warnings);
+                }
+                let proto = &mut self.prototypes[index as usize];
+                let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+                for v in proto.0.positions.iter().flatten() {
+                    lo = lo.min(*v);
+                    hi = hi.max(*v);
+                }
+                (proto.1, proto.2) = (lo, hi);
+                index
+            }
+        };
+        let (proto, lo, hi) = &self.prototypes[prototype as usize];
+        if proto.is_empty() {
+            return Ok(());
+        }
+        if self.far.is_none() {
+            // The placed box's corners: what the top-level tree and the rays will see.
+            for k in 0..8 {
+                let pick = |bit: usize, a: f32, b: f32| if k & bit == 0 { a } else { b };
+                let corner = Vec3::new(
+                    pick(1, lo.x, hi.x),
+                    pick(2, lo.y, hi.y),
+                    pick(4, lo.z, hi.z),
+                );
+                let w = world.transform_point3(corner.as_dvec3()).as_vec3();
+                if outside(w) || !w.is_finite() {
+                    self.far = Some(Far {
+                        node,
+                        mesh,
+                        primitive: 0,
+                        corner: w,
+                    });
+                    break;
+                }
+            }
+        }
+        self.placements.push(Placement {
+            prototype,
+            to_world: *world,
+        });
+        Ok(())
+    }
+
+    fn empty_mesh(&self) -> Mesh {
+        Mesh {
+            normals: self.needs.normals.then(Vec::new),
+            uv0: self.needs.uv[0].then(Vec::new),
+            uv1: self.needs.uv[1].then(Vec::new),
+            tangents: self.needs.tangents.then(Vec::new),
+            ..Mesh::default()
+        }
+    }
+
+    fn check_limit(&self, p: &Primitive) -> Result<(), GltfError> {
+        // Dropped triangles count too: reading them is the cost this limit bounds.
+        let total = self.stored().saturating_add(p.triangles.len());
+        if total > MAX_TRIANGLES {
+            return Err(GltfError::Limit(format!(
+                "the scene has more than {MAX_TRIANGLES} triangles (counting degenerate ones)"
+            )));
+        }
+        Ok(())
     }
 
     /// Adds every triangle primitive of mesh `mesh` under the world transform `world` of node `node`.
@@ -216,7 +337,23 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         material: &dyn Fn(Option<usize>) -> PrimitiveMaterial,
         warnings: &mut Warnings,
     ) -> Result<(), GltfError> {
-        let prims = match self.cache.get(&mesh) {
+        let prims = self.primitives(mesh, material, warnings)?;
+        for p in prims.iter() {
+            self.check_limit(p)?;
+            let m = material(p.info.material);
+            self.emit(p, world, m, node, mesh, None, warnings);
+        }
+        Ok(())
+    }
+
+    /// Mesh `mesh`'s primitives with triangles, read on first use.
+    fn primitives(
+        &mut self,
+        mesh: usize,
+        material: &dyn Fn(Option<usize>) -> PrimitiveMaterial,
+        warnings: &mut Warnings,
+    ) -> Result<Rc<Vec<Primitive>>, GltfError> {
+        Ok(match self.cache.get(&mesh) {
             Some(p) => p.clone(),
             None => {
                 let mut scratch = Warnings::default();
@@ -234,19 +371,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 self.cache.insert(mesh, prims.clone());
                 prims
             }
-        };
-        for p in prims.iter() {
-            // Dropped triangles count too: reading them is the cost this limit bounds.
-            let total = (self.mesh.len() + self.dropped).saturating_add(p.triangles.len());
-            if total > MAX_TRIANGLES {
-                return Err(GltfError::Limit(format!(
-                    "the scene has more than {MAX_TRIANGLES} triangles (counting degenerate ones)"
-                )));
-            }
-            let m = material(p.info.material);
-            self.emit(p, world, m, node, mesh, warnings);
-        }
-        Ok(())
+        })
     }
 
     fn read_primitive(
@@ -395,6 +520,9 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         Ok(p)
     }
 
+    /// Emits primitive `p` under `world`: into the world-space mesh, or into prototype
+    /// `prototype` (with `world` the identity).
+    #[allow(clippy::too_many_arguments)]
     fn emit(
         &mut self,
         p: &Primitive,
@@ -402,6 +530,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
         mat: PrimitiveMaterial,
         node: usize,
         mesh: usize,
+        prototype: Option<u32>,
         warnings: &mut Warnings,
     ) {
         self.transformed += p.positions.len() as u64;
@@ -469,20 +598,21 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                     });
                 }
             }
-            self.mesh.positions.push(pos);
-            self.mesh.material.push(mat.index);
+            let out = match prototype {
+                Some(i) => &mut self.prototypes[i as usize].0,
+                None => &mut self.mesh,
+            };
+            out.positions.push(pos);
+            out.material.push(mat.index);
             let flat = (pos[1] - pos[0]).cross(pos[2] - pos[0]).normalize_or_zero();
-            if let Some(normals) = &mut self.mesh.normals {
+            if let Some(normals) = &mut out.normals {
                 let corner = |i: usize| match &wn {
                     Some(wn) if wn[i] != Vec3::ZERO => wn[i],
                     _ => flat,
                 };
                 normals.push([corner(a), corner(b), corner(c)]);
             }
-            for (set, slot) in [&mut self.mesh.uv0, &mut self.mesh.uv1]
-                .into_iter()
-                .enumerate()
-            {
+            for (set, slot) in [&mut out.uv0, &mut out.uv1].into_iter().enumerate() {
                 if let Some(out) = slot {
                     out.push(match &p.uv[set] {
                         Some(uv) => [uv[a], uv[b], uv[c]],
@@ -490,7 +620,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                     });
                 }
             }
-            if let Some(out) = &mut self.mesh.tangents {
+            if let Some(out) = &mut out.tangents {
                 out.push(match (&wt, &wt_corners, tangent_uv) {
                     (Some(wt), _, _) => [wt[a], wt[b], wt[c]],
                     (None, Some(wc), _) => order.map(|i| wc[k][i]),

@@ -79,6 +79,7 @@ mod document;
 mod draco;
 mod error;
 mod glb;
+mod instancing;
 mod lights;
 mod materials;
 mod mesh;
@@ -91,6 +92,7 @@ mod textures;
 pub use bounds::MAX_COORDINATE;
 pub use document::SUPPORTED_EXTENSIONS;
 pub use error::GltfError;
+pub use glb::encode as encode_glb;
 pub use lights::LUMENS_PER_WATT;
 pub use materials::texture_transform_matrix;
 pub use mesh::MAX_TRIANGLES;
@@ -202,13 +204,16 @@ fn load_parts_unguarded(
     document::feature_warnings(root, &instances, &mut warnings);
     let mesh_of = |node: usize| root.nodes.get(node).and_then(|n| n.mesh).map(|m| m.value());
 
-    // What the geometry will cost, before any of it is read: a few bytes of JSON can instance a
-    // mesh ten thousand times.
+    // What the geometry will cost, before any of it is read: a few bytes of JSON can place a
+    // mesh ten thousand times. A mesh kept instanced is stored once; a flattened one per node.
+    let instanced = instancing::instanced_meshes(root, &instances);
     let limit = options.max_triangles.min(MAX_TRIANGLES as u64);
     let mut per_mesh = HashMap::new();
+    let mut placed_instanced = BTreeSet::new();
     let declared = instances
         .iter()
         .filter_map(|inst| mesh_of(inst.node))
+        .filter(|m| !instanced.contains(m) || placed_instanced.insert(*m))
         .map(|m| {
             *per_mesh
                 .entry(m)
@@ -217,8 +222,13 @@ fn load_parts_unguarded(
         .fold(0u64, u64::saturating_add);
     if declared > limit {
         return Err(GltfError::Limit(format!(
-            "the scene declares {declared} triangles ({} mesh instances), over the limit of {limit}",
-            instances.iter().filter(|i| mesh_of(i.node).is_some()).count()
+            "the scene declares {declared} triangles to store ({} mesh instances; {} instanced \
+             meshes stored once), over the limit of {limit}",
+            instances
+                .iter()
+                .filter(|i| mesh_of(i.node).is_some())
+                .count(),
+            instanced.len()
         )));
     }
 
@@ -287,8 +297,14 @@ fn load_parts_unguarded(
     };
     let mut punctual_lights = Vec::new();
     for inst in &instances {
-        if let Some(m) = mesh_of(inst.node) {
-            builder.add_instance(inst.node, m, &inst.world, &material_of, &mut warnings)?;
+        match mesh_of(inst.node) {
+            Some(m) if instanced.contains(&m) => {
+                builder.add_placement(inst.node, m, &inst.world, &material_of, &mut warnings)?
+            }
+            Some(m) => {
+                builder.add_instance(inst.node, m, &inst.world, &material_of, &mut warnings)?
+            }
+            None => {}
         }
         if let Some(light) = lights::node_light(root, inst.node, &inst.world, &mut warnings)? {
             punctual_lights.push(light);
@@ -299,17 +315,19 @@ fn load_parts_unguarded(
         decoded: acc.decoded(),
         transformed: builder.transformed(),
     });
-    let (mesh, degenerate_dropped, far) = builder.finish();
-    bounds::check(root, far)?;
+    let built = builder.finish();
+    bounds::check(root, built.far)?;
     let camera = camera::choose(root, &instances, options.camera.as_deref())?;
     Ok(SceneParts {
-        mesh,
+        mesh: built.mesh,
+        prototypes: built.prototypes,
+        placements: built.placements,
         materials,
         textures: texture_cache.finish(),
         punctual_lights,
         camera,
         warnings: warnings.into_vec(),
-        degenerate_dropped,
+        degenerate_dropped: built.dropped,
     })
 }
 
@@ -431,6 +449,12 @@ mod tests {
             ),
         );
         let (parts, work) = load_with_work(&bytes);
+        // Kept instanced: one prototype of one triangle, placed by every node.
+        assert_eq!(parts.mesh.len(), 0);
+        assert_eq!(parts.prototypes.len(), 1);
+        assert_eq!(parts.prototypes[0].len(), 1);
+        assert_eq!(parts.placements.len(), nodes);
+        let parts = parts.flatten_instances();
         assert_eq!(parts.mesh.len(), nodes);
         for (i, t) in parts.mesh.positions.iter().enumerate() {
             let o = glam::Vec3::new(i as f32, 0.0, 0.0);
@@ -440,7 +464,8 @@ mod tests {
             work,
             Work {
                 decoded: n as u64 + 3,
-                transformed: 3 * nodes as u64
+                // The prototype's three vertices, once: placements transform nothing at load.
+                transformed: 3
             }
         );
     }

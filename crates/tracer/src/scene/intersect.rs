@@ -2,7 +2,7 @@
 //! interaction at a hit.
 
 use super::Scene;
-use crate::geometry::{Ray, RayPrecomp, RayQuery, TriangleHit};
+use crate::geometry::{InstanceHit, Mesh, Ray, RayPrecomp, RayQuery, TriangleHit};
 use crate::sampler::hash_u32;
 use glam::{Vec2, Vec3, Vec4};
 
@@ -10,12 +10,18 @@ use glam::{Vec2, Vec3, Vec4};
 #[derive(Clone, Copy, Debug)]
 pub struct Hit {
     pub t: f32,
+    /// The triangle: of the world-space mesh, or of the instance's prototype.
     pub triangle: u32,
     pub b1: f32,
     pub b2: f32,
+    /// The instance hit, or [`Hit::WORLD`] for the world-space mesh.
+    pub instance: u32,
 }
 
 impl Hit {
+    /// `instance` of a hit of the world-space mesh.
+    pub const WORLD: u32 = u32::MAX;
+
     /// The hit of triangle `triangle` that the BVH reports.
     #[inline(always)]
     fn from_bvh((triangle, h): (u32, TriangleHit)) -> Hit {
@@ -24,6 +30,29 @@ impl Hit {
             triangle,
             b1: h.b1,
             b2: h.b2,
+            instance: Hit::WORLD,
+        }
+    }
+
+    #[inline(always)]
+    fn as_instance_hit(&self) -> InstanceHit {
+        InstanceHit {
+            t: self.t,
+            instance: self.instance,
+            triangle: self.triangle,
+            b1: self.b1,
+            b2: self.b2,
+        }
+    }
+
+    #[inline(always)]
+    fn from_instance_hit(h: InstanceHit) -> Hit {
+        Hit {
+            t: h.t,
+            triangle: h.triangle,
+            b1: h.b1,
+            b2: h.b2,
+            instance: h.instance,
         }
     }
 }
@@ -55,14 +84,30 @@ impl Scene {
     /// (b1, b2). `u` drives stochastic (BLEND) coverage.
     #[inline]
     fn passes_through(&self, triangle: usize, b1: f32, b2: f32, u: f32) -> bool {
-        let m = &self.materials[self.mesh.material[triangle] as usize];
+        self.passes_through_in(&self.mesh, triangle, 0, b1, b2, u)
+    }
+
+    /// [`Scene::passes_through`] for a triangle of `mesh` (the world-space mesh, or instance
+    /// `salt − 1`'s prototype: the salt decorrelates the instances' coverage).
+    #[inline]
+    fn passes_through_in(
+        &self,
+        mesh: &Mesh,
+        triangle: usize,
+        salt: u32,
+        b1: f32,
+        b2: f32,
+        u: f32,
+    ) -> bool {
+        let m = &self.materials[mesh.material[triangle] as usize];
         if !m.has_alpha() {
             return false;
         }
-        let uv = self.uv_at(triangle, b1, b2);
+        let uv = uv_at(mesh, triangle, b1, b2);
         // Decorrelate the coverage decision of different surfaces along one ray.
         let u = if matches!(m.alpha_mode, crate::material::AlphaMode::Blend) {
-            let h = hash_u32(u.to_bits() ^ hash_u32(triangle as u32));
+            let h =
+                hash_u32(u.to_bits() ^ hash_u32(triangle as u32) ^ salt.wrapping_mul(0x9E37_79B9));
             crate::sampler::bits_to_unit(h)
         } else {
             u
@@ -95,7 +140,45 @@ impl Scene {
             self.bvh
                 .closest_in::<INLINED>(&pre, ray.d, t_max, |_, _| true)
         };
-        found.map(Hit::from_bvh)
+        let found = found.map(Hit::from_bvh);
+        if self.instances.is_empty() {
+            return found;
+        }
+        self.intersect_instances(ray, t_max, alpha_u, found)
+    }
+
+    /// The closest instanced hit that beats `found` (the world-space mesh's), or `found`.
+    #[inline(never)]
+    fn intersect_instances(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        alpha_u: f32,
+        found: Option<Hit>,
+    ) -> Option<Hit> {
+        let best = found.map(|h| h.as_instance_hit());
+        let better = if self.any_alpha {
+            self.instances.closest(ray, t_max, best, |k, tri, h| {
+                let (_, proto) = self.instances.get(k);
+                !self.passes_through_in(&proto.mesh, tri as usize, k + 1, h.b1, h.b2, alpha_u)
+            })
+        } else {
+            self.instances.closest(ray, t_max, best, |_, _, _| true)
+        };
+        better.map(Hit::from_instance_hit)
+    }
+
+    /// Whether an instanced triangle blocks the segment (see [`Scene::visible`]).
+    #[inline(never)]
+    fn instance_blocks(&self, ray: &Ray, t_max: f32, alpha_u: f32) -> bool {
+        if self.any_alpha {
+            self.instances.any(ray, t_max, |k, tri, h| {
+                let (_, proto) = self.instances.get(k);
+                !self.passes_through_in(&proto.mesh, tri as usize, k + 1, h.b1, h.b2, alpha_u)
+            })
+        } else {
+            self.instances.any(ray, t_max, |_, _, _| true)
+        }
     }
 
     /// True if nothing blocks the segment from `ray.o` along `ray.d` up to distance `t_max`.
@@ -113,13 +196,14 @@ impl Scene {
         alpha_u: f32,
     ) -> bool {
         let pre = RayPrecomp::new(ray);
-        if self.any_alpha {
-            !self.bvh.any_in::<INLINED>(&pre, ray.d, t_max, |id, h| {
+        let blocked = if self.any_alpha {
+            self.bvh.any_in::<INLINED>(&pre, ray.d, t_max, |id, h| {
                 !self.passes_through(id as usize, h.b1, h.b2, alpha_u)
             })
         } else {
-            !self.bvh.any_in::<INLINED>(&pre, ray.d, t_max, |_, _| true)
-        }
+            self.bvh.any_in::<INLINED>(&pre, ray.d, t_max, |_, _| true)
+        };
+        !blocked && (self.instances.is_empty() || !self.instance_blocks(ray, t_max, alpha_u))
     }
 
     /// [`Scene::intersect`] of `ray` and [`Scene::visible`] of `shadow`, traced together (the two
@@ -168,64 +252,142 @@ impl Scene {
             self.bvh
                 .closest_and_any_in::<INLINED>(a, |_, _| true, b, |_, _| true)
         };
-        (found.map(Hit::from_bvh), !blocked)
-    }
-
-    #[inline]
-    fn uv_at(&self, tri: usize, b1: f32, b2: f32) -> [Vec2; 2] {
-        let b0 = 1.0 - b1 - b2;
-        let interp = |t: &[Vec2; 3]| t[0] * b0 + t[1] * b1 + t[2] * b2;
-        [
-            self.mesh
-                .uv0
-                .as_ref()
-                .map_or(Vec2::ZERO, |u| interp(&u[tri])),
-            self.mesh
-                .uv1
-                .as_ref()
-                .map_or(Vec2::ZERO, |u| interp(&u[tri])),
-        ]
+        let found = found.map(Hit::from_bvh);
+        if self.instances.is_empty() {
+            return (found, !blocked);
+        }
+        let found = self.intersect_instances(ray, f32::INFINITY, alpha_u, found);
+        let blocked = blocked || self.instance_blocks(shadow, shadow_t_max, shadow_alpha_u);
+        (found, !blocked)
     }
 
     /// The surface at a hit of `ray`.
     #[inline(always)]
     pub fn surface(&self, ray: &Ray, hit: &Hit) -> SurfaceInteraction {
-        let tri = hit.triangle as usize;
-        let [a, b, c] = self.mesh.positions[tri];
-        let (b1, b2) = (hit.b1, hit.b2);
-        let b0 = 1.0 - b1 - b2;
-        // Interpolating the vertices is more accurate than o + t·d far from the origin.
-        let p = a * b0 + b * b1 + c * b2;
-        let ng = (b - a).cross(c - a).normalize();
-        let ns = match &self.mesh.normals {
-            Some(n) => {
-                let [n0, n1, n2] = n[tri];
-                let s = (n0 * b0 + n1 * b1 + n2 * b2).normalize_or_zero();
-                if s == Vec3::ZERO || !s.is_finite() {
-                    ng
-                } else if s.dot(ng) < 0.0 {
-                    // Normals that disagree with the winding: trust the winding for the side.
-                    -s
-                } else {
-                    s
-                }
-            }
-            None => ng,
-        };
-        let tangent = self.mesh.tangents.as_ref().map(|t| {
-            let [t0, t1, t2] = t[tri];
-            t0 * b0 + t1 * b1 + t2 * b2
-        });
-        SurfaceInteraction {
-            p,
-            clearance: crate::math::spawn_clearance([a, b, c]),
-            ng,
-            ns,
-            uv: self.uv_at(tri, b1, b2),
-            tangent,
-            material: self.mesh.material[tri],
-            triangle: hit.triangle,
-            front: ray.d.dot(ng) < 0.0,
+        if hit.instance != Hit::WORLD {
+            return self.instance_surface(ray, hit);
         }
+        let tri = hit.triangle as usize;
+        let mesh = &self.mesh;
+        interaction(
+            ray,
+            hit,
+            mesh.positions[tri],
+            (hit.b1, hit.b2),
+            mesh.normals.as_ref().map(|n| n[tri]),
+            mesh.tangents.as_ref().map(|t| t[tri]),
+            uv_at(mesh, tri, hit.b1, hit.b2),
+            mesh.material[tri],
+        )
+    }
+
+    /// [`Scene::surface`] of an instanced hit: the prototype's triangle moved to world space as
+    /// the flattening loader moves it (positions by the transform, normals by its inverse
+    /// transpose, tangents by its linear part with the handedness flipped under a mirror, and two
+    /// corners swapped under a mirror), then shaded as a world-space triangle.
+    #[inline(never)]
+    fn instance_surface(&self, ray: &Ray, hit: &Hit) -> SurfaceInteraction {
+        let (inst, proto) = self.instances.get(hit.instance);
+        let mesh = &proto.mesh;
+        let tri = hit.triangle as usize;
+        // Corners (a, c, b) under a mirror: their weights are (b0, b2, b1).
+        let (order, bary) = if inst.flip {
+            ([0, 2, 1], (hit.b2, hit.b1))
+        } else {
+            ([0, 1, 2], (hit.b1, hit.b2))
+        };
+        let corners = mesh.positions[tri];
+        let positions = order.map(|i| inst.to_world.transform_point3(corners[i]));
+        let (a, b, c) = (positions[0], positions[1], positions[2]);
+        let flat = (b - a).cross(c - a).normalize_or_zero();
+        let normals = mesh.normals.as_ref().map(|n| {
+            let n = n[tri];
+            order.map(|i| {
+                let w = (inst.normal_matrix * glam::Vec3A::from(n[i])).normalize_or_zero();
+                if w == glam::Vec3A::ZERO {
+                    flat
+                } else {
+                    w.into()
+                }
+            })
+        });
+        let sign = if inst.flip { -1.0 } else { 1.0 };
+        let tangents = mesh.tangents.as_ref().map(|t| {
+            let t = t[tri];
+            order.map(|i| {
+                let xyz = inst
+                    .to_world
+                    .transform_vector3(t[i].truncate())
+                    .normalize_or_zero();
+                xyz.extend(t[i].w * sign)
+            })
+        });
+        interaction(
+            ray,
+            hit,
+            positions,
+            bary,
+            normals,
+            tangents,
+            uv_at(mesh, tri, hit.b1, hit.b2),
+            mesh.material[tri],
+        )
+    }
+}
+
+/// The texture coordinates of `mesh`'s triangle `tri` at barycentrics (b1, b2).
+#[inline]
+fn uv_at(mesh: &Mesh, tri: usize, b1: f32, b2: f32) -> [Vec2; 2] {
+    let b0 = 1.0 - b1 - b2;
+    let interp = |t: &[Vec2; 3]| t[0] * b0 + t[1] * b1 + t[2] * b2;
+    [
+        mesh.uv0.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
+        mesh.uv1.as_ref().map_or(Vec2::ZERO, |u| interp(&u[tri])),
+    ]
+}
+
+/// The surface at barycentrics (b1, b2) of a world-space triangle with these corners (front-face
+/// order) and corner attributes.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn interaction(
+    ray: &Ray,
+    hit: &Hit,
+    [a, b, c]: [Vec3; 3],
+    (b1, b2): (f32, f32),
+    normals: Option<[Vec3; 3]>,
+    tangents: Option<[Vec4; 3]>,
+    uv: [Vec2; 2],
+    material: u32,
+) -> SurfaceInteraction {
+    let b0 = 1.0 - b1 - b2;
+    // Interpolating the vertices is more accurate than o + t·d far from the origin.
+    let p = a * b0 + b * b1 + c * b2;
+    let ng = (b - a).cross(c - a).normalize();
+    let ns = match normals {
+        Some([n0, n1, n2]) => {
+            let s = (n0 * b0 + n1 * b1 + n2 * b2).normalize_or_zero();
+            if s == Vec3::ZERO || !s.is_finite() {
+                ng
+            } else if s.dot(ng) < 0.0 {
+                // Normals that disagree with the winding: trust the winding for the side.
+                -s
+            } else {
+                s
+            }
+        }
+        None => ng,
+    };
+    let tangent = tangents.map(|[t0, t1, t2]| t0 * b0 + t1 * b1 + t2 * b2);
+    SurfaceInteraction {
+        p,
+        clearance: crate::math::spawn_clearance([a, b, c]),
+        ng,
+        ns,
+        uv,
+        tangent,
+        material,
+        triangle: hit.triangle,
+        front: ray.d.dot(ng) < 0.0,
     }
 }

@@ -8,7 +8,7 @@ pub use intersect::{Hit, SurfaceInteraction};
 
 use crate::bsdf::Bsdf;
 use crate::camera::Camera;
-use crate::geometry::{Bvh, Mesh, MeshError};
+use crate::geometry::{Bvh, InstanceError, Instances, Mesh, MeshError, Placement};
 use crate::integrator::DiffuseScene;
 use crate::light::{AreaLights, Environment, Lights, PunctualLight};
 use crate::material::{Material, Texture};
@@ -17,7 +17,13 @@ use glam::Vec3;
 /// What a loader hands to [`Scene::build`].
 #[derive(Clone, Debug, Default)]
 pub struct SceneParts {
+    /// The triangles placed once, in world space.
     pub mesh: Mesh,
+    /// Meshes kept once in their own space and placed by `placements` (a two-level BVH, see
+    /// [`crate::geometry::Instances`]). None of their materials may emit: lights are sampled over
+    /// world-space triangles, so emissive meshes are flattened into `mesh`.
+    pub prototypes: Vec<Mesh>,
+    pub placements: Vec<Placement>,
     pub materials: Vec<Material>,
     pub textures: Vec<Texture>,
     pub punctual_lights: Vec<PunctualLight>,
@@ -29,10 +35,26 @@ pub struct SceneParts {
     pub degenerate_dropped: usize,
 }
 
+impl SceneParts {
+    /// These parts with every instanced mesh flattened into world-space triangles (see
+    /// [`crate::geometry::flatten_into`]).
+    pub fn flatten_instances(mut self) -> SceneParts {
+        crate::geometry::flatten_into(&self.prototypes, &self.placements, &mut self.mesh);
+        self.prototypes.clear();
+        self.placements.clear();
+        self
+    }
+}
+
 /// Facts about a built scene, for logs and reports.
 #[derive(Clone, Debug, Default)]
 pub struct SceneInfo {
+    /// Triangles stored: the world-space ones and each instanced mesh once.
     pub triangles: usize,
+    /// Placements of instanced meshes, and the triangles they place (each mesh's count once per
+    /// placement).
+    pub instances: usize,
+    pub instanced_triangles: u64,
     /// Zero-area (or non-finite) triangles dropped, by the loader or at build time.
     pub degenerate_dropped: usize,
     pub emissive_triangles: usize,
@@ -50,6 +72,20 @@ pub struct SceneInfo {
 pub enum SceneError {
     #[error(transparent)]
     Mesh(#[from] MeshError),
+    #[error(transparent)]
+    Instance(#[from] InstanceError),
+    #[error("instanced mesh {prototype}: {source}")]
+    PrototypeMesh { prototype: usize, source: MeshError },
+    #[error("instanced mesh {prototype}: triangle {triangle} refers to material {material}, but the scene has {count} materials")]
+    PrototypeMaterial {
+        prototype: usize,
+        triangle: usize,
+        material: u32,
+        count: usize,
+    },
+    /// Lights are sampled over world-space triangles: an emissive mesh must be flattened.
+    #[error("instanced mesh {prototype} uses emissive material {material}; emissive meshes must be placed as world-space triangles")]
+    EmissivePrototype { prototype: usize, material: u32 },
     /// Every triangle of the scene was degenerate: a scene made only of unrenderable geometry is
     /// broken input, not an empty scene (which has no triangles at all).
     #[error("all {dropped} triangles of the scene are degenerate (zero area or non-finite corners); nothing can be rendered")]
@@ -69,6 +105,8 @@ pub enum SceneError {
 pub struct Scene {
     pub mesh: Mesh,
     pub bvh: Bvh,
+    /// Instanced meshes and their placements (empty for most scenes, and then free).
+    pub instances: Instances,
     pub materials: Vec<Material>,
     pub textures: Vec<Texture>,
     pub lights: Lights,
@@ -90,6 +128,8 @@ impl Scene {
     pub fn build(parts: SceneParts) -> Result<Scene, SceneError> {
         let SceneParts {
             mut mesh,
+            prototypes,
+            placements,
             materials,
             textures,
             punctual_lights,
@@ -110,17 +150,46 @@ impl Scene {
                 count: materials.len(),
             });
         }
-        // Drop zero-area and non-finite triangles: they cannot be hit, sampled or shaded.
-        let keep: Vec<u32> = (0..mesh.len())
-            .filter(|&i| mesh.is_renderable(i))
-            .map(|i| i as u32)
-            .collect();
-        let degenerate_dropped = dropped_by_loader + (mesh.len() - keep.len());
-        if keep.len() < mesh.len() {
-            mesh.reorder(&keep);
+        let mut prototypes = prototypes;
+        let mut prototype_dropped = 0;
+        for (prototype, proto) in prototypes.iter_mut().enumerate() {
+            proto
+                .validate()
+                .map_err(|source| SceneError::PrototypeMesh { prototype, source })?;
+            for (triangle, &material) in proto.material.iter().enumerate() {
+                match materials.get(material as usize) {
+                    None => {
+                        return Err(SceneError::PrototypeMaterial {
+                            prototype,
+                            triangle,
+                            material,
+                            count: materials.len(),
+                        })
+                    }
+                    Some(m) if m.is_emissive() => {
+                        return Err(SceneError::EmissivePrototype {
+                            prototype,
+                            material,
+                        })
+                    }
+                    Some(_) => {}
+                }
+            }
+            prototype_dropped += drop_degenerate(proto);
         }
+        // Drop zero-area and non-finite triangles: they cannot be hit, sampled or shaded.
+        let (instances, unplaced) = Instances::build(prototypes, &placements)?;
+        if unplaced.placements > 0 {
+            tracing::info!(
+                placements = unplaced.placements,
+                "dropped instances with singular transforms"
+            );
+        }
+        // A dropped placement's triangles are as degenerate as a flattened copy of them would be.
+        let degenerate_dropped =
+            dropped_by_loader + drop_degenerate(&mut mesh) + prototype_dropped + unplaced.triangles;
         if degenerate_dropped > 0 {
-            if keep.is_empty() {
+            if mesh.is_empty() && instances.is_empty() {
                 return Err(SceneError::AllDegenerate {
                     dropped: degenerate_dropped,
                 });
@@ -137,7 +206,11 @@ impl Scene {
                 hi = hi.max(*v);
             }
         }
-        if mesh.is_empty() {
+        if let Some((ilo, ihi)) = instances.bounds() {
+            lo = lo.min(ilo);
+            hi = hi.max(ihi);
+        }
+        if mesh.is_empty() && instances.is_empty() {
             lo = Vec3::ZERO;
             hi = Vec3::ZERO;
         }
@@ -146,12 +219,17 @@ impl Scene {
         let lights = Lights::new(area, punctual_lights, radius.max(1e-3));
         let camera = camera.unwrap_or_else(|| Camera::framing(0.5 * (lo + hi), radius.max(1e-3)));
         let info = SceneInfo {
-            triangles: mesh.len(),
+            triangles: mesh.len() + instances.stored_triangles(),
+            instances: instances.instances.len(),
+            instanced_triangles: instances.placed_triangles(),
             degenerate_dropped,
             emissive_triangles: lights.area.triangles.len(),
             punctual_lights: lights.punctual.len(),
             bvh_nodes: bvh.node_count(),
-            bytes: mesh.bytes() + bvh.bytes() + textures.iter().map(Texture::bytes).sum::<usize>(),
+            bytes: mesh.bytes()
+                + bvh.bytes()
+                + instances.bytes()
+                + textures.iter().map(Texture::bytes).sum::<usize>(),
             warnings,
             bounds_min: lo,
             bounds_max: hi,
@@ -167,12 +245,13 @@ impl Scene {
                     .map(|p| Bsdf::new(p, Vec3::Z, Vec3::Z, None))
             })
             .collect::<Vec<_>>();
-        let diffuse = DiffuseScene::new(&materials, &bsdf_templates, &mesh, &lights);
+        let diffuse = DiffuseScene::new(&materials, &bsdf_templates, &mesh, &instances, &lights);
         Ok(Scene {
             bsdf_templates,
             diffuse,
             mesh,
             bvh,
+            instances,
             materials,
             textures,
             lights,
@@ -218,6 +297,7 @@ impl Scene {
             &self.materials,
             &self.bsdf_templates,
             &self.mesh,
+            &self.instances,
             &self.lights,
         );
         self
@@ -228,6 +308,20 @@ impl Scene {
         self.camera = camera;
         self
     }
+}
+
+/// Drops the mesh's zero-area and non-finite triangles (they cannot be hit, sampled or shaded);
+/// returns how many.
+fn drop_degenerate(mesh: &mut Mesh) -> usize {
+    let keep: Vec<u32> = (0..mesh.len())
+        .filter(|&i| mesh.is_renderable(i))
+        .map(|i| i as u32)
+        .collect();
+    let dropped = mesh.len() - keep.len();
+    if dropped > 0 {
+        mesh.reorder(&keep);
+    }
+    dropped
 }
 
 #[cfg(test)]

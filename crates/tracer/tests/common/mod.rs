@@ -252,6 +252,120 @@ pub fn sphere_with_point_light(r: f32, rho: f32, i: f32) -> Scene {
     .expect("scene builds")
 }
 
+/// A geodesic sphere of radius 1 facing outwards, with vertex normals, spherical texture
+/// coordinates and tangents along u, all of material `material`.
+pub fn smooth_sphere(subdivisions: u32, material: u32) -> Mesh {
+    let inward = inward_sphere(1.0, subdivisions);
+    let uv = |v: Vec3| {
+        glam::Vec2::new(
+            0.5 + v.z.atan2(v.x) / std::f32::consts::TAU,
+            v.y.clamp(-1.0, 1.0).acos() / std::f32::consts::PI,
+        )
+    };
+    let tangent = |v: Vec3| {
+        let t = Vec3::new(-v.z, 0.0, v.x).normalize_or_zero();
+        let t = if t == Vec3::ZERO { Vec3::X } else { t };
+        t.extend(1.0)
+    };
+    let mut mesh = Mesh {
+        normals: Some(Vec::new()),
+        uv0: Some(Vec::new()),
+        tangents: Some(Vec::new()),
+        ..Mesh::default()
+    };
+    for [a, b, c] in inward.positions {
+        let tri = [a, c, b];
+        mesh.positions.push(tri);
+        mesh.normals
+            .as_mut()
+            .unwrap()
+            .push(tri.map(|v| v.normalize()));
+        mesh.uv0.as_mut().unwrap().push(tri.map(uv));
+        mesh.tangents.as_mut().unwrap().push(tri.map(tangent));
+        mesh.material.push(material);
+    }
+    mesh
+}
+
+/// A room (the inward box scaled by 4, grey) lit by an emissive panel under its ceiling, holding
+/// twelve placements of a smooth rough-metal sphere (rotated, scaled unevenly, three mirrored) and
+/// two of a cut-out quad (alpha below its cutoff: rays pass through it), kept instanced.
+pub fn instanced_room() -> SceneParts {
+    use glam::{DMat4, DQuat, DVec3};
+    use pathfarm_tracer::geometry::Placement;
+    use pathfarm_tracer::material::AlphaMode;
+    let mut room = inward_box();
+    for t in &mut room.positions {
+        *t = t.map(|v| v * 4.0);
+    }
+    let panel = [
+        Vec3::new(-1.0, 3.9, -1.0),
+        Vec3::new(1.0, 3.9, -1.0),
+        Vec3::new(1.0, 3.9, 1.0),
+        Vec3::new(-1.0, 3.9, 1.0),
+    ];
+    // Facing down: counter-clockwise seen from below.
+    room.positions.push([panel[0], panel[1], panel[2]]);
+    room.positions.push([panel[0], panel[2], panel[3]]);
+    room.material.extend([1, 1]);
+    let metal = Material {
+        base_color: Vec4::new(0.9, 0.6, 0.3, 1.0),
+        metallic: 1.0,
+        roughness: 0.35,
+        ..Material::default()
+    };
+    let cut_out = Material {
+        base_color: Vec4::new(0.2, 0.9, 0.2, 0.25),
+        alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
+        ..lambert(0.5, 0.0)
+    };
+    let mut quad = Mesh::default();
+    quad.positions.push([
+        Vec3::new(-1., -1., 0.),
+        Vec3::new(1., -1., 0.),
+        Vec3::new(1., 1., 0.),
+    ]);
+    quad.positions.push([
+        Vec3::new(-1., -1., 0.),
+        Vec3::new(1., 1., 0.),
+        Vec3::new(-1., 1., 0.),
+    ]);
+    quad.material.extend([3, 3]);
+    let mut placements: Vec<Placement> = (0..12)
+        .map(|i| {
+            let f = i as f64;
+            let mirror = if i % 4 == 1 { -1.0 } else { 1.0 };
+            Placement {
+                prototype: 0,
+                to_world: DMat4::from_scale_rotation_translation(
+                    DVec3::new(0.5 * mirror, 0.35 + 0.05 * (f % 3.0), 0.45),
+                    DQuat::from_rotation_y(0.9 * f) * DQuat::from_rotation_z(0.4 * f),
+                    DVec3::new(
+                        -2.7 + 1.1 * (f % 6.0),
+                        -3.0 + 1.6 * (f / 6.0).floor(),
+                        -1.5 - 0.4 * (f % 4.0),
+                    ),
+                ),
+            }
+        })
+        .collect();
+    for x in [-1.5, 1.5] {
+        placements.push(Placement {
+            prototype: 1,
+            to_world: DMat4::from_translation(DVec3::new(x, 0.0, 1.0)),
+        });
+    }
+    let camera = camera_at(Vec3::new(0.0, 0.0, 3.5));
+    SceneParts {
+        mesh: room,
+        prototypes: vec![smooth_sphere(3, 2), quad],
+        placements,
+        materials: vec![lambert(0.6, 0.0), lambert(0.0, 8.0), metal, cut_out],
+        camera: Some(camera),
+        ..SceneParts::default()
+    }
+}
+
 /// Mean luminance of the image and its standard error, from the per-pixel variance estimates.
 pub fn image_mean_and_stderr(acc: &Accumulation) -> (f64, f64) {
     let n = acc.pixels.len() as f64;

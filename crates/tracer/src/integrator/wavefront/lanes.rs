@@ -246,6 +246,7 @@ impl<'a> Lanes<'a> {
                 triangle: 0,
                 b1: 0.0,
                 b2: 0.0,
+                instance: Hit::WORLD,
             });
             self.t[i] = hit.t;
             self.b1[i] = hit.b1;

@@ -93,16 +93,19 @@ pub(crate) struct DiffuseScene {
 impl DiffuseScene {
     /// The lanes' view of a scene, if every material is an untextured pure Lambertian (emissive
     /// or not) without alpha or volume, the mesh has no vertex normals or tangents, and the only
-    /// lights are emissive triangles (at least one): no punctual lights, no environment. The one
-    /// place that decides which scenes the lanes render.
+    /// lights are emissive triangles (at least one): no punctual lights, no environment, and no
+    /// instanced meshes (the lanes trace the world-space mesh alone). The one place that decides
+    /// which scenes the lanes render.
     pub(crate) fn new(
         materials: &[Material],
         templates: &[Option<crate::bsdf::Bsdf>],
         mesh: &crate::geometry::Mesh,
+        instances: &crate::geometry::Instances,
         lights: &Lights,
     ) -> Option<DiffuseScene> {
         let area = &lights.area;
-        if mesh.normals.is_some()
+        if !instances.is_empty()
+            || mesh.normals.is_some()
             || mesh.tangents.is_some()
             || !lights.punctual.is_empty()
             || lights.environment.is_some()
