@@ -1,11 +1,14 @@
 //! The tracer's throughput on one bench scene, for profiling and for checking that an optimisation
 //! keeps every bit: `cargo run --release -p pathfarm-bench --example throughput -- [SCENE] [THREADS]
 //! [SPP]` with SCENE `cornell` (the shipped box, default) or `sphere330k` (the box plus the
-//! 327,680-triangle displaced sphere of `pathfarm bench speed`). Prints samples and rays per second
-//! and a hash of the accumulation: the hash must not change unless the image is meant to.
+//! 327,680-triangle displaced sphere of `pathfarm bench speed`), or the path of a `.glb` (such as
+//! `scenes/suite/instanced.glb`; with `:flat` after it, its instanced meshes flattened into world
+//! triangles, to compare the two levels with one). Prints samples and rays per second and a hash
+//! of the accumulation: the hash must not change unless the image is meant to.
 
 use pathfarm_bench::render::render_range;
 use pathfarm_bench::scenes;
+use pathfarm_tracer::gltf::{load_parts, LoadOptions, NoExternalResources};
 use pathfarm_tracer::Scene;
 use std::path::Path;
 
@@ -19,6 +22,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "sphere330k" => {
             let (parts, _) = scenes::cornell_with_sphere(name, dir, scenes::FREQ_330K)?;
             Scene::build(parts)?
+        }
+        file if file.ends_with(".glb") || file.ends_with(".glb:flat") => {
+            let (path, flat) = match file.strip_suffix(":flat") {
+                Some(path) => (path, true),
+                None => (file, false),
+            };
+            let bytes = std::fs::read(path)?;
+            let parts = load_parts(&bytes, &NoExternalResources, &LoadOptions::default())?;
+            Scene::build(if flat {
+                parts.flatten_instances()
+            } else {
+                parts
+            })?
         }
         _ => scenes::load(&scenes::find(name)?, dir)?.scene,
     };

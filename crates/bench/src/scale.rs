@@ -4,7 +4,8 @@
 //! (`gltf::load_parts`), then built (`Scene::build`: the BVHs, the lights). Reported per case: the
 //! load and build seconds, the tracer's estimate of the scene's bytes, the process's peak resident
 //! memory during load and build above what it held before (the kernel's peak reset through
-//! `/proc/self/clear_refs`), and samples/s of a short render. The instanced case of a million
+//! `/proc/self/clear_refs`), and samples/s of a short render. Each case runs in a process of its
+//! own (the bench starts itself again with `--case`), so that no case reuses memory another freed. The instanced case of a million
 //! placed triangles is also built flattened (every placement's triangles in world space), the
 //! way it was before instancing, to show what the two levels cost a ray and save in memory.
 
@@ -15,7 +16,7 @@ use pathfarm_tracer::gltf::{encode_glb, load_parts, LoadOptions, NoExternalResou
 use pathfarm_tracer::{RenderSettings, Scene};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// One scene to measure: a displaced sphere of about `triangles` triangles placed `placements`
@@ -69,8 +70,13 @@ pub const QUICK_CASES: [Case; 3] = [
 #[derive(Clone, Debug)]
 pub struct ScaleOptions {
     pub out_dir: PathBuf,
+    /// The `pathfarm` executable, started once per case as `pathfarm bench scale --case NAME`;
+    /// `None`: every case in this process (memory figures then include what earlier cases left).
+    pub exe: Option<PathBuf>,
     pub threads: usize,
     pub quick: bool,
+    /// Also write each case's `.glb` into `out_dir` (to render or profile it elsewhere).
+    pub keep_files: bool,
     pub seed: u64,
     pub command_line: String,
 }
@@ -95,7 +101,7 @@ pub struct Measured {
     /// Peak resident memory during load and build above the resident memory before, MiB;
     /// `None` where `/proc` is missing.
     pub peak_rss_mib: Option<f64>,
-    /// A 128×128 render at 4 spp from the default framing camera.
+    /// A 128×128 render at 32 spp from the file's camera.
     pub samples_per_second: f64,
 }
 
@@ -108,7 +114,8 @@ pub struct ScaleResults {
 
 /// A sphere of radius 1 with bumps, as a latitude × longitude grid of `n × n` quads (about
 /// `triangles` triangles), with vertex normals: the `.glb` of one mesh placed by `placements` nodes
-/// on a grid in the XZ plane, each turned and scaled a little differently.
+/// on a grid in the XZ plane, each turned and scaled a little differently, lit by a sun and seen
+/// from above by a camera.
 pub fn sphere_glb(triangles: usize, placements: usize) -> Result<Vec<u8>, BenchError> {
     let n = ((triangles as f64 / 2.0).sqrt().ceil() as usize).max(2);
     let (rows, cols) = (n + 1, n + 1);
@@ -166,10 +173,31 @@ pub fn sphere_glb(triangles: usize, placements: usize) -> Result<Vec<u8>, BenchE
             })
         })
         .collect();
+    // A sun from above at an angle (KHR_lights_punctual), so that paths bounce and cast shadows.
+    let mut nodes = nodes;
+    let (half, axis) = (0.5f64, [0.6f64, 0.0, 0.8]);
+    nodes.push(serde_json::json!({
+        "name": "Sun",
+        "rotation": [axis[0] * half.sin(), 0.0, axis[2] * half.sin(), half.cos()],
+        "extensions": {"KHR_lights_punctual": {"light": 0}},
+    }));
+    // A camera above the grid's near edge, looking down at 45° over it.
+    let extent = (side.max(1) as f64) * 2.5;
+    let pitch = -std::f64::consts::FRAC_PI_4;
+    nodes.push(serde_json::json!({
+        "name": "Camera",
+        "camera": 0,
+        "translation": [extent / 2.0 - 1.25, 0.45 * extent + 2.0, extent + 1.0],
+        "rotation": [(pitch / 2.0).sin(), 0.0, 0.0, (pitch / 2.0).cos()],
+    }));
     let json = serde_json::json!({
         "asset": {"version": "2.0", "generator": "pathfarm bench scale"},
+        "cameras": [{"type": "perspective", "perspective": {"yfov": 0.9, "znear": 0.01}}],
+        "extensionsUsed": ["KHR_lights_punctual"],
+        "extensions": {"KHR_lights_punctual": {"lights": [
+            {"type": "directional", "intensity": 3.0, "color": [1.0, 0.95, 0.9]}]}},
         "scene": 0,
-        "scenes": [{"nodes": (0..placements).collect::<Vec<_>>()}],
+        "scenes": [{"nodes": (0..placements + 2).collect::<Vec<_>>()}],
         "nodes": nodes,
         "meshes": [{"name": "Bumpy sphere", "primitives": [{
             "attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "material": 0}]}],
@@ -236,7 +264,7 @@ fn measure(case: &Case, bytes: &[u8], flatten: bool, seed: u64) -> Result<Measur
         seed,
         ..crate::speed::settings(128, 128, seed)
     };
-    let spp = 4;
+    let spp = 32;
     let r = render_range(&scene, &settings, 0..spp);
     let samples = 128.0 * 128.0 * spp as f64;
     let measured = Measured {
@@ -257,6 +285,57 @@ fn measure(case: &Case, bytes: &[u8], flatten: bool, seed: u64) -> Result<Measur
     Ok(measured)
 }
 
+/// A case's name for `--case`: its name, and `:flat` for its flattened build.
+fn case_id(case: &Case, flatten: bool) -> String {
+    format!("{}{}", case.name, if flatten { ":flat" } else { "" })
+}
+
+/// Measures case `id` (see [`case_id`]) in this process, on the current rayon pool; writes its
+/// `.glb` into `keep_in` if given.
+pub fn measure_case(id: &str, seed: u64, keep_in: Option<&Path>) -> Result<Measured, BenchError> {
+    let (name, flatten) = match id.strip_suffix(":flat") {
+        Some(name) => (name, true),
+        None => (id, false),
+    };
+    let case = CASES
+        .iter()
+        .chain(&QUICK_CASES)
+        .find(|c| c.name == name)
+        .ok_or_else(|| BenchError::UnknownScene(id.to_string()))?;
+    tracing::info!(case = id, "scale: writing the file");
+    let bytes = sphere_glb(case.triangles, case.placements)?;
+    if let Some(dir) = keep_in {
+        write_file(&dir.join(format!("{}.glb", case.name)), &bytes)?;
+    }
+    measure(case, &bytes, flatten, seed)
+}
+
+/// Runs case `id` in a child process (`exe bench scale --case ID`), which prints its result as
+/// JSON on its last line of output.
+fn in_child(exe: &Path, id: &str, opts: &ScaleOptions) -> Result<Measured, BenchError> {
+    let out = std::process::Command::new(exe)
+        .args(["bench", "scale", "--case", id, "--threads"])
+        .arg(opts.threads.to_string())
+        .args(["--seed", &opts.seed.to_string(), "--out"])
+        .arg(&opts.out_dir)
+        .args(opts.keep_files.then_some("--keep-files"))
+        .stderr(std::process::Stdio::inherit())
+        .output()
+        .map_err(|e| BenchError::io(exe, e))?;
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    if !out.status.success() {
+        return Err(BenchError::Invalid(format!(
+            "case {id}: {} exited with {}",
+            exe.display(),
+            out.status
+        )));
+    }
+    let last = stdout.lines().last().unwrap_or_default();
+    serde_json::from_str(last).map_err(|e| {
+        BenchError::Invalid(format!("case {id}: cannot read its result {last:?}: {e}"))
+    })
+}
+
 /// Measures every case (the quick ones with `quick`) on a pool of `threads`, and writes
 /// `scale.md` and `scale.json` into the output directory.
 pub fn run(opts: &ScaleOptions) -> Result<(ScaleResults, String), BenchError> {
@@ -268,16 +347,19 @@ pub fn run(opts: &ScaleOptions) -> Result<(ScaleResults, String), BenchError> {
     let cases = if opts.quick { QUICK_CASES } else { CASES };
     let mut measured = Vec::new();
     for case in &cases {
-        tracing::info!(case = case.name, "scale: writing the file");
-        let bytes = sphere_glb(case.triangles, case.placements)?;
-        pool.install(|| -> Result<(), BenchError> {
-            measured.push(measure(case, &bytes, false, opts.seed)?);
-            let placed = case.triangles as u64 * case.placements as u64;
-            if case.placements > 1 && placed <= 2_000_000 {
-                measured.push(measure(case, &bytes, true, opts.seed)?);
+        let placed = case.triangles as u64 * case.placements as u64;
+        for flatten in [false, true] {
+            if flatten && !(case.placements > 1 && placed <= 2_000_000) {
+                continue;
             }
-            Ok(())
-        })?;
+            let id = case_id(case, flatten);
+            measured.push(match &opts.exe {
+                Some(exe) => in_child(exe, &id, opts)?,
+                None => pool.install(|| {
+                    measure_case(&id, opts.seed, opts.keep_files.then_some(&opts.out_dir))
+                })?,
+            });
+        }
     }
     let results = ScaleResults {
         command_line: opts.command_line.clone(),
@@ -328,8 +410,8 @@ fn markdown(r: &ScaleResults) -> String {
     let _ = writeln!(
         md,
         "\nPeak RSS: the process's peak resident memory during load and build above what it held \
-         before (the file's bytes included in neither). Samples/s: 128×128, 4 spp, default framing \
-         camera, tracer defaults."
+         before (the file's bytes included in neither). Samples/s: 128×128, 32 spp, the file's camera \
+         (above the grid, looking down at 45°) and sun, tracer defaults."
     );
     md
 }

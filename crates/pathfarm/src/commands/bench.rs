@@ -67,6 +67,13 @@ pub struct BenchArgs {
     /// Samples per pixel (`blender` only; default 256, 32 with --quick).
     #[arg(long)]
     pub spp: Option<u32>,
+    /// Also write each generated scene as DIR/NAME.glb (`scale` only).
+    #[arg(long)]
+    pub keep_files: bool,
+    /// `scale` only: measure this one case in this process and print it as JSON (how `scale`
+    /// runs each case in a process of its own).
+    #[arg(long, hide = true)]
+    pub case: Option<String>,
     /// The soak's window per store, in seconds (`soak` only).
     #[arg(long, default_value_t = 120.0)]
     pub seconds: f64,
@@ -131,10 +138,27 @@ fn speed(args: BenchArgs) -> anyhow::Result<()> {
 fn scale(args: BenchArgs) -> anyhow::Result<()> {
     let threads = args.threads.unwrap_or(2);
     anyhow::ensure!(threads > 0, "--threads must be at least 1");
+    if let Some(case) = &args.case {
+        // One case, in a process of its own (started by the run below): its result as JSON.
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .context("cannot start the render threads")?;
+        let measured = pool
+            .install(|| {
+                let keep = args.keep_files.then_some(args.out.as_path());
+                pathfarm_bench::scale::measure_case(case, args.seed, keep)
+            })
+            .with_context(|| format!("scale case {case} failed"))?;
+        println!("{}", serde_json::to_string(&measured)?);
+        return Ok(());
+    }
     let opts = pathfarm_bench::scale::ScaleOptions {
+        exe: Some(std::env::current_exe().context("cannot find this executable")?),
         out_dir: args.out.clone(),
         threads,
         quick: args.quick,
+        keep_files: args.keep_files,
         seed: args.seed,
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     };

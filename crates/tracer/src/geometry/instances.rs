@@ -277,7 +277,8 @@ impl Instances {
         }
         let mut params = BvhBuildParams::medium_build();
         params.pre_split = false;
-        params.max_prims_per_leaf = 2;
+        // One instance a leaf: each placement's own box is tested before its ray is moved.
+        params.max_prims_per_leaf = 1;
         let bvh2 = build_bvh2(&boxes, params, &mut Duration::default());
         // The instances in leaf order, so that a leaf's range indexes them directly.
         let ordered: Vec<Instance> = bvh2
