@@ -12,6 +12,7 @@ use json::validation::Checked;
 
 /// Extensions this loader implements (so a file may require them).
 pub const SUPPORTED_EXTENSIONS: &[&str] = &[
+    "EXT_mesh_gpu_instancing",
     "EXT_meshopt_compression",
     "EXT_texture_webp",
     "KHR_draco_mesh_compression",

@@ -5,10 +5,13 @@
 //!
 //! - a mesh that one node places is flattened: instancing it would save nothing and cost every ray
 //!   that reaches it a move into object space;
-//! - a mesh that two or more nodes place is kept instanced, unless one of its primitives' materials
+//! - a mesh that two or more nodes place (or one node, by two or more rows of
+//!   EXT_mesh_gpu_instancing: `gpu_instancing`) is kept instanced, unless one of its primitives' materials
 //!   may emit light (a non-zero `emissiveFactor`): lights are sampled over world-space triangles,
 //!   so an emitter is flattened however often it is placed.
 
+use super::error::GltfError;
+use super::gpu_instancing::placement_count;
 use super::nodes::Instance;
 use gltf::json;
 use std::collections::{BTreeSet, HashMap};
@@ -21,14 +24,19 @@ fn may_emit(root: &json::Root, material: Option<usize>) -> bool {
 }
 
 /// The meshes to keep instanced among those the scene's nodes place.
-pub(crate) fn instanced_meshes(root: &json::Root, nodes: &[Instance]) -> BTreeSet<usize> {
-    let mut uses: HashMap<usize, usize> = HashMap::new();
+pub(crate) fn instanced_meshes(
+    root: &json::Root,
+    nodes: &[Instance],
+) -> Result<BTreeSet<usize>, GltfError> {
+    let mut uses: HashMap<usize, u64> = HashMap::new();
     for inst in nodes {
         if let Some(m) = root.nodes.get(inst.node).and_then(|n| n.mesh) {
-            *uses.entry(m.value()).or_default() += 1;
+            let count = uses.entry(m.value()).or_default();
+            *count = count.saturating_add(placement_count(root, inst.node)?);
         }
     }
-    uses.into_iter()
+    Ok(uses
+        .into_iter()
         .filter(|&(_, count)| count >= 2)
         .map(|(mesh, _)| mesh)
         .filter(|&mesh| {
@@ -38,5 +46,5 @@ pub(crate) fn instanced_meshes(root: &json::Root, nodes: &[Instance]) -> BTreeSe
                     .any(|p| may_emit(root, p.material.map(|i| i.value())))
             })
         })
-        .collect()
+        .collect())
 }

@@ -79,6 +79,7 @@ mod document;
 mod draco;
 mod error;
 mod glb;
+mod gpu_instancing;
 mod instancing;
 mod lights;
 mod materials;
@@ -206,20 +207,25 @@ fn load_parts_unguarded(
 
     // What the geometry will cost, before any of it is read: a few bytes of JSON can place a
     // mesh ten thousand times. A mesh kept instanced is stored once; a flattened one per node.
-    let instanced = instancing::instanced_meshes(root, &instances);
+    let instanced = instancing::instanced_meshes(root, &instances)?;
     let limit = options.max_triangles.min(MAX_TRIANGLES as u64);
     let mut per_mesh = HashMap::new();
     let mut placed_instanced = BTreeSet::new();
-    let declared = instances
-        .iter()
-        .filter_map(|inst| mesh_of(inst.node))
-        .filter(|m| !instanced.contains(m) || placed_instanced.insert(*m))
-        .map(|m| {
-            *per_mesh
-                .entry(m)
-                .or_insert_with(|| mesh::declared_triangles(root, m))
-        })
-        .fold(0u64, u64::saturating_add);
+    let mut declared = 0u64;
+    for inst in &instances {
+        let Some(m) = mesh_of(inst.node) else {
+            continue;
+        };
+        let copies = if instanced.contains(&m) {
+            u64::from(placed_instanced.insert(m))
+        } else {
+            gpu_instancing::placement_count(root, inst.node)?
+        };
+        let triangles = *per_mesh
+            .entry(m)
+            .or_insert_with(|| mesh::declared_triangles(root, m));
+        declared = declared.saturating_add(copies.saturating_mul(triangles));
+    }
     if declared > limit {
         return Err(GltfError::Limit(format!(
             "the scene declares {declared} triangles to store ({} mesh instances; {} instanced \
@@ -297,14 +303,14 @@ fn load_parts_unguarded(
     };
     let mut punctual_lights = Vec::new();
     for inst in &instances {
-        match mesh_of(inst.node) {
-            Some(m) if instanced.contains(&m) => {
-                builder.add_placement(inst.node, m, &inst.world, &material_of, &mut warnings)?
+        if let Some(m) = mesh_of(inst.node) {
+            for world in gpu_instancing::placements(&acc, inst.node, &inst.world)? {
+                if instanced.contains(&m) {
+                    builder.add_placement(inst.node, m, &world, &material_of, &mut warnings)?;
+                } else {
+                    builder.add_instance(inst.node, m, &world, &material_of, &mut warnings)?;
+                }
             }
-            Some(m) => {
-                builder.add_instance(inst.node, m, &inst.world, &material_of, &mut warnings)?
-            }
-            None => {}
         }
         if let Some(light) = lights::node_light(root, inst.node, &inst.world, &mut warnings)? {
             punctual_lights.push(light);
