@@ -197,13 +197,7 @@ pub(crate) struct Built {
 
 impl<'r, 'a> MeshBuilder<'r, 'a> {
     pub fn new(acc: &'r Accessors<'r, 'a>, needs: Needs) -> Self {
-        let mesh = Mesh {
-            normals: needs.normals.then(Vec::new),
-            uv0: needs.uv[0].then(Vec::new),
-            uv1: needs.uv[1].then(Vec::new),
-            tangents: needs.tangents.then(Vec::new),
-            ..Mesh::default()
-        };
+        let mesh = empty_mesh(&needs);
         MeshBuilder {
             acc,
             needs,
@@ -257,7 +251,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             None => {
                 let index = self.prototypes.len() as u32;
                 self.prototypes
-                    .push((self.empty_mesh(), Vec3::ZERO, Vec3::ZERO));
+                    .push((empty_mesh(&self.needs), Vec3::ZERO, Vec3::ZERO));
                 self.prototype_of.insert(mesh, index);
                 let prims = self.primitives(mesh, material, warnings)?;
                 for p in prims.iter() {
@@ -305,16 +299,6 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             to_world: *world,
         });
         Ok(())
-    }
-
-    fn empty_mesh(&self) -> Mesh {
-        Mesh {
-            normals: self.needs.normals.then(Vec::new),
-            uv0: self.needs.uv[0].then(Vec::new),
-            uv1: self.needs.uv[1].then(Vec::new),
-            tangents: self.needs.tangents.then(Vec::new),
-            ..Mesh::default()
-        }
     }
 
     fn check_limit(&self, p: &Primitive) -> Result<(), GltfError> {
@@ -629,6 +613,17 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                 });
             }
         }
+    }
+}
+
+/// A mesh with the attribute arrays the scene needs, and no triangles.
+fn empty_mesh(needs: &Needs) -> Mesh {
+    Mesh {
+        normals: needs.normals.then(Vec::new),
+        uv0: needs.uv[0].then(Vec::new),
+        uv1: needs.uv[1].then(Vec::new),
+        tangents: needs.tangents.then(Vec::new),
+        ..Mesh::default()
     }
 }
 
