@@ -96,11 +96,7 @@ impl Prototype {
     pub fn new(mut mesh: Mesh) -> Prototype {
         let (bvh, order) = Bvh::build(&mesh);
         mesh.reorder(&order);
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for v in mesh.positions.iter().flatten() {
-            lo = lo.min(*v);
-            hi = hi.max(*v);
-        }
+        let (lo, hi) = mesh.bounds();
         Prototype { mesh, bvh, lo, hi }
     }
 

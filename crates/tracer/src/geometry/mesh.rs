@@ -106,6 +106,16 @@ impl Mesh {
         }
     }
 
+    /// The box of every corner (lower, upper); inverted (+∞, −∞) for an empty mesh.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for v in self.positions.iter().flatten() {
+            lo = lo.min(*v);
+            hi = hi.max(*v);
+        }
+        (lo, hi)
+    }
+
     /// Approximate bytes per triangle, for memory reports.
     pub fn bytes(&self) -> usize {
         let n = self.len();

@@ -260,12 +260,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
                     self.emit(p, &DMat4::IDENTITY, m, node, mesh, Some(index), warnings);
                 }
                 let proto = &mut self.prototypes[index as usize];
-                let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-                for v in proto.0.positions.iter().flatten() {
-                    lo = lo.min(*v);
-                    hi = hi.max(*v);
-                }
-                (proto.1, proto.2) = (lo, hi);
+                (proto.1, proto.2) = proto.0.bounds();
                 index
             }
         };

@@ -199,13 +199,7 @@ impl Scene {
         let (bvh, order) = Bvh::build(&mesh);
         mesh.reorder(&order);
 
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for tri in &mesh.positions {
-            for v in tri {
-                lo = lo.min(*v);
-                hi = hi.max(*v);
-            }
-        }
+        let (mut lo, mut hi) = mesh.bounds();
         if let Some((ilo, ihi)) = instances.bounds() {
             lo = lo.min(ilo);
             hi = hi.max(ihi);
