@@ -140,8 +140,9 @@ pub(crate) fn light_query(
     })
 }
 
-/// A point on an area light chosen by power (from `u_sel`; the family was chosen with probability
-/// `choice`), pdf choice · P(light)/A converted to solid angle by r² / |cos θ'|. With `mis`,
+/// A point on an area light chosen for the vertex (from `u_sel`, by power or by the light tree; the
+/// family was chosen with probability `choice`), pdf choice · P(light)/A converted to solid angle by
+/// r² / |cos θ'|. With `mis`,
 /// weighted by the power heuristic against the BSDF. Returns the shadow ray that decides the
 /// contribution, untraced: the integrator traces it together with the path's continuation ray
 /// (`Scene::intersect_and_visible`). None when the sample contributes nothing.
@@ -158,7 +159,7 @@ fn area_light_query(
     let ls = scene
         .lights
         .area
-        .sample(u_sel, s.bounce2(depth, dims::LIGHT_POINT))?;
+        .sample(v.p, v.ng, u_sel, s.bounce2(depth, dims::LIGHT_POINT))?;
     let tri = ls.triangle as usize;
     let material = &scene.materials[scene.mesh.material[tri] as usize];
     let g = LightGeometry::new(v.p, ls.point, ls.normal);

@@ -15,6 +15,8 @@ mod wavefront;
 pub use path::{trace_path, PathResult};
 pub(crate) use wavefront::{DiffuseScene, Wavefront};
 
+use glam::Vec3;
+
 /// How emission found by a BSDF-sampled ray is counted at the next vertex. This is what keeps every
 /// strategy unbiased: emission is counted by exactly one estimator (or split between two by MIS).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -25,5 +27,11 @@ pub(crate) enum EmissionWeight {
     Skip,
     /// MIS with light sampling: the power-heuristic weight of the BSDF strategy, whose solid-angle
     /// pdf was this.
-    Mis { bsdf_pdf: f32 },
+    Mis {
+        bsdf_pdf: f32,
+        /// Where the vertex that sampled the ray is, and its geometric normal: the light choice
+        /// there depends on them (`AreaLights::pdf`).
+        from: Vec3,
+        n: Vec3,
+    },
 }

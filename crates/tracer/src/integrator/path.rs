@@ -57,7 +57,7 @@ pub fn trace_path(
                 let w = match emission {
                     EmissionWeight::Full => 1.0,
                     EmissionWeight::Skip => 0.0,
-                    EmissionWeight::Mis { bsdf_pdf } => {
+                    EmissionWeight::Mis { bsdf_pdf, .. } => {
                         power_heuristic(bsdf_pdf, scene.lights.environment_choice * env.pdf(ray.d))
                     }
                 };
@@ -81,9 +81,11 @@ pub fn trace_path(
                 let w = match emission {
                     EmissionWeight::Full => 1.0,
                     EmissionWeight::Skip => 0.0,
-                    EmissionWeight::Mis { bsdf_pdf } => {
+                    EmissionWeight::Mis { bsdf_pdf, from, n } => {
                         let cos_l = ray.d.dot(si.ng).abs();
-                        let light_pdf = scene.lights.area.pdf_area(si.material)
+                        // Emitters are never instanced (`Scene::build` refuses them).
+                        debug_assert_eq!(hit.instance, Hit::WORLD);
+                        let light_pdf = scene.lights.area.pdf(from, n, hit.triangle, si.material)
                             * scene.lights.area_choice
                             * hit.t
                             * hit.t
@@ -170,7 +172,11 @@ pub fn trace_path(
         } else {
             match strategy {
                 DirectStrategy::Bsdf => EmissionWeight::Full,
-                DirectStrategy::Mis => EmissionWeight::Mis { bsdf_pdf: bs.pdf },
+                DirectStrategy::Mis => EmissionWeight::Mis {
+                    bsdf_pdf: bs.pdf,
+                    from: si.p,
+                    n: si.ng,
+                },
                 DirectStrategy::Light | DirectStrategy::Hemisphere | DirectStrategy::Cosine => {
                     if has_sampled {
                         EmissionWeight::Skip

@@ -1,5 +1,9 @@
-//! Area lights: the scene's emissive triangles, chosen in proportion to their power and sampled
-//! uniformly over their area (pdf 1/A), converted to solid angle with cos θ' / r².
+//! Area lights: the scene's emissive triangles, each sampled uniformly over its area (pdf 1/A,
+//! converted to solid angle with cos θ' / r²). Which triangle is chosen depends on how many there
+//! are ([`AreaLights::uses_tree`], the one place that decides): a few are chosen in proportion to
+//! their power alone, the same choice at every point (a table the wavefront integrator holds in
+//! its lanes); more are chosen by a [`LightTree`], in proportion to what each may send to the
+//! shading point.
 
 use crate::geometry::Mesh;
 use crate::material::{Material, Texture};
@@ -7,6 +11,15 @@ use crate::math::luminance;
 use crate::sampling::{sample_uniform_triangle, Distribution1D};
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
+
+use super::tree::{LightBounds, LightTree};
+
+/// The most emissive triangles chosen by power alone; scenes with more choose by [`LightTree`].
+/// With a few lights the tree's per-point choice gains little (a Cornell box's light is two
+/// triangles of one quad) and costs a walk per sample; past a few dozen, lights that face away or
+/// lie far off take most power-chosen samples (docs/benchmarks.md, "light tree"). The wavefront
+/// integrator's light table holds exactly these scenes' lights.
+pub const MAX_POWER_CHOSEN: usize = 32;
 
 /// The point of a triangle with corners `c` at barycentrics `b` (one per corner).
 #[inline(always)]
@@ -34,6 +47,8 @@ struct LightTriangle {
     corners: [Vec3; 3],
     normal: Vec3,
     pdf_area: f32,
+    /// 1 / area: the tree's choice probability times this is the area density.
+    inv_area: f32,
 }
 
 /// Every emissive triangle of the scene.
@@ -46,8 +61,11 @@ pub struct AreaLights {
     distribution: Distribution1D,
     /// Per material: P(triangle) / area(triangle) for its triangles, which is the same for every
     /// triangle of a material because power ∝ average radiance × area. Lets a BSDF ray that hits an
-    /// emitter find the light-sampling pdf without a per-triangle table.
+    /// emitter find the light-sampling pdf without a per-triangle table. (Without a tree.)
     material_area_density: Vec<f32>,
+    /// The light tree, over `sampled` in its order, for scenes of more than [`MAX_POWER_CHOSEN`]
+    /// lights.
+    tree: Option<LightTree>,
 }
 
 impl AreaLights {
@@ -61,6 +79,7 @@ impl AreaLights {
             .collect();
         let mut triangles = Vec::new();
         let mut powers = Vec::new();
+        // Triangles are visited in mesh order, so `triangles` is sorted (see `light_index`).
         for (i, &m) in mesh.material.iter().enumerate() {
             let le = radiance.get(m as usize).copied().unwrap_or(0.0);
             if le > 0.0 {
@@ -73,7 +92,7 @@ impl AreaLights {
         }
         let distribution = Distribution1D::new(&powers);
         let total = distribution.total();
-        let sampled = triangles
+        let sampled: Vec<LightTriangle> = triangles
             .iter()
             .enumerate()
             .map(|(k, &tri)| {
@@ -84,9 +103,25 @@ impl AreaLights {
                     corners: [a, b, c],
                     normal: cross / len,
                     pdf_area: distribution.pmf(k) / (0.5 * len),
+                    inv_area: 1.0 / (0.5 * len),
                 }
             })
             .collect();
+        let tree = Self::uses_tree(sampled.len()).then(|| {
+            let bounds: Vec<LightBounds> = sampled
+                .iter()
+                .zip(&triangles)
+                .enumerate()
+                .map(|(k, (t, &tri))| {
+                    let two_sided = materials
+                        .get(mesh.material[tri as usize] as usize)
+                        .is_some_and(|m| m.double_sided);
+                    let phi = (distribution.weights()[k] as f64 / total) as f32;
+                    LightBounds::triangle(t.corners, t.normal, phi, two_sided)
+                })
+                .collect();
+            LightTree::new(&bounds)
+        });
         let material_area_density = radiance
             .iter()
             .map(|&le| {
@@ -102,7 +137,25 @@ impl AreaLights {
             sampled,
             distribution,
             material_area_density,
+            tree,
         }
+    }
+
+    /// Whether a scene with `lights` emissive triangles chooses them by a light tree (rather than
+    /// by power alone): the one place that decides, from the count alone.
+    pub fn uses_tree(lights: usize) -> bool {
+        lights > MAX_POWER_CHOSEN
+    }
+
+    /// Whether these lights are chosen by a light tree.
+    pub fn has_tree(&self) -> bool {
+        self.tree.is_some()
+    }
+
+    /// Chooses these lights by power alone even where [`AreaLights::uses_tree`] says otherwise:
+    /// the same expected image, for tests and benchmarks that compare the two choices.
+    pub fn choose_by_power(&mut self) {
+        self.tree = None;
     }
 
     pub fn is_empty(&self) -> bool {
@@ -114,13 +167,23 @@ impl AreaLights {
         self.distribution.total()
     }
 
-    /// Chooses a triangle by power (`u_select`) and a uniform point on it (`u`).
+    /// Chooses a triangle for a shading point `p` with unit normal `n` (`u_select`: by power, or
+    /// by the tree) and a uniform point on it (`u`). None when no light can reach `p`.
     #[inline]
-    pub fn sample(&self, u_select: f32, u: Vec2) -> Option<AreaLightSample> {
+    pub fn sample(&self, p: Vec3, n: Vec3, u_select: f32, u: Vec2) -> Option<AreaLightSample> {
         if self.is_empty() {
             return None;
         }
-        let (k, _) = self.distribution.sample_discrete(u_select);
+        let (k, pdf_area) = match &self.tree {
+            Some(tree) => {
+                let (k, pmf) = tree.sample(p, n, u_select)?;
+                (k, pmf * self.sampled[k].inv_area)
+            }
+            None => {
+                let (k, _) = self.distribution.sample_discrete(u_select);
+                (k, self.sampled[k].pdf_area)
+            }
+        };
         let t = &self.sampled[k];
         let bary = sample_uniform_triangle(u);
         Some(AreaLightSample {
@@ -128,12 +191,24 @@ impl AreaLights {
             normal: t.normal,
             triangle: self.triangles[k],
             barycentrics: bary,
-            pdf_area: t.pdf_area,
+            pdf_area,
         })
     }
 
-    /// The area-measure pdf with which [`AreaLights::sample`] picks a point on a triangle of
-    /// material `material`.
+    /// The area-measure density with which [`AreaLights::sample`], at a point `p` with normal `n`,
+    /// picks the point of mesh triangle `triangle` (of material `material`) that a ray from `p`
+    /// hit: what that ray's MIS weight needs.
+    #[inline]
+    pub fn pdf(&self, p: Vec3, n: Vec3, triangle: u32, material: u32) -> f32 {
+        match &self.tree {
+            Some(tree) => match self.triangles.binary_search(&triangle) {
+                Ok(k) => tree.pmf(p, n, k) * self.sampled[k].inv_area,
+                Err(_) => 0.0,
+            },
+            None => self.power_density(material),
+        }
+    }
+
     /// Every light triangle as [`AreaLights::sample`] sees it, in the order of its distribution:
     /// (corners, unit normal, area density of the sample, triangle index in the mesh).
     pub(crate) fn sampled(&self) -> impl Iterator<Item = ([Vec3; 3], Vec3, f32, u32)> + '_ {
@@ -148,8 +223,11 @@ impl AreaLights {
         &self.distribution
     }
 
+    /// Without a tree: the area-measure pdf with which [`AreaLights::sample`] picks a point on a
+    /// triangle of material `material`, the same at every shading point.
     #[inline]
-    pub fn pdf_area(&self, material: u32) -> f32 {
+    pub fn power_density(&self, material: u32) -> f32 {
+        debug_assert!(self.tree.is_none());
         self.material_area_density
             .get(material as usize)
             .copied()

@@ -1,6 +1,7 @@
 //! Light sources. Three families:
 //! - area lights: every emissive triangle ([`AreaLights`]); reached both by light sampling and by
-//!   rays that hit them;
+//!   rays that hit them; a few are chosen by power, many by a light tree ([`LightTree`]) in
+//!   proportion to what each may send to the shading point;
 //! - the environment ([`Environment`]): radiance from infinitely far away, one colour or an
 //!   equirectangular image; reached by light sampling and by rays that leave the scene. Area lights
 //!   and the environment share one light sample per vertex: the environment is chosen with
@@ -18,15 +19,17 @@ mod directional;
 mod environment;
 mod point;
 mod spot;
+mod tree;
 
 pub(crate) use area::point_on;
-pub use area::{AreaLightSample, AreaLights};
+pub use area::{AreaLightSample, AreaLights, MAX_POWER_CHOSEN};
 pub use directional::DirectionalLight;
 pub use environment::{
     Environment, EnvironmentError, EnvironmentSample, MAX_DISTRIBUTION_SIZE, MAX_ENVIRONMENT_TEXELS,
 };
 pub use point::PointLight;
 pub use spot::SpotLight;
+pub use tree::LightTree;
 
 use crate::sampling::Distribution1D;
 use glam::Vec3;

@@ -8,7 +8,7 @@
 //! 3. `shade_hit` (vector): the hit point and normal, emission seen by the ray, the light's
 //!    sample values;
 //! 4. the light triangle and point each lane's values choose: in the lanes, at the end of step 3,
-//!    from the scene's `LightTable`; for scenes with too many lights, `sample_lights` (scalar);
+//!    from the scene's `LightTable`;
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray;
 //! 6. `trace_shadows` (scalar): each shadow ray, together with the lane's next ray when the path
@@ -61,8 +61,8 @@ type B = [bool; LANES];
 pub(super) struct Lanes<'a> {
     scene: &'a Scene,
     materials: &'a [DiffuseMaterial],
-    /// The lights in the lanes' layout, if the scene has few enough to be sampled in them.
-    lights: Option<&'a LightTable>,
+    /// The lights in the lanes' layout.
+    lights: &'a LightTable,
     settings: &'a RenderSettings,
     depth_limit: u32,
 
@@ -137,13 +137,12 @@ impl<'a> Lanes<'a> {
     pub(super) fn new(
         scene: &'a Scene,
         diffuse: &'a DiffuseScene,
-        lights: Option<&'a LightTable>,
         settings: &'a RenderSettings,
     ) -> Self {
         Lanes {
             scene,
             materials: &diffuse.materials,
-            lights,
+            lights: &diffuse.lights,
             settings,
             depth_limit: settings.depth_limit(),
             x: [0; LANES],
@@ -211,7 +210,6 @@ impl<'a> Lanes<'a> {
             }
             self.trace_closest_for(isa);
             self.shade_hit_for(isa);
-            self.sample_lights();
             self.scatter_for(isa);
             self.trace_shadows_for(isa, &mut each);
         }
@@ -325,44 +323,15 @@ impl<'a> Lanes<'a> {
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
         (self.u_light_select, self.u_light) = (u_select, u_light);
-        if let Some(lights) = self.lights {
-            // `sample_lights`, in the lanes.
-            let s = lights.sample(&u_select, &u_light, Some(isa));
-            let diffuse_on = self.diffuse_on;
-            let mut ok = [false; LANES];
-            for i in 0..LANES {
-                ok[i] = go[i] && diffuse_on[i];
-            }
-            (self.light_ok, self.light_point, self.light_normal) = (ok, s.point, s.normal);
-            (self.light_pdf_area, self.light_front, self.light_back) =
-                (s.pdf_area, s.front, s.back);
-        }
-    }
-
-    /// Chooses each lane's light triangle and point (`AreaLights::sample`, one lane at a time: a
-    /// search in the lights' distribution) and loads the light's emission.
-    fn sample_lights(&mut self) {
-        if self.lights.is_some() {
-            return; // done in the lanes by `shade_hit`
-        }
-        let scene = self.scene;
+        // The light triangle and point, in the lanes.
+        let s = self.lights.sample(&u_select, &u_light, Some(isa));
+        let diffuse_on = self.diffuse_on;
+        let mut ok = [false; LANES];
         for i in 0..LANES {
-            self.light_ok[i] = false;
-            if !(self.go[i] && self.diffuse_on[i]) {
-                continue;
-            }
-            let u = Vec2::new(self.u_light[0][i], self.u_light[1][i]);
-            let Some(ls) = scene.lights.area.sample(self.u_light_select[i], u) else {
-                continue;
-            };
-            let m = &self.materials[scene.mesh.material[ls.triangle as usize] as usize];
-            self.light_ok[i] = true;
-            self.light_point.set(i, ls.point);
-            self.light_normal.set(i, ls.normal);
-            self.light_pdf_area[i] = ls.pdf_area;
-            self.light_front.set(i, m.emission_front);
-            self.light_back.set(i, m.emission_back);
+            ok[i] = go[i] && diffuse_on[i];
         }
+        (self.light_ok, self.light_point, self.light_normal) = (ok, s.point, s.normal);
+        (self.light_pdf_area, self.light_front, self.light_back) = (s.pdf_area, s.front, s.back);
     }
 
     /// [`Lanes::scatter`] with the roulette's variant a constant in each copy: a `match` on it

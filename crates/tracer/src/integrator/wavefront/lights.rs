@@ -7,10 +7,12 @@ use crate::light::{point_on, AreaLights};
 use crate::sampling::sample_uniform_triangle;
 use glam::{Vec2, Vec3};
 
-/// The most light triangles the lanes choose from (a power of two: a lane's choice, masked by it,
-/// is an index the compiler knows to be in bounds). Each lane counts the CDF values at or below
-/// its sample, one comparison per light; scenes with more lights are sampled one lane at a time.
-pub(crate) const MAX_LIGHTS: usize = 32;
+/// The most light triangles the lanes choose from: every light of a scene that chooses its lights
+/// by power (a power of two: a lane's choice, masked by it, is an index the compiler knows to be in
+/// bounds). Each lane counts the CDF values at or below its sample, one comparison per light;
+/// scenes with more lights choose by the light tree, on the scalar integrator.
+pub(crate) const MAX_LIGHTS: usize = crate::light::MAX_POWER_CHOSEN;
+const _: () = assert!(MAX_LIGHTS.is_power_of_two());
 
 /// `[axis][light]`.
 type Xyz = [[f32; MAX_LIGHTS]; 3];

@@ -77,7 +77,7 @@ pub(crate) struct DiffuseMaterial {
     /// `Material::emission` towards the front side, and towards the back.
     pub emission_front: Vec3,
     pub emission_back: Vec3,
-    /// `AreaLights::pdf_area` of the material.
+    /// `AreaLights::power_density` of the material.
     pub light_density: f32,
 }
 
@@ -86,8 +86,8 @@ pub(crate) struct DiffuseMaterial {
 #[derive(Clone, Debug)]
 pub(crate) struct DiffuseScene {
     pub materials: Vec<DiffuseMaterial>,
-    /// The lights for the lanes to sample, when there are few enough.
-    pub lights: Option<Box<LightTable>>,
+    /// The lights for the lanes to sample.
+    pub lights: Box<LightTable>,
 }
 
 impl DiffuseScene {
@@ -129,10 +129,12 @@ impl DiffuseScene {
                 diffuse_on: bsdf.has_non_delta(),
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),
-                light_density: area.pdf_area(m as u32),
+                light_density: area.power_density(m as u32),
             });
         }
-        let lights = LightTable::new(area, &out, &mesh.material);
+        // Lights are chosen in the lanes, from the table; a scene of many lights chooses by the
+        // light tree, which only the scalar integrator walks.
+        let lights = LightTable::new(area, &out, &mesh.material)?;
         Some(DiffuseScene {
             materials: out,
             lights,
@@ -148,9 +150,6 @@ pub(crate) struct Wavefront<'a> {
     settings: &'a RenderSettings,
     /// Proof that the processor runs the vector steps' build.
     isa: Isa,
-    /// The lights in the lanes' layout, if the scene has one (tests take it away, to test the
-    /// lane-by-lane sampling of scenes with many lights).
-    lights: Option<&'a LightTable>,
 }
 
 impl<'a> Wavefront<'a> {
@@ -168,7 +167,6 @@ impl<'a> Wavefront<'a> {
             diffuse,
             settings,
             isa: Isa::detect()?,
-            lights: diffuse.lights.as_deref(),
         })
     }
 
@@ -178,15 +176,6 @@ impl<'a> Wavefront<'a> {
         Wavefront { isa, ..self }
     }
 
-    /// The same wavefront choosing lights one lane at a time, as for a scene with many lights.
-    #[cfg(test)]
-    fn without_light_table(self) -> Self {
-        Wavefront {
-            lights: None,
-            ..self
-        }
-    }
-
     /// Renders every `(x, y, sample index)` of `work` and hands each result to `each`, in no
     /// particular order. Each result is the one [`crate::render::render_sample`] gives.
     pub(crate) fn render(
@@ -194,7 +183,7 @@ impl<'a> Wavefront<'a> {
         work: impl Iterator<Item = (u32, u32, u32)>,
         each: impl FnMut(u32, u32, u32, PathResult),
     ) {
-        let mut lanes = Lanes::new(self.scene, self.diffuse, self.lights, self.settings);
+        let mut lanes = Lanes::new(self.scene, self.diffuse, self.settings);
         lanes.run(self.isa, work, each);
     }
 }
