@@ -16,8 +16,8 @@ use super::tree::{LightBounds, LightTree};
 
 /// The most emissive triangles chosen by power alone; scenes with more choose by [`LightTree`].
 /// With a few lights the tree's per-point choice gains little (a Cornell box's light is two
-/// triangles of one quad) and costs a walk per sample; past a few dozen, lights that face away or
-/// lie far off take most power-chosen samples (docs/benchmarks.md, "light tree"). The wavefront
+/// triangles of one quad) and costs a walk per sample; with many, lights that face away or lie far
+/// off take most power-chosen samples (docs/benchmarks.md, "A light tree"). The wavefront
 /// integrator's light table holds exactly these scenes' lights.
 pub const MAX_POWER_CHOSEN: usize = 32;
 
