@@ -112,10 +112,8 @@ pub(super) struct Lanes<'a> {
     ng: V3,
     /// The path goes on from this vertex (it is within the depth limit).
     go: B,
-    u_light_select: F,
-    u_light: [F; 2],
 
-    // Set by `sample_lights`.
+    // Set at the end of `shade_hit`, from the light table.
     light_ok: B,
     light_point: V3,
     light_normal: V3,
@@ -178,8 +176,6 @@ impl<'a> Lanes<'a> {
             p: V3::ZERO,
             ng: V3::ZERO,
             go: [false; LANES],
-            u_light_select: [0.0; LANES],
-            u_light: [[0.0; LANES]; 2],
             light_ok: [false; LANES],
             light_point: V3::ZERO,
             light_normal: V3::ZERO,
@@ -322,7 +318,6 @@ impl<'a> Lanes<'a> {
             (u_light[0][i], u_light[1][i], u_select[i]) = (point0, point1, select);
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
-        (self.u_light_select, self.u_light) = (u_select, u_light);
         // The light triangle and point, in the lanes.
         let s = self.lights.sample(&u_select, &u_light, Some(isa));
         let diffuse_on = self.diffuse_on;
