@@ -52,10 +52,17 @@ struct LightTriangle {
 }
 
 /// Every emissive triangle of the scene.
+///
+/// The lights are listed in an order of their own, by their corners' bits, not in the mesh's
+/// triangle order: that order is the BVH builder's, and a scene must choose the same light from the
+/// same random number however its geometry is stored (instanced or flattened, whichever builder).
 #[derive(Clone, Debug, Default)]
 pub struct AreaLights {
-    /// Mesh triangle indices of the emissive triangles.
+    /// Mesh triangle indices of the emissive triangles, in the lights' order.
     pub triangles: Vec<u32>,
+    /// (mesh triangle, light index) for every light, sorted by mesh triangle: finds the light a
+    /// BSDF ray hit.
+    by_triangle: Vec<(u32, u32)>,
     /// Per emissive triangle, what sampling a point on it needs, copied out of the mesh once.
     sampled: Vec<LightTriangle>,
     distribution: Distribution1D,
@@ -77,19 +84,27 @@ impl AreaLights {
                 luminance(m.average_emission(textures)) * if m.double_sided { 2.0 } else { 1.0 }
             })
             .collect();
-        let mut triangles = Vec::new();
-        let mut powers = Vec::new();
-        // Triangles are visited in mesh order, so `triangles` is sorted (see `light_index`).
-        for (i, &m) in mesh.material.iter().enumerate() {
-            let le = radiance.get(m as usize).copied().unwrap_or(0.0);
-            if le > 0.0 {
-                let area = mesh.area(i);
-                if area > 0.0 {
-                    triangles.push(i as u32);
-                    powers.push(le * area * PI);
-                }
-            }
-        }
+        let mut triangles: Vec<u32> = (0..mesh.material.len() as u32)
+            .filter(|&i| {
+                let m = mesh.material[i as usize];
+                radiance.get(m as usize).copied().unwrap_or(0.0) > 0.0
+                    && mesh.area(i as usize) > 0.0
+            })
+            .collect();
+        triangles.sort_by_key(|&i| light_order_key(mesh, i));
+        let powers: Vec<f32> = triangles
+            .iter()
+            .map(|&i| {
+                let le = radiance[mesh.material[i as usize] as usize];
+                le * mesh.area(i as usize) * PI
+            })
+            .collect();
+        let mut by_triangle: Vec<(u32, u32)> = triangles
+            .iter()
+            .enumerate()
+            .map(|(k, &tri)| (tri, k as u32))
+            .collect();
+        by_triangle.sort_unstable();
         let distribution = Distribution1D::new(&powers);
         let total = distribution.total();
         let sampled: Vec<LightTriangle> = triangles
@@ -134,6 +149,7 @@ impl AreaLights {
             .collect();
         AreaLights {
             triangles,
+            by_triangle,
             sampled,
             distribution,
             material_area_density,
@@ -201,8 +217,14 @@ impl AreaLights {
     #[inline]
     pub fn pdf(&self, p: Vec3, n: Vec3, triangle: u32, material: u32) -> f32 {
         match &self.tree {
-            Some(tree) => match self.triangles.binary_search(&triangle) {
-                Ok(k) => tree.pmf(p, n, k) * self.sampled[k].inv_area,
+            Some(tree) => match self
+                .by_triangle
+                .binary_search_by_key(&triangle, |&(tri, _)| tri)
+            {
+                Ok(i) => {
+                    let k = self.by_triangle[i].1 as usize;
+                    tree.pmf(p, n, k) * self.sampled[k].inv_area
+                }
                 Err(_) => 0.0,
             },
             None => self.power_density(material),
@@ -233,4 +255,16 @@ impl AreaLights {
             .copied()
             .unwrap_or(0.0)
     }
+}
+
+/// The key that orders the lights: the bits of a triangle's corners, then its material, which
+/// are the same however the scene's geometry is stored. Triangles with equal keys are the same
+/// light and keep the mesh's order between them.
+fn light_order_key(mesh: &Mesh, triangle: u32) -> ([u32; 9], u32) {
+    let c = mesh.positions[triangle as usize];
+    let mut bits = [0u32; 9];
+    for (k, v) in c.iter().flat_map(|v| v.to_array()).enumerate() {
+        bits[k] = v.to_bits();
+    }
+    (bits, mesh.material[triangle as usize])
 }

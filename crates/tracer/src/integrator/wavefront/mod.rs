@@ -112,7 +112,8 @@ impl DiffuseScene {
         {
             return None;
         }
-        if area.is_empty() {
+        // A scene of many lights chooses by the light tree, which only the scalar integrator walks.
+        if area.is_empty() || area.has_tree() {
             return None;
         }
         let mut out = Vec::with_capacity(materials.len());
@@ -132,8 +133,7 @@ impl DiffuseScene {
                 light_density: area.power_density(m as u32),
             });
         }
-        // Lights are chosen in the lanes, from the table; a scene of many lights chooses by the
-        // light tree, which only the scalar integrator walks.
+        // Lights are chosen in the lanes, from the table.
         let lights = LightTable::new(area, &out, &mesh.material)?;
         Some(DiffuseScene {
             materials: out,
