@@ -12,12 +12,9 @@
 //! depends on the order the tree is walked in; the instance boxes are padded so that they never cull
 //! an instance whose object-space test would hit.
 
+use super::bvh::{binary_tree, BinaryNode};
 use super::{box_reciprocal, Bvh, Mesh, Ray, RayPrecomp, TriangleHit};
 use glam::{Affine3A, DAffine3, DMat3, DMat4, DVec3, Mat3A, Vec3, Vec3A};
-use obvhs::aabb::Aabb;
-use obvhs::bvh2::builder::build_bvh2;
-use obvhs::{Boundable, BvhBuildParams};
-use std::time::Duration;
 
 /// A mesh kept once in object space, with its BVH (its triangles reordered to the BVH's order).
 #[derive(Clone, Debug)]
@@ -53,13 +50,12 @@ pub struct Instance {
 
 /// A node of the top-level tree: a box, and either two children (`count` 0: at `first` and
 /// `first + 1`) or `count` instances from `first`.
-#[derive(Clone, Copy, Debug)]
-struct TopNode {
-    lo: Vec3A,
-    hi: Vec3A,
-    count: u32,
-    first: u32,
-}
+type TopNode = BinaryNode;
+
+/// The SAH cost of a node visit against one instance test, for the top-level tree's leaf decision:
+/// with one instance a leaf it decides nothing (every range of two or more is split), and is
+/// obvhs' default, which built this tree before.
+const TOP_TRAVERSAL_COST: f64 = 3.0;
 
 /// Every instance of the scene and the tree over them. Empty for a scene without instances, and
 /// then free: its queries return at once.
@@ -106,15 +102,6 @@ impl Prototype {
     }
 }
 
-/// An instance's padded world box, as the top-level builder sees it.
-struct WorldBox(Aabb);
-
-impl Boundable for WorldBox {
-    fn aabb(&self) -> Aabb {
-        self.0
-    }
-}
-
 impl Instance {
     /// The instance of `prototype` under `to_world`, or `None` when the transform is singular or
     /// not finite (nothing of it could be hit or shaded).
@@ -146,7 +133,7 @@ impl Instance {
 
     /// The world box of the object box `lo`..`hi` under this instance, from the f64 transform,
     /// padded for the rounding of the object-space ray: a small fraction of its size and position.
-    fn world_box(to_world: &DMat4, lo: Vec3, hi: Vec3) -> Aabb {
+    fn world_box(to_world: &DMat4, lo: Vec3, hi: Vec3) -> (Vec3A, Vec3A) {
         let (mut wlo, mut whi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for k in 0..8 {
             let pick = |bit: usize, a: f32, b: f32| if k & bit == 0 { a } else { b } as f64;
@@ -163,7 +150,7 @@ impl Instance {
             .max_element()
             .max(wlo.abs().max(whi.abs()).max_element());
         let pad = DVec3::splat(scale * 1e-5 + f32::MIN_POSITIVE as f64);
-        Aabb::new(
+        (
             Vec3A::from((wlo - pad).as_vec3()),
             Vec3A::from((whi + pad).as_vec3()),
         )
@@ -249,11 +236,7 @@ impl Instances {
             }
             match Instance::new(p.prototype, &p.to_world) {
                 Some(inst) => {
-                    boxes.push(WorldBox(Instance::world_box(
-                        &p.to_world,
-                        proto.lo,
-                        proto.hi,
-                    )));
+                    boxes.push(Instance::world_box(&p.to_world, proto.lo, proto.hi));
                     instances.push(inst);
                 }
                 None => {
@@ -271,26 +254,12 @@ impl Instances {
                 dropped,
             ));
         }
-        let mut params = BvhBuildParams::medium_build();
-        params.pre_split = false;
         // One instance a leaf: each placement's own box is tested before its ray is moved.
-        params.max_prims_per_leaf = 1;
-        let bvh2 = build_bvh2(&boxes, params, &mut Duration::default());
+        let (nodes, order) = binary_tree(&boxes, 1, TOP_TRAVERSAL_COST);
         // The instances in leaf order, so that a leaf's range indexes them directly.
-        let ordered: Vec<Instance> = bvh2
-            .primitive_indices
+        let ordered: Vec<Instance> = order
             .iter()
             .map(|&i| instances[i as usize].clone())
-            .collect();
-        let nodes = bvh2
-            .nodes
-            .iter()
-            .map(|n| TopNode {
-                lo: n.aabb.min,
-                hi: n.aabb.max,
-                count: n.prim_count,
-                first: n.first_index,
-            })
             .collect();
         Ok((
             Instances {

@@ -1,6 +1,6 @@
 //! The acceleration structure: a 4-wide BVH whose nodes test their four children's boxes in one
-//! SIMD slab test and whose leaves test four triangles at once (`packet.rs`), built from obvhs'
-//! binary PLOC BVH (`build.rs`).
+//! SIMD slab test and whose leaves test four triangles at once (`packet.rs`), built top down by
+//! binned SAH (`build.rs`, `binned.rs`).
 //!
 //! Contract: [`Bvh::closest`] reports the hit with the smallest (t, triangle index) among all
 //! triangles hit in (0, t_max) that the filter accepts — ties broken by index, so the answer never
@@ -8,6 +8,7 @@
 //! conservative (padded boxes, a widened far distance), so they never cull a triangle that the
 //! watertight test would hit.
 
+mod binned;
 mod build;
 mod flat;
 mod node;
@@ -16,6 +17,7 @@ mod pair;
 mod stack;
 mod walk;
 
+pub(crate) use binned::{binary_tree, BinaryNode};
 pub use pair::RayQuery;
 
 use super::{box_reciprocal, Mesh, RayPrecomp, TriangleHit};

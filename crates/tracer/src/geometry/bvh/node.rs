@@ -25,7 +25,9 @@ impl NodeRef {
     }
 
     pub fn leaf(first_packet: u32, count: u32) -> NodeRef {
-        debug_assert!(first_packet < Self::MAX_PACKETS && (1..=8).contains(&count));
+        debug_assert!(
+            first_packet < Self::MAX_PACKETS && (1..=MAX_LEAF_PACKETS as u32).contains(&count)
+        );
         NodeRef(Self::LEAF | ((count - 1) << 28) | first_packet)
     }
 

@@ -1,0 +1,641 @@
+//! Top-down SAH splitting of a range of boxes, shared by the 4-wide triangle BVH (`build.rs`) and
+//! the binary tree over instances ([`binary_tree`]).
+//!
+//! A range is split by the surface area heuristic: binned (Wald, "On fast Construction of
+//! SAH-based Bounding Volume Hierarchies", 2007: [`BINS`] bins per axis over the bounds of the
+//! primitives' keys) for large ranges, and by an exact sweep over the keys sorted on each axis for
+//! small ones, where bins are too coarse. The keys have four axes: the box's centre in x, y and z,
+//! and its size ([`Prim::key`]), so that large and small primitives at the same place can be set
+//! apart. The chosen split partitions the range in place, so every subtree owns a contiguous slice
+//! and the final order of the primitives is the slice's order.
+//!
+//! Determinism: the result depends only on the boxes. Bins are merged with min, max and integer
+//! counts, which give the same answer in any order, so the parallel binning of large ranges
+//! (rayon, chunks of a fixed size) and the sequential one agree bit for bit; every SAH cost is a
+//! sequential sum in one task. Areas are multiplied out in `f64`, so that boxes far beyond any
+//! sensible scene (scenes built by hand skip the loader's coordinate bound) still compare; a range
+//! with no finite split cost, or identical keys, falls back to a median split.
+
+use glam::{DVec3, Vec3A, Vec4};
+use rayon::prelude::*;
+
+/// Bins per axis for a large range: 32 keeps the tree within about a percent of a full sweep's SAH
+/// cost, and the sweep over them is negligible next to binning a large range.
+const BINS: usize = 32;
+
+/// Bins per axis for a range of fewer than [`MANY`] primitives: there the sweep over the bins
+/// costs as much as binning the primitives, and a few dozen primitives gain little from more.
+const FEW_BINS: usize = 16;
+const MANY: usize = 256;
+
+/// Ranges of at most this many primitives are split by the exact sweep (sorting on each axis):
+/// with few primitives, centroids often share a bin, and sorting a handful is as cheap as binning.
+const SWEEP_MAX: usize = 16;
+
+/// Ranges of at least this many primitives are binned in parallel, in chunks of [`BIN_CHUNK`].
+const PAR_BIN_MIN: usize = 1 << 16;
+const BIN_CHUNK: usize = 1 << 14;
+
+/// A node more this many binary levels below the root is split at the object median on its
+/// widest centroid axis instead of by SAH: SAH alone makes chains on inputs such as geometrically
+/// spaced triangles, and a median split bounds the depth (and the builder's recursion) at
+/// `MEDIAN_DEPTH + log2 n`.
+pub(super) const MEDIAN_DEPTH: usize = 96;
+
+/// An axis-aligned box; empty as (+∞, −∞).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Box3 {
+    pub lo: Vec3A,
+    pub hi: Vec3A,
+}
+
+impl Box3 {
+    pub const EMPTY: Box3 = Box3 {
+        lo: Vec3A::INFINITY,
+        hi: Vec3A::NEG_INFINITY,
+    };
+
+    #[inline(always)]
+    pub fn grow(&mut self, lo: Vec3A, hi: Vec3A) {
+        self.lo = self.lo.min(lo);
+        self.hi = self.hi.max(hi);
+    }
+
+    #[inline(always)]
+    fn union(self, other: Box3) -> Box3 {
+        Box3 {
+            lo: self.lo.min(other.lo),
+            hi: self.hi.max(other.hi),
+        }
+    }
+
+    /// Half the surface area, the products in `f64`: finite for any box narrower than `f32::MAX`
+    /// (a wider one has an infinite area, and the builder falls back to median splits).
+    #[inline(always)]
+    pub fn half_area(&self) -> f64 {
+        let d: DVec3 = (self.hi - self.lo).as_dvec3();
+        d.x * d.y + d.y * d.z + d.z * d.x
+    }
+}
+
+/// Bounds of the primitives' split keys ([`Prim::key`]): lanes x, y, z the centroid, w the size.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Keys {
+    pub lo: Vec4,
+    pub hi: Vec4,
+}
+
+impl Keys {
+    const EMPTY: Keys = Keys {
+        lo: Vec4::INFINITY,
+        hi: Vec4::NEG_INFINITY,
+    };
+
+    #[inline(always)]
+    fn grow(&mut self, k: Vec4) {
+        self.lo = self.lo.min(k);
+        self.hi = self.hi.max(k);
+    }
+
+    fn union(self, other: Keys) -> Keys {
+        Keys {
+            lo: self.lo.min(other.lo),
+            hi: self.hi.max(other.hi),
+        }
+    }
+}
+
+/// A primitive as the builder moves it: its box, with its index stored in the w lane of the lower
+/// corner (32 bytes: the partitions move one record, not a box and an index).
+///
+/// The w lane goes through every vector operation on the box, so the index is stored as the bits
+/// of a normal float ([`INDEX_BIAS`] + index: 1.0 for index 0). Stored as is, a small index is a
+/// subnormal float, and each operation on it takes a microcode assist: the build ran 30 times
+/// slower.
+#[derive(Clone, Copy, Debug)]
+#[repr(C)]
+pub(super) struct Prim {
+    lo: Vec4,
+    hi: Vec4,
+}
+
+/// See [`Prim`]: indices below 2³⁰ map to floats from 1.0 to 2¹²⁸ (exclusive), all normal.
+const INDEX_BIAS: u32 = 0x3f80_0000;
+
+impl Prim {
+    #[inline(always)]
+    pub fn new(lo: Vec3A, hi: Vec3A, index: u32) -> Prim {
+        debug_assert!(index < 1 << 30);
+        Prim {
+            lo: lo.extend(f32::from_bits(INDEX_BIAS + index)),
+            hi: hi.extend(0.0),
+        }
+    }
+
+    #[inline(always)]
+    pub fn index(&self) -> u32 {
+        self.lo.w.to_bits() - INDEX_BIAS
+    }
+
+    #[inline(always)]
+    fn lo(&self) -> Vec3A {
+        Vec3A::from_vec4(self.lo)
+    }
+
+    #[inline(always)]
+    fn hi(&self) -> Vec3A {
+        Vec3A::from_vec4(self.hi)
+    }
+
+    /// What the splits sort and bin by: in x, y and z the box's centre (halves added: no overflow
+    /// near `f32::MAX`), in w its size, a piecewise linear log₂ of its half area (the float's bits
+    /// over 2²³). Splitting by size too lets SAH set large triangles (a room's walls around a
+    /// detailed object) apart from small ones at the same place, which centroids alone cannot: on
+    /// a Cornell box around a 330k-triangle sphere, the nodes' summed area was 17 % higher without
+    /// it (and the render 6.8 % slower than with the PLOC tree before). NaN lanes (an infinite box)
+    /// become zero, so that key bounds and bins stay well defined.
+    #[inline(always)]
+    fn key(&self) -> Vec4 {
+        let (lo, hi) = (self.lo(), self.hi());
+        let c = lo * 0.5 + hi * 0.5;
+        let d = hi - lo;
+        let area = d.x * d.y + d.y * d.z + d.z * d.x;
+        let k = c.extend(area.to_bits() as f32 * (1.0 / 8_388_608.0));
+        Vec4::select(k.cmpeq(k), k, Vec4::ZERO)
+    }
+}
+
+/// What the builder knows of a range: the union of its boxes and the bounds of its keys.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Info {
+    pub bounds: Box3,
+    pub keys: Keys,
+}
+
+impl Info {
+    const EMPTY: Info = Info {
+        bounds: Box3::EMPTY,
+        keys: Keys::EMPTY,
+    };
+
+    #[inline(always)]
+    fn add(&mut self, p: &Prim) {
+        self.bounds.grow(p.lo(), p.hi());
+        self.keys.grow(p.key());
+    }
+
+    fn union(self, other: Info) -> Info {
+        Info {
+            bounds: self.bounds.union(other.bounds),
+            keys: self.keys.union(other.keys),
+        }
+    }
+
+    /// The info of `prims`, in parallel for a large range (min and max: the same in any order).
+    pub fn of(prims: &[Prim]) -> Info {
+        let seq = |chunk: &[Prim]| {
+            let mut info = Info::EMPTY;
+            chunk.iter().for_each(|p| info.add(p));
+            info
+        };
+        if prims.len() >= PAR_BIN_MIN {
+            prims
+                .par_chunks(BIN_CHUNK)
+                .map(seq)
+                .reduce(|| Info::EMPTY, Info::union)
+        } else {
+            seq(prims)
+        }
+    }
+}
+
+/// Maps a key to its bin on each axis (x, y, z and size).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Mapper {
+    /// Bins per axis ([`BINS`] at most).
+    count: u32,
+    origin: Vec4,
+    /// Bins per unit length; zero on an axis whose centroids all coincide (or whose extent is not
+    /// finite), which then offers no split.
+    scale: Vec4,
+}
+
+impl Mapper {
+    fn new(keys: &Keys, count: usize) -> Mapper {
+        let extent = keys.hi - keys.lo;
+        let scale = Vec4::select(
+            extent.cmpgt(Vec4::ZERO),
+            Vec4::splat(count as f32) / extent,
+            Vec4::ZERO,
+        );
+        Mapper {
+            count: count as u32,
+            origin: keys.lo,
+            scale,
+        }
+    }
+
+    /// The bins of centroid `c`: its position in bins, less a half, clamped to the bins (NaN to the
+    /// first: SSE's `max` and `f32::max` both return the other operand), then rounded to the
+    /// nearest integer by adding 2²³ and read from the float's bits. Cheaper than saturating
+    /// float-to-int casts, lane by lane; the bins' boundaries need only be the same in binning and
+    /// partitioning, which both call this.
+    #[inline(always)]
+    fn bins(&self, c: Vec4) -> [u32; 4] {
+        const MAGIC: f32 = 8_388_608.0;
+        let last = Vec4::splat((self.count - 1) as f32);
+        let v = ((c - self.origin) * self.scale - 0.5)
+            .max(Vec4::ZERO)
+            .min(last)
+            + MAGIC;
+        v.to_array().map(|x| x.to_bits() - MAGIC.to_bits())
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Bin {
+    bounds: Box3,
+    count: u32,
+}
+
+/// Per axis (x, y, z and size), the boxes and counts of the primitives whose centroids fall in each bin.
+#[derive(Clone, Copy)]
+struct Bins([[Bin; BINS]; 4]);
+
+impl Bins {
+    const EMPTY: Bins = Bins(
+        [[Bin {
+            bounds: Box3::EMPTY,
+            count: 0,
+        }; BINS]; 4],
+    );
+
+    fn of(prims: &[Prim], map: &Mapper) -> Bins {
+        // Two sets of bins, for even and odd primitives: neighbours in a mesh mostly fall in the
+        // same bins, and with one set each update would wait for the previous one's store.
+        let (mut even, mut odd) = (Bins::EMPTY, Bins::EMPTY);
+        let mut pairs = prims.chunks_exact(2);
+        for pair in &mut pairs {
+            even.add(&pair[0], map);
+            odd.add(&pair[1], map);
+        }
+        if let [p] = pairs.remainder() {
+            even.add(p, map);
+        }
+        even.merge(odd)
+    }
+
+    #[inline(always)]
+    fn add(&mut self, p: &Prim, map: &Mapper) {
+        let (lo, hi) = (p.lo(), p.hi());
+        for (axis, k) in map.bins(p.key()).into_iter().enumerate() {
+            let bin = &mut self.0[axis][k as usize];
+            bin.bounds.grow(lo, hi);
+            bin.count += 1;
+        }
+    }
+
+    fn merge(mut self, other: Bins) -> Bins {
+        for (a, b) in self.0.iter_mut().flatten().zip(other.0.iter().flatten()) {
+            a.bounds = a.bounds.union(b.bounds);
+            a.count += b.count;
+        }
+        self
+    }
+}
+
+/// How to split a range.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Split {
+    /// Centroids in bins below `bin` on `axis` go left.
+    Binned {
+        map: Mapper,
+        axis: usize,
+        bin: u32,
+        left: Box3,
+        right: Box3,
+        count: usize,
+    },
+    /// Sorted on `axis`, the first `count` go left.
+    Sorted { axis: usize, count: usize },
+    /// The lower half on the widest centroid axis goes left.
+    Median,
+}
+
+/// What to do with a range: keep it as a leaf, or split it.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Plan {
+    Leaf,
+    Split(Split),
+}
+
+/// The best binned split of `prims` and its cost, if any axis offers one with a finite cost.
+fn best_binned(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
+    let count = if prims.len() >= MANY { BINS } else { FEW_BINS };
+    let map = Mapper::new(&info.keys, count);
+    if !map.scale.cmpgt(Vec4::ZERO).any() {
+        return None;
+    }
+    let bins = if prims.len() >= PAR_BIN_MIN {
+        prims
+            .par_chunks(BIN_CHUNK)
+            .map(|chunk| Bins::of(chunk, &map))
+            .reduce(|| Bins::EMPTY, Bins::merge)
+    } else {
+        Bins::of(prims, &map)
+    };
+    let (mut best, mut best_axis, mut best_bin) = (f64::INFINITY, 0, 0);
+    for axis in 0..4 {
+        if map.scale[axis] <= 0.0 {
+            continue;
+        }
+        let bins = &bins.0[axis][..count];
+        // The right sides' areas and counts, from the last bin down: index i covers bins i.. .
+        let mut right = [(0.0f64, 0u32); BINS];
+        let (mut acc, mut n) = (Box3::EMPTY, 0);
+        for i in (1..count).rev() {
+            acc = acc.union(bins[i].bounds);
+            n += bins[i].count;
+            right[i] = (acc.half_area(), n);
+        }
+        let (mut acc, mut n) = (Box3::EMPTY, 0);
+        for i in 1..count {
+            acc = acc.union(bins[i - 1].bounds);
+            n += bins[i - 1].count;
+            let (area, rn) = right[i];
+            if n == 0 || rn == 0 {
+                continue;
+            }
+            let c = acc.half_area() * n as f64 + area * rn as f64;
+            if c < best {
+                (best, best_axis, best_bin) = (c, axis, i);
+            }
+        }
+    }
+    if best == f64::INFINITY {
+        return None;
+    }
+    let side = |range: std::ops::Range<usize>| {
+        bins.0[best_axis][range]
+            .iter()
+            .fold((Box3::EMPTY, 0), |(b, n), bin| {
+                (b.union(bin.bounds), n + bin.count as usize)
+            })
+    };
+    let ((left, nl), (right, _)) = (side(0..best_bin), side(best_bin..count));
+    let split = Split::Binned {
+        map,
+        axis: best_axis,
+        bin: best_bin as u32,
+        left,
+        right,
+        count: nl,
+    };
+    Some((best, split))
+}
+
+/// The best split of a small range by a full sweep over its keys sorted on each axis.
+fn best_sorted(prims: &[Prim]) -> Option<(f64, Split)> {
+    let n = prims.len();
+    // keys[axis][k]: primitive k's key on that axis.
+    let mut keys = [[0.0f32; SWEEP_MAX]; 4];
+    for (k, p) in prims.iter().enumerate() {
+        for (axis, v) in p.key().to_array().into_iter().enumerate() {
+            keys[axis][k] = v;
+        }
+    }
+    let (mut best, mut best_split) = (f64::INFINITY, None);
+    for (axis, key) in keys.iter().enumerate() {
+        // The order on this axis (stable: ties keep their order, as in `apply`'s sort).
+        let mut idx = [0u8; SWEEP_MAX];
+        for (k, i) in idx[..n].iter_mut().enumerate() {
+            *i = k as u8;
+        }
+        idx[..n].sort_by(|&a, &b| key[a as usize].total_cmp(&key[b as usize]));
+        let mut right = [0.0f64; SWEEP_MAX];
+        let mut acc = Box3::EMPTY;
+        for i in (1..n).rev() {
+            let p = &prims[idx[i] as usize];
+            acc.grow(p.lo(), p.hi());
+            right[i] = acc.half_area();
+        }
+        let mut left = Box3::EMPTY;
+        for i in 1..n {
+            let p = &prims[idx[i - 1] as usize];
+            left.grow(p.lo(), p.hi());
+            let c = left.half_area() * i as f64 + right[i] * (n - i) as f64;
+            if c < best {
+                best = c;
+                best_split = Some(Split::Sorted { axis, count: i });
+            }
+        }
+    }
+    best_split.map(|split| (best, split))
+}
+
+/// The best SAH split of a range of at least two primitives, with its cost.
+fn best_split(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
+    if prims.len() <= SWEEP_MAX {
+        best_sorted(prims)
+    } else {
+        best_binned(prims, info)
+    }
+}
+
+/// Leaf or split for a range, `depth` binary levels below the root: a range of more than
+/// `max_leaf` is always split; a smaller one becomes a leaf unless splitting it into two leaves
+/// costs less by SAH, with a node visit costing `traversal_cost` triangle tests (obvhs' leaf
+/// collapse rule, applied top-down).
+pub(super) fn plan(
+    prims: &[Prim],
+    info: &Info,
+    depth: usize,
+    max_leaf: usize,
+    traversal_cost: f64,
+) -> Plan {
+    let n = prims.len();
+    if n <= 1 || (n <= max_leaf && n as f64 <= traversal_cost) {
+        return Plan::Leaf;
+    }
+    // Any split costs at least the sum of the primitives' own areas (each side's box holds its
+    // primitives' boxes): a leaf that costs no more needs no search, as most leaves of a mesh.
+    if n <= max_leaf {
+        let own: f64 = prims
+            .iter()
+            .map(|p| {
+                Box3 {
+                    lo: p.lo(),
+                    hi: p.hi(),
+                }
+                .half_area()
+            })
+            .sum();
+        if info.bounds.half_area() * (n as f64 - traversal_cost) <= own {
+            return Plan::Leaf;
+        }
+    }
+    if depth >= MEDIAN_DEPTH {
+        return if n <= max_leaf {
+            Plan::Leaf
+        } else {
+            Plan::Split(Split::Median)
+        };
+    }
+    match best_split(prims, info) {
+        Some((c, _))
+            if n <= max_leaf && info.bounds.half_area() * (n as f64 - traversal_cost) <= c =>
+        {
+            Plan::Leaf
+        }
+        Some((_, split)) => Plan::Split(split),
+        None if n <= max_leaf => Plan::Leaf,
+        None => Plan::Split(Split::Median),
+    }
+}
+
+/// Partitions `prims` in place by `left`, returning the left count and the centroid bounds of
+/// both sides.
+fn partition(prims: &mut [Prim], left: impl Fn(Vec4) -> bool) -> (usize, Keys, Keys) {
+    let (mut i, mut j) = (0, prims.len());
+    let (mut cl, mut cr) = (Keys::EMPTY, Keys::EMPTY);
+    loop {
+        while i < j {
+            let c = prims[i].key();
+            if !left(c) {
+                break;
+            }
+            cl.grow(c);
+            i += 1;
+        }
+        while i < j {
+            let c = prims[j - 1].key();
+            if left(c) {
+                break;
+            }
+            cr.grow(c);
+            j -= 1;
+        }
+        if i >= j {
+            return (i, cl, cr);
+        }
+        // prims[i] goes right and prims[j - 1] left: swap them and take both.
+        prims.swap(i, j - 1);
+        cl.grow(prims[i].key());
+        cr.grow(prims[j - 1].key());
+        i += 1;
+        j -= 1;
+    }
+}
+
+/// Applies `split` to `prims` (whose info is `info`): the left count and both sides' infos.
+pub(super) fn apply(prims: &mut [Prim], info: &Info, split: Split) -> (usize, Info, Info) {
+    match split {
+        Split::Binned {
+            map,
+            axis,
+            bin,
+            left,
+            right,
+            count,
+        } => {
+            let (mid, cl, cr) = partition(prims, |c| map.bins(c)[axis] < bin);
+            debug_assert_eq!(mid, count);
+            let _ = count;
+            let l = Info {
+                bounds: left,
+                keys: cl,
+            };
+            let r = Info {
+                bounds: right,
+                keys: cr,
+            };
+            (mid, l, r)
+        }
+        Split::Sorted { axis, count } => {
+            prims.sort_by(|a, b| a.key()[axis].total_cmp(&b.key()[axis]));
+            let (l, r) = prims.split_at(count);
+            (count, Info::of(l), Info::of(r))
+        }
+        Split::Median => {
+            let extent = info.keys.hi - info.keys.lo;
+            // The widest axis (NaN extents, from infinite centroid bounds, compare as smallest).
+            let mut axis = 0;
+            for a in 1..3 {
+                if extent[a] > extent[axis] {
+                    axis = a;
+                }
+            }
+            let mid = prims.len() / 2;
+            prims.select_nth_unstable_by(mid, |a, b| a.key()[axis].total_cmp(&b.key()[axis]));
+            let (l, r) = prims.split_at(mid);
+            (mid, Info::of(l), Info::of(r))
+        }
+    }
+}
+
+/// `v` without what the w lane carried through the builder's vector operations (see [`Prim`]).
+fn xyz(v: Vec3A) -> Vec3A {
+    Vec3A::from_array(v.to_array())
+}
+
+/// A node of a binary tree: a box and either two children (`count` 0: at `first` and
+/// `first + 1`) or `count` primitives from position `first` of the tree's order.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct BinaryNode {
+    pub lo: Vec3A,
+    pub hi: Vec3A,
+    pub count: u32,
+    pub first: u32,
+}
+
+/// A binary SAH tree over `boxes` (each box's lower and upper corner, finite or not, lower ≤
+/// upper) with leaves of at most `max_leaf` boxes: its nodes, root first, and the order of the
+/// boxes (`order[k]` = index in `boxes` of the tree's primitive k). Sequential: meant for the few
+/// thousand boxes of a top-level tree. `boxes` must not be empty.
+pub(crate) fn binary_tree(
+    boxes: &[(Vec3A, Vec3A)],
+    max_leaf: usize,
+    traversal_cost: f64,
+) -> (Vec<BinaryNode>, Vec<u32>) {
+    assert!(!boxes.is_empty() && max_leaf >= 1);
+    let mut prims: Vec<Prim> = boxes
+        .iter()
+        .enumerate()
+        .map(|(i, &(lo, hi))| Prim::new(lo, hi, i as u32))
+        .collect();
+    let info = Info::of(&prims);
+    let mut nodes = vec![BinaryNode {
+        lo: xyz(info.bounds.lo),
+        hi: xyz(info.bounds.hi),
+        count: 0,
+        first: 0,
+    }];
+    // Explicit stack: (slot, first primitive, count, info, depth).
+    let mut stack = vec![(0usize, 0usize, prims.len(), info, 0usize)];
+    while let Some((slot, first, count, info, depth)) = stack.pop() {
+        let range = &mut prims[first..first + count];
+        let split = match plan(range, &info, depth, max_leaf, traversal_cost) {
+            Plan::Leaf => {
+                nodes[slot].count = count as u32;
+                nodes[slot].first = first as u32;
+                continue;
+            }
+            Plan::Split(split) => split,
+        };
+        let (mid, l, r) = apply(range, &info, split);
+        let children = nodes.len();
+        nodes[slot].first = children as u32;
+        for side in [l, r] {
+            nodes.push(BinaryNode {
+                lo: xyz(side.bounds.lo),
+                hi: xyz(side.bounds.hi),
+                count: 0,
+                first: 0,
+            });
+        }
+        stack.push((children + 1, first + mid, count - mid, r, depth + 1));
+        stack.push((children, first, mid, l, depth + 1));
+    }
+    let order = prims.iter().map(Prim::index).collect();
+    (nodes, order)
+}
