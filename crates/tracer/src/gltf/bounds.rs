@@ -1,12 +1,13 @@
 //! The world-space extent the loader accepts.
 //!
-//! Every coordinate is finite by the time it gets here, but finite is not enough: the BVH builder
-//! (obvhs) computes surface areas and summed SAH costs in `f32`, and a single vertex near 10²⁰ (a
-//! mutated float, a node scale of 10¹⁹) makes those areas infinite and the costs NaN or infinite. The
-//! builder's CWBVH conversion then finds no valid split for a node and indexes its decision table with
-//! an "invalid" marker: a debug assertion in a debug build, and in a release build a read of an
-//! unrelated entry, i.e. a corrupt tree or an out-of-bounds panic (found by the `gltf_load` fuzz
-//! target, see docs/fuzzing.md). Bounding coordinates keeps every area and cost finite.
+//! Every coordinate is finite by the time it gets here, but finite is not enough: the BVH builder of
+//! the time (obvhs) computed surface areas and summed SAH costs in `f32`, and a single vertex near
+//! 10²⁰ (a mutated float, a node scale of 10¹⁹) made those areas infinite and the costs NaN or
+//! infinite; its CWBVH conversion then found no valid split for a node and indexed its decision
+//! table with an "invalid" marker (found by the `gltf_load` fuzz target, see docs/fuzzing.md). Our
+//! own builder (`geometry/bvh/binned.rs`) computes its costs in `f64` and falls back to median splits
+//! where they are not finite, but `f32` has no precision left for ray tracing at such scales, and
+//! bounding coordinates keeps every area and cost finite all the same.
 
 use super::error::GltfError;
 use super::mesh::primitive_label;
