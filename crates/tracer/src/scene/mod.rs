@@ -196,8 +196,16 @@ impl Scene {
             }
             tracing::info!(degenerate_dropped, "dropped zero-area triangles");
         }
+        let started = std::time::Instant::now();
         let (bvh, order) = Bvh::build(&mesh);
+        let bvh_seconds = started.elapsed().as_secs_f64();
         mesh.reorder(&order);
+        tracing::debug!(
+            triangles = mesh.len(),
+            bvh_seconds,
+            reorder_seconds = started.elapsed().as_secs_f64() - bvh_seconds,
+            "built the BVH"
+        );
 
         let (mut lo, mut hi) = mesh.bounds();
         if let Some((ilo, ihi)) = instances.bounds() {
@@ -209,7 +217,13 @@ impl Scene {
             hi = Vec3::ZERO;
         }
         let radius = 0.5 * (hi - lo).length();
+        let started = std::time::Instant::now();
         let area = AreaLights::new(&mesh, &materials, &textures);
+        tracing::debug!(
+            lights = area.triangles.len(),
+            seconds = started.elapsed().as_secs_f64(),
+            "collected the area lights"
+        );
         let lights = Lights::new(area, punctual_lights, radius.max(1e-3));
         let camera = camera.unwrap_or_else(|| Camera::framing(0.5 * (lo + hi), radius.max(1e-3)));
         let info = SceneInfo {

@@ -16,7 +16,7 @@
 //! sensible scene (scenes built by hand skip the loader's coordinate bound) still compare; a range
 //! with no finite split cost, or identical keys, falls back to a median split.
 
-use glam::{DVec3, Vec3A, Vec4};
+use glam::{BVec4A, DVec3, Vec3A, Vec4};
 use rayon::prelude::*;
 
 /// Bins per axis for a large range: 32 keeps the tree within about a percent of a full sweep's SAH
@@ -106,7 +106,9 @@ impl Keys {
 }
 
 /// A primitive as the builder moves it: its box, with its index stored in the w lane of the lower
-/// corner (32 bytes: the partitions move one record, not a box and an index).
+/// corner and its size key ([`Prim::key`]'s w lane) in that of the upper one (32 bytes: the
+/// partitions move one record, not a box and an index, and the key is not worked out again at
+/// every level).
 ///
 /// The w lane goes through every vector operation on the box, so the index is stored as the bits
 /// of a normal float ([`INDEX_BIAS`] + index: 1.0 for index 0). Stored as is, a small index is a
@@ -126,9 +128,13 @@ impl Prim {
     #[inline(always)]
     pub fn new(lo: Vec3A, hi: Vec3A, index: u32) -> Prim {
         debug_assert!(index < 1 << 30);
+        let d = hi - lo;
+        let area = d.x * d.y + d.y * d.z + d.z * d.x;
+        // The bits of any float over 2²³: zero or a normal float of at most 512, never NaN.
+        let size = area.to_bits() as f32 * (1.0 / 8_388_608.0);
         Prim {
             lo: lo.extend(f32::from_bits(INDEX_BIAS + index)),
-            hi: hi.extend(0.0),
+            hi: hi.extend(size),
         }
     }
 
@@ -156,11 +162,8 @@ impl Prim {
     /// become zero, so that key bounds and bins stay well defined.
     #[inline(always)]
     fn key(&self) -> Vec4 {
-        let (lo, hi) = (self.lo(), self.hi());
-        let c = lo * 0.5 + hi * 0.5;
-        let d = hi - lo;
-        let area = d.x * d.y + d.y * d.z + d.z * d.x;
-        let k = c.extend(area.to_bits() as f32 * (1.0 / 8_388_608.0));
+        let c = self.lo * 0.5 + self.hi * 0.5;
+        let k = Vec4::select(BVec4A::new(true, true, true, false), c, self.hi);
         Vec4::select(k.cmpeq(k), k, Vec4::ZERO)
     }
 }
