@@ -9,6 +9,10 @@ pub const MAX_JSON_BODY_BYTES: usize = 64 << 10;
 /// The default of [`ServerConfig::image_cache_bytes`]: 1 GiB.
 pub const DEFAULT_IMAGE_CACHE_BYTES: usize = 1 << 30;
 
+/// The default of [`ServerConfig::image_wait`]: long enough for a request to wait out one build of
+/// the largest image (8192², which runs alone under the default budget) and then its own.
+pub const DEFAULT_IMAGE_WAIT: Duration = Duration::from_secs(30);
+
 /// Limits on requests, each enforced with a clear 4xx.
 #[derive(Clone, Debug)]
 pub struct Limits {
@@ -74,12 +78,18 @@ pub struct ServerConfig {
     /// a few seconds of work.
     pub max_task_samples: u64,
     pub limits: Limits,
-    /// Most bytes the cache of job images holds (each image's pixels and its encoded PNGs and
-    /// EXRs; see [`crate::image_cache`]). The least recently used images go first; an image
-    /// larger than this is served but not kept, so it is assembled again for every request. A
-    /// job's image takes 80 bytes per pixel (1080p: 166 MB; 4K: 664 MB) plus its encodings
-    /// (an EXR up to 12 bytes per pixel): the default, 1 GiB, keeps one 4K image or five 1080p.
+    /// Most bytes job images take in this server, counted before they are spent: the images kept
+    /// for the next request (least recently used let go first), the images requests are using,
+    /// and the work of building and encoding them (see [`crate::image_cache`]). A job's image
+    /// takes 20 bytes a pixel (1080p: 41 MB; 4096²: 336 MB); building it takes that plus a few
+    /// tiles' worth, encoding it its PNG or EXR buffers (an EXR with every channel up to 60 bytes
+    /// a pixel). Work that finds no room waits up to [`ServerConfig::image_wait`], then is
+    /// answered 503 `busy`; one piece larger than the whole budget waits for all of it and runs
+    /// alone, and its image is served but not kept. The default is 1 GiB.
     pub image_cache_bytes: usize,
+    /// How long image work waits for room in the image budget before it is refused (503 `busy`
+    /// with `Retry-After`).
+    pub image_wait: Duration,
 }
 
 impl ServerConfig {
@@ -93,6 +103,7 @@ impl ServerConfig {
             max_task_samples: 4 << 20,
             limits: Limits::default(),
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
+            image_wait: DEFAULT_IMAGE_WAIT,
         }
     }
 

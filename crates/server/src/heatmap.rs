@@ -17,18 +17,7 @@ pub struct HeatMap {
 /// Samples per pixel, from 0 to the largest count in the image.
 pub fn samples(acc: &Accumulation) -> HeatMap {
     let scale = samples_scale(acc);
-    let max = scale.1;
-    let rgb = acc
-        .pixels
-        .iter()
-        .flat_map(|p| {
-            viridis(if max == 0.0 {
-                0.0
-            } else {
-                p.count as f64 / max
-            })
-        })
-        .collect();
+    let rgb = samples_of(acc.pixels.iter().map(|p| p.count), scale.1 as u64);
     HeatMap { rgb, scale }
 }
 
@@ -38,38 +27,70 @@ pub fn samples_scale(acc: &Accumulation) -> (f64, f64) {
     (0.0, max as f64)
 }
 
+/// The sample map of per-pixel `counts` whose largest is `max`, as RGB8.
+pub fn samples_rgb(counts: &[u32], max: u64) -> Vec<u8> {
+    samples_of(counts.iter().map(|&c| u64::from(c)), max)
+}
+
+fn samples_of(counts: impl Iterator<Item = u64>, max: u64) -> Vec<u8> {
+    let max = max as f64;
+    counts
+        .flat_map(|c| viridis(if max == 0.0 { 0.0 } else { c as f64 / max }))
+        .collect()
+}
+
+/// Where a pixel falls on the noise map's scale, from the variance of its mean luminance
+/// (`None` with fewer than two samples) and its mean luminance.
+fn noise_position(var: Option<f64>, lum: f64) -> f64 {
+    let (lo, hi) = NOISE_SCALE;
+    let (log_lo, log_hi) = (lo.log10(), hi.log10());
+    match var {
+        None => 1.0,
+        Some(var) if var <= 0.0 => 0.0,
+        Some(_) if lum <= 0.0 => 1.0,
+        Some(var) => {
+            let rel = var.sqrt() / lum;
+            (rel.log10() - log_lo) / (log_hi - log_lo)
+        }
+    }
+}
+
+fn luminance(m: [f64; 3]) -> f64 {
+    0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2]
+}
+
 /// The relative standard error √Var[mean] / mean of each pixel's luminance, on [`NOISE_SCALE`]
 /// (log). A pixel with fewer than two samples has no estimate and shows as the top of the scale;
 /// a black pixel with no variance is exact and shows as the bottom.
 pub fn noise(acc: &Accumulation) -> HeatMap {
-    let (lo, hi) = NOISE_SCALE;
-    let (log_lo, log_hi) = (lo.log10(), hi.log10());
     let rgb = acc
         .pixels
         .iter()
-        .flat_map(|p| {
-            let t = match p.variance_of_mean() {
-                None => 1.0,
-                Some(var) => {
-                    let m = p.mean();
-                    let lum = 0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2];
-                    if var <= 0.0 {
-                        0.0
-                    } else if lum <= 0.0 {
-                        1.0
-                    } else {
-                        let rel = var.sqrt() / lum;
-                        (rel.log10() - log_lo) / (log_hi - log_lo)
-                    }
-                }
-            };
-            viridis(t)
-        })
+        .flat_map(|p| viridis(noise_position(p.variance_of_mean(), luminance(p.mean()))))
         .collect();
     HeatMap {
         rgb,
         scale: NOISE_SCALE,
     }
+}
+
+/// The noise map (as [`noise`]) of developed pixels: mean RGB, variance of the mean luminance
+/// and sample count (`mean` and `variance` are read only where the count is two or more).
+pub fn noise_rgb(mean: &[[f32; 3]], variance: &[f32], counts: &[u32]) -> Vec<u8> {
+    counts
+        .iter()
+        .enumerate()
+        .flat_map(|(i, &c)| {
+            let t = if c < 2 {
+                noise_position(None, 0.0)
+            } else {
+                let m = mean.get(i).copied().unwrap_or_default().map(f64::from);
+                let var = variance.get(i).copied().unwrap_or_default();
+                noise_position(Some(f64::from(var)), luminance(m))
+            };
+            viridis(t)
+        })
+        .collect()
 }
 
 /// Viridis, sampled at 9 evenly spaced stops (matplotlib's table) and interpolated linearly;

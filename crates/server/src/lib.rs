@@ -10,11 +10,14 @@ pub mod config;
 pub mod dashboard;
 pub mod error;
 pub mod heatmap;
+pub mod image_budget;
 pub mod image_cache;
+pub mod job_image;
 pub mod metrics;
 pub mod monitor;
 pub mod routes;
 pub mod scheduler;
+pub mod single_flight;
 pub mod states;
 pub mod store;
 
@@ -53,7 +56,7 @@ impl AppState {
     pub async fn open(config: ServerConfig) -> Result<AppState, store::StoreError> {
         let store = Store::connect(&config.db_url).await?;
         let scene_checks = tokio::sync::Semaphore::new(config.limits.scene_checks.max(1));
-        let images = image_cache::ImageCache::new(config.image_cache_bytes);
+        let images = image_cache::ImageCache::new(config.image_cache_bytes, config.image_wait);
         Ok(AppState(Arc::new(Inner {
             store,
             scene_checks,

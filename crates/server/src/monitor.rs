@@ -82,26 +82,29 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
 /// point when one is due). The monitor calls it for every job whose image changed; `GET
 /// /jobs/{id}` calls it for a finished job whose last image the monitor has not seen yet, so the
 /// final answer carries the final image's error at once rather than one monitor tick later.
+///
+/// A job without a merged slice has nothing to estimate: its (empty) estimate is recorded without
+/// reading or assembling anything.
 pub async fn refresh_estimate(
     state: &AppState,
     job: &JobRow,
 ) -> Result<Option<f64>, crate::error::ApiError> {
     let store = &state.store;
-    let img = state
-        .images
-        .get(store, &job.id, job.settings.width, job.settings.height)
-        .await?;
-    let version = img.version;
-    // Passes over every pixel: off the runtime's threads.
-    let (err, samples) = crate::image_cache::blocking("error estimate", move || {
-        let err = if img.min_samples >= 2 {
-            img.acc.relative_error()
+    let (version, err, samples) = if job.version == 0 {
+        (0, None, 0)
+    } else {
+        // Shared with the requests viewing the job: while it runs, any image newer than the last
+        // estimate will do (so a build under way is joined, not followed by another); once it
+        // is final, the final image. The estimate and the sample count were summed as the image
+        // was developed.
+        let wanted = if job.state.is_final() {
+            job.version
         } else {
-            None
+            (job.rel_error_version + 1).clamp(1, job.version)
         };
-        Ok((err, img.acc.total_samples()))
-    })
-    .await?;
+        let img = state.images.get_at_least(store, job, wanted).await?;
+        (img.version, img.relative_error, img.total_samples)
+    };
     let target_reached = matches!((job.settings.noise_target, err), (Some(t), Some(e)) if e <= t);
     let estimate = Estimate {
         version,

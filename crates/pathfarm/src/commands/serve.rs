@@ -37,8 +37,9 @@ pub struct ServerArgs {
         default_value_t = 20_000_000
     )]
     pub max_scene_triangles: u64,
-    /// Most MiB the cache of job images holds (each image's pixels, 80 bytes each, and its
-    /// encoded PNGs and EXRs); the least recently viewed go first.
+    /// Most MiB job images take, kept for the next request or being built and encoded (20 bytes
+    /// a pixel, plus PNG and EXR buffers); the least recently viewed kept images go first, and
+    /// image work that finds no room within 30 s is answered 503.
     #[arg(long, env = "PATHFARM_IMAGE_CACHE_MIB", default_value_t = 1024)]
     pub image_cache_mib: usize,
 }

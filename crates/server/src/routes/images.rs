@@ -1,16 +1,17 @@
 //! The current image of a job: EXR (float32, optionally with variance and sample-count channels)
 //! and a tone-mapped PNG preview, both rebuilt only when a slice was merged since the last request
-//! (and the image cache still holds them), on blocking threads (see [`crate::image_cache`]).
+//! (and the image cache still holds them), once for all the requests that ask meanwhile, on
+//! blocking threads and within the image budget (see [`crate::image_cache`]).
 
 use crate::auth::ReadAuth;
 use crate::error::{ApiError, ApiResult};
 use crate::heatmap;
-use crate::image_cache::blocking;
+use crate::job_image::cost;
 use crate::AppState;
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
-use pathfarm_tracer::output::{encode_exr, encode_png, encode_rgb8_png, ExrChannels};
+use pathfarm_tracer::output::ExrChannels;
 use pathfarm_wire::api::{PreviewView, SCALE_MAX_HEADER, SCALE_MIN_HEADER};
 use serde::Deserialize;
 
@@ -74,10 +75,7 @@ pub async fn image_exr(
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
     let job = state.store.job(&id).await?;
-    let img = state
-        .images
-        .get(&state.store, &id, job.settings.width, job.settings.height)
-        .await?;
+    let img = state.images.get(&state.store, &job).await?;
     if let Some(r) = not_modified(&request, img.version) {
         return Ok(r);
     }
@@ -86,10 +84,12 @@ pub async fn image_exr(
         variance: q.extra,
         samples: q.extra,
     };
+    let need = cost::exr(img.width, img.height, if q.extra { 5 } else { 3 });
     let bytes = state
         .images
-        .encoded(&id, &img, key, move |acc| {
-            encode_exr(acc, channels).map_err(|e| ApiError::internal(format!("EXR encoding: {e}")))
+        .encoded(&id, &img, key, need, move |img| {
+            img.exr(channels)
+                .map_err(|e| ApiError::internal(format!("EXR encoding: {e}")))
         })
         .await?;
     Ok(image_response(bytes, "image/x-exr", img.version))
@@ -110,35 +110,27 @@ pub async fn preview_png(
         ));
     }
     let job = state.store.job(&id).await?;
-    let img = state
-        .images
-        .get(&state.store, &id, job.settings.width, job.settings.height)
-        .await?;
+    let img = state.images.get(&state.store, &job).await?;
     if let Some(r) = not_modified(&request, img.version) {
         return Ok(r);
     }
     let (key, scale) = match q.view {
         PreviewView::Image => (format!("png@{}", q.exposure), None),
-        PreviewView::Samples => {
-            // A pass over every pixel: off the runtime's threads, like the encoding.
-            let src = img.clone();
-            let scale = blocking("heat map scale", move || {
-                Ok(heatmap::samples_scale(&src.acc))
-            })
-            .await?;
-            ("png:samples".to_string(), Some(scale))
-        }
+        PreviewView::Samples => (
+            "png:samples".to_string(),
+            Some((0.0, img.max_samples as f64)),
+        ),
         PreviewView::Noise => ("png:noise".to_string(), Some(heatmap::NOISE_SCALE)),
     };
     let (view, exposure) = (q.view, q.exposure);
+    let need = cost::png(img.width, img.height);
     let bytes = state
         .images
-        .encoded(&id, &img, &key, move |acc| {
-            let (w, h) = (acc.width, acc.height);
+        .encoded(&id, &img, &key, need, move |img| {
             match view {
-                PreviewView::Image => encode_png(acc, exposure),
-                PreviewView::Samples => encode_rgb8_png(w, h, &heatmap::samples(acc).rgb),
-                PreviewView::Noise => encode_rgb8_png(w, h, &heatmap::noise(acc).rgb),
+                PreviewView::Image => img.png(exposure),
+                PreviewView::Samples => img.samples_png(),
+                PreviewView::Noise => img.noise_png(),
             }
             .map_err(|e| ApiError::internal(format!("PNG encoding: {e}")))
         })

@@ -535,7 +535,11 @@ pub async fn show(
     if job.state.is_final() && job.rel_error_version < job.version {
         // The last merges finished the job before the monitor estimated their image: estimate it
         // now, so a client that waited for the end reads the final error, not a stale one.
-        job.rel_error = crate::monitor::refresh_estimate(&state, &job).await?;
+        // Without room for the image now, the last estimate stands (the monitor catches up).
+        job.rel_error = match crate::monitor::refresh_estimate(&state, &job).await {
+            Err(e) if e.code == "busy" => job.rel_error,
+            r => r?,
+        };
     }
     let tiles = state
         .store

@@ -296,36 +296,6 @@ impl Store {
             .collect::<Result<Vec<_>, _>>()?)
     }
 
-    /// Every tile with its merged accumulation (encoded), and the job version they belong to, read
-    /// in one transaction so that the image is a consistent snapshot.
-    pub async fn tile_accumulations(
-        &self,
-        job_id: &str,
-    ) -> ApiResult<(i64, Vec<(TileRow, Option<Vec<u8>>)>)> {
-        let mut tx = self.pool().begin().await?;
-        let version: i64 = match sqlx::query("SELECT version FROM jobs WHERE id = $1")
-            .bind(job_id)
-            .fetch_optional(&mut *tx)
-            .await?
-        {
-            Some(r) => r.try_get("version")?,
-            None => return Err(ApiError::not_found("job", job_id)),
-        };
-        let rows = sqlx::query(
-            "SELECT tile_index, x0, y0, width, height, samples, accum FROM tiles \
-             WHERE job_id = $1 ORDER BY tile_index",
-        )
-        .bind(job_id)
-        .fetch_all(&mut *tx)
-        .await?;
-        tx.commit().await?;
-        let tiles = rows
-            .iter()
-            .map(|r| Ok((TileRow::from_row(r)?, r.try_get("accum")?)))
-            .collect::<Result<Vec<_>, sqlx::Error>>()?;
-        Ok((version, tiles))
-    }
-
     /// Applies a state-machine event to a job, with its effect on the job's tasks.
     pub async fn job_event(
         &self,

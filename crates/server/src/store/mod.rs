@@ -20,6 +20,7 @@ const SQLITE_BEGIN_WRITE: &str = "BEGIN IMMEDIATE";
 mod convergence;
 mod gauges;
 mod group_commit;
+mod images;
 mod jobs;
 mod lease;
 mod migrations;
@@ -28,6 +29,7 @@ mod tasks;
 mod workers;
 
 pub use convergence::Estimate;
+pub use images::{ImageReader, ImageSnapshot, TileMeta};
 pub use jobs::{JobRow, NewJob, TileRow};
 pub use tasks::MergeOutcome;
 
