@@ -53,6 +53,9 @@ impl ApiError {
             ..Self::new(StatusCode::SERVICE_UNAVAILABLE, "busy", message)
         }
     }
+    pub fn forbidden(code: &'static str, message: impl Into<String>) -> Self {
+        Self::new(StatusCode::FORBIDDEN, code, message)
+    }
 }
 
 impl std::fmt::Display for ApiError {

@@ -15,6 +15,7 @@ pub mod image_cache;
 pub mod job_image;
 pub mod metrics;
 pub mod monitor;
+pub mod origin;
 pub mod routes;
 pub mod scheduler;
 pub mod single_flight;
@@ -68,7 +69,20 @@ impl AppState {
 }
 
 /// The router: every route of [`routes::api_routes`], JSON errors for unknown paths and methods.
+/// Without client tokens, requests must name this server and state changes come from its own
+/// origin ([`origin`]); the listen address is not known here, so `Host` may give any port with
+/// the loopback names ([`app_listening_on`] knows it, and [`serve`] uses that).
 pub fn app(state: AppState) -> Router {
+    router(state, None)
+}
+
+/// [`app`] for a server listening on `listen`: without client tokens, `Host` must name that
+/// address (or a loopback name with its port when it is a loopback address).
+pub fn app_listening_on(state: AppState, listen: std::net::SocketAddr) -> Router {
+    router(state, Some(listen))
+}
+
+fn router(state: AppState, listen: Option<std::net::SocketAddr>) -> Router {
     // Each route reads at most its own limit (see `routes::body_limit`): a worker's heartbeat
     // cannot send a scene-sized body, nor a slice upload more than the slice limit.
     let mut router = Router::new();
@@ -76,7 +90,7 @@ pub fn app(state: AppState) -> Router {
         let limit = routes::body_limit(&r.method, r.path, &state.config.limits);
         router = router.route(r.path, r.handler.layer(DefaultBodyLimit::max(limit)));
     }
-    router
+    let router = router
         .route_layer(axum::middleware::from_fn_with_state(
             state.clone(),
             routes::metrics::track_latency,
@@ -92,7 +106,16 @@ pub fn app(state: AppState) -> Router {
                 "method not allowed on this endpoint",
             )
         })
-        .layer(axum::middleware::from_fn(routes::nul_paths))
+        .layer(axum::middleware::from_fn(routes::nul_paths));
+    let router = if state.config.client_tokens.is_empty() {
+        router.layer(axum::middleware::from_fn_with_state(
+            origin::OwnOrigin { listen },
+            origin::guard,
+        ))
+    } else {
+        router
+    };
+    router
         .layer(axum::middleware::map_response(error::json_errors))
         .layer(DefaultBodyLimit::max(config::MAX_JSON_BODY_BYTES))
         .layer(tower_http::trace::TraceLayer::new_for_http())
@@ -106,8 +129,9 @@ pub async fn serve(
     listener: tokio::net::TcpListener,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
+    let listen = listener.local_addr()?;
     let monitor = tokio::spawn(monitor::run(state.clone()));
-    let result = axum::serve(listener, app(state.clone()))
+    let result = axum::serve(listener, app_listening_on(state.clone(), listen))
         .with_graceful_shutdown(shutdown)
         .await;
     monitor.abort();
