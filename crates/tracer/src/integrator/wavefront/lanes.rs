@@ -8,7 +8,8 @@
 //! 3. `shade_hit` (vector): the hit point and normal, emission seen by the ray, the light's
 //!    sample values;
 //! 4. the light triangle and point each lane's values choose: in the lanes, at the end of step 3,
-//!    from the scene's `LightTable`;
+//!    from the scene's `LightTable`; for a scene of many lights, from the light tree, lane by lane
+//!    (`sample_by_tree`, scalar);
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray;
 //! 6. `trace_shadows` (scalar): each shadow ray, together with the lane's next ray when the path
@@ -61,8 +62,8 @@ type B = [bool; LANES];
 pub(super) struct Lanes<'a> {
     scene: &'a Scene,
     materials: &'a [DiffuseMaterial],
-    /// The lights in the lanes' layout.
-    lights: &'a LightTable,
+    /// The lights in the lanes' layout; None: chosen by the light tree, lane by lane.
+    lights: Option<&'a LightTable>,
     settings: &'a RenderSettings,
     depth_limit: u32,
 
@@ -140,7 +141,7 @@ impl<'a> Lanes<'a> {
         Lanes {
             scene,
             materials: &diffuse.materials,
-            lights: &diffuse.lights,
+            lights: diffuse.lights.as_deref(),
             settings,
             depth_limit: settings.depth_limit(),
             x: [0; LANES],
@@ -256,6 +257,16 @@ impl<'a> Lanes<'a> {
             self.emission_back.set(i, m.emission_back);
             self.diffuse_on[i] = m.diffuse_on;
             self.light_density[i] = m.light_density;
+            // Chosen by the tree, the density depends on the vertex the ray left (`p` and `ng`
+            // still hold it): `trace_path`'s `EmissionWeight::Mis`.
+            if self.lights.is_none() && self.hit[i] && self.mis[i] && m.emits {
+                let (from, n) = (self.p.get(i), self.ng.get(i));
+                self.light_density[i] =
+                    scene
+                        .lights
+                        .area
+                        .pdf(from, n, hit.triangle, scene.mesh.material[tri]);
+            }
         }
     }
 
@@ -318,8 +329,12 @@ impl<'a> Lanes<'a> {
             (u_light[0][i], u_light[1][i], u_select[i]) = (point0, point1, select);
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
+        let Some(lights) = self.lights else {
+            self.sample_by_tree(&u_select, &u_light);
+            return;
+        };
         // The light triangle and point, in the lanes.
-        let s = self.lights.sample(&u_select, &u_light, Some(isa));
+        let s = lights.sample(&u_select, &u_light, Some(isa));
         let diffuse_on = self.diffuse_on;
         let mut ok = [false; LANES];
         for i in 0..LANES {
@@ -327,6 +342,30 @@ impl<'a> Lanes<'a> {
         }
         (self.light_ok, self.light_point, self.light_normal) = (ok, s.point, s.normal);
         (self.light_pdf_area, self.light_front, self.light_back) = (s.pdf_area, s.front, s.back);
+    }
+
+    /// Chooses each lane's light triangle and point by the light tree at the lane's vertex
+    /// (`AreaLights::sample`, one lane at a time: a walk per lane) and loads the light's emission.
+    fn sample_by_tree(&mut self, u_select: &F, u_light: &[F; 2]) {
+        let scene = self.scene;
+        for i in 0..LANES {
+            self.light_ok[i] = false;
+            if !(self.go[i] && self.diffuse_on[i]) {
+                continue;
+            }
+            let u = Vec2::new(u_light[0][i], u_light[1][i]);
+            let (p, ng) = (self.p.get(i), self.ng.get(i));
+            let Some(ls) = scene.lights.area.sample(p, ng, u_select[i], u) else {
+                continue;
+            };
+            let m = &self.materials[scene.mesh.material[ls.triangle as usize] as usize];
+            self.light_ok[i] = true;
+            self.light_point.set(i, ls.point);
+            self.light_normal.set(i, ls.normal);
+            self.light_pdf_area[i] = ls.pdf_area;
+            self.light_front.set(i, m.emission_front);
+            self.light_back.set(i, m.emission_back);
+        }
     }
 
     /// [`Lanes::scatter`] with the roulette's variant a constant in each copy: a `match` on it

@@ -10,7 +10,7 @@ use glam::{Vec2, Vec3};
 /// The most light triangles the lanes choose from: every light of a scene that chooses its lights
 /// by power (a power of two: a lane's choice, masked by it, is an index the compiler knows to be in
 /// bounds). Each lane counts the CDF values at or below its sample, one comparison per light;
-/// scenes with more lights choose by the light tree, on the scalar integrator.
+/// scenes with more lights choose by the light tree, each lane walking it on its own.
 pub(crate) const MAX_LIGHTS: usize = crate::light::MAX_POWER_CHOSEN;
 const _: () = assert!(MAX_LIGHTS.is_power_of_two());
 

@@ -77,8 +77,11 @@ pub(crate) struct DiffuseMaterial {
     /// `Material::emission` towards the front side, and towards the back.
     pub emission_front: Vec3,
     pub emission_back: Vec3,
-    /// `AreaLights::power_density` of the material.
+    /// `AreaLights::power_density` of the material, when the lights are chosen by power (the
+    /// same at every point); zero when they are chosen by the tree.
     pub light_density: f32,
+    /// Whether the material emits: a BSDF ray that hits it needs the light choice's density.
+    pub emits: bool,
 }
 
 /// A scene the wavefront integrator can render, and the per-material facts its lanes read. Built
@@ -86,8 +89,9 @@ pub(crate) struct DiffuseMaterial {
 #[derive(Clone, Debug)]
 pub(crate) struct DiffuseScene {
     pub materials: Vec<DiffuseMaterial>,
-    /// The lights for the lanes to sample.
-    pub lights: Box<LightTable>,
+    /// The lights in the lanes' layout, for a scene that chooses its lights by power; None for
+    /// one that chooses by the light tree, which each lane walks on its own.
+    pub lights: Option<Box<LightTable>>,
 }
 
 impl DiffuseScene {
@@ -112,8 +116,7 @@ impl DiffuseScene {
         {
             return None;
         }
-        // A scene of many lights chooses by the light tree, which only the scalar integrator walks.
-        if area.is_empty() || area.has_tree() {
+        if area.is_empty() {
             return None;
         }
         let mut out = Vec::with_capacity(materials.len());
@@ -130,11 +133,19 @@ impl DiffuseScene {
                 diffuse_on: bsdf.has_non_delta(),
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),
-                light_density: area.power_density(m as u32),
+                light_density: if area.has_tree() {
+                    0.0
+                } else {
+                    area.power_density(m as u32)
+                },
+                emits: material.is_emissive(),
             });
         }
-        // Lights are chosen in the lanes, from the table.
-        let lights = LightTable::new(area, &out, &mesh.material)?;
+        // Lights chosen by power are chosen in the lanes, from the table; by the tree, lane by lane.
+        let lights = match area.has_tree() {
+            false => Some(LightTable::new(area, &out, &mesh.material)?),
+            true => None,
+        };
         Some(DiffuseScene {
             materials: out,
             lights,

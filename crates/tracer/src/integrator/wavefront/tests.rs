@@ -210,7 +210,7 @@ fn the_light_table_samples_what_area_lights_sample() {
     for name in ["cornell", "furnacebox", "smalllight"] {
         let scene = scene(parts(name));
         let diffuse = scene.diffuse.as_ref().expect("a diffuse scene");
-        let table: &LightTable = &diffuse.lights;
+        let table: &LightTable = diffuse.lights.as_deref().expect("chosen by power");
         let area = &scene.lights.area;
         let mut selects: Vec<f32> = (0..4096).map(|k| k as f32 / 4096.0).collect();
         for &c in area.distribution().cdf() {
@@ -265,5 +265,31 @@ fn the_light_table_samples_what_area_lights_sample() {
             }
         }
         assert!(checked > 4096);
+    }
+}
+
+/// A scene of more lights than the table holds chooses by the light tree, lane by lane: the
+/// choice, the point and the density of a BSDF ray's hit at each lane's own vertex, as
+/// `trace_path` makes them (1,280 emitting facets around the camera).
+#[test]
+fn a_scene_of_many_lights_chooses_by_the_tree_as_the_scalar_integrator_does() {
+    let furnace = scene(parts("furnace"));
+    assert!(
+        furnace.lights.area.has_tree(),
+        "the furnace has many lights"
+    );
+    let diffuse = furnace
+        .diffuse
+        .as_ref()
+        .expect("the lanes model the furnace");
+    assert!(diffuse.lights.is_none(), "no table: chosen by the tree");
+    for (k, (rr, max_depth)) in [
+        (RussianRoulette::Auto, None),
+        (RussianRoulette::Off, Some(4)),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        assert_same_bits(&furnace, &settings(k as u64 + 11, rr, max_depth), 0..4);
     }
 }
