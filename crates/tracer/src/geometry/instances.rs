@@ -15,6 +15,7 @@
 use super::bvh::{binary_tree, BinaryNode};
 use super::{box_reciprocal, Bvh, Mesh, Ray, RayPrecomp, TriangleHit};
 use glam::{Affine3A, DAffine3, DMat3, DMat4, DVec3, Mat3A, Vec3, Vec3A};
+use std::sync::Arc;
 
 /// A mesh kept once in object space, with its BVH (its triangles reordered to the BVH's order).
 #[derive(Clone, Debug)]
@@ -58,10 +59,11 @@ type TopNode = BinaryNode;
 const TOP_TRAVERSAL_COST: f64 = 3.0;
 
 /// Every instance of the scene and the tree over them. Empty for a scene without instances, and
-/// then free: its queries return at once.
+/// then free: its queries return at once. The prototypes are shared (an animated scene's frames
+/// place the same prototypes, each built once).
 #[derive(Clone, Debug, Default)]
 pub struct Instances {
-    pub prototypes: Vec<Prototype>,
+    pub prototypes: Vec<Arc<Prototype>>,
     /// In the top-level tree's leaf order (the index is the instance's identity in hits).
     pub instances: Vec<Instance>,
     nodes: Vec<TopNode>,
@@ -157,6 +159,21 @@ impl Instance {
     }
 }
 
+fn check_placements(prototypes: usize, placements: &[Placement]) -> Result<(), InstanceError> {
+    match placements
+        .iter()
+        .enumerate()
+        .find(|(_, p)| p.prototype as usize >= prototypes)
+    {
+        Some((instance, p)) => Err(InstanceError::Prototype {
+            instance,
+            prototype: p.prototype,
+            count: prototypes,
+        }),
+        None => Ok(()),
+    }
+}
+
 /// The closest hit so far: `(t, instance, triangle)` and the barycentrics.
 #[derive(Clone, Copy, Debug)]
 pub struct InstanceHit {
@@ -216,16 +233,21 @@ impl Instances {
         prototypes: Vec<Mesh>,
         placements: &[Placement],
     ) -> Result<(Instances, Unplaced), InstanceError> {
-        for (instance, p) in placements.iter().enumerate() {
-            if p.prototype as usize >= prototypes.len() {
-                return Err(InstanceError::Prototype {
-                    instance,
-                    prototype: p.prototype,
-                    count: prototypes.len(),
-                });
-            }
-        }
-        let prototypes: Vec<Prototype> = prototypes.into_iter().map(Prototype::new).collect();
+        check_placements(prototypes.len(), placements)?;
+        let prototypes = prototypes
+            .into_iter()
+            .map(|m| Arc::new(Prototype::new(m)))
+            .collect();
+        Self::place(prototypes, placements)
+    }
+
+    /// The instances of prototypes already built (shared with other scenes): only the tree over
+    /// the placements is built. As [`Instances::build`] otherwise.
+    pub fn place(
+        prototypes: Vec<Arc<Prototype>>,
+        placements: &[Placement],
+    ) -> Result<(Instances, Unplaced), InstanceError> {
+        check_placements(prototypes.len(), placements)?;
         let mut instances = Vec::with_capacity(placements.len());
         let mut boxes = Vec::with_capacity(placements.len());
         let mut dropped = Unplaced::default();
@@ -297,7 +319,7 @@ impl Instances {
 
     /// Approximate bytes held: prototypes, instances and the tree.
     pub fn bytes(&self) -> usize {
-        self.prototypes.iter().map(Prototype::bytes).sum::<usize>()
+        self.prototypes.iter().map(|p| p.bytes()).sum::<usize>()
             + self.instances.len() * std::mem::size_of::<Instance>()
             + self.nodes.len() * std::mem::size_of::<TopNode>()
     }

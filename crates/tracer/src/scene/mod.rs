@@ -3,16 +3,19 @@
 //! number of threads.
 
 mod intersect;
+mod world;
 
 pub use intersect::{Hit, SurfaceInteraction};
+pub use world::World;
 
 use crate::bsdf::Bsdf;
 use crate::camera::Camera;
-use crate::geometry::{Bvh, InstanceError, Instances, Mesh, MeshError, Placement};
+use crate::geometry::{Bvh, InstanceError, Instances, Mesh, MeshError, Placement, Prototype};
 use crate::integrator::DiffuseScene;
-use crate::light::{AreaLights, Environment, Lights, PunctualLight};
+use crate::light::{Environment, Lights, PunctualLight};
 use crate::material::{Material, Texture};
 use glam::Vec3;
+use std::sync::Arc;
 
 /// What a loader hands to [`Scene::build`].
 #[derive(Clone, Debug, Default)]
@@ -100,15 +103,17 @@ pub enum SceneError {
     },
 }
 
-/// A scene ready to render.
+/// A scene ready to render. Its geometry and textures are shared (`Arc`): the scenes an animation's
+/// frames make hold what does not move between frames once.
 #[derive(Clone, Debug)]
 pub struct Scene {
-    pub mesh: Mesh,
-    pub bvh: Bvh,
+    /// The world-space triangles (those placed once, and every emitter), in the BVH's order.
+    pub mesh: Arc<Mesh>,
+    pub bvh: Arc<Bvh>,
     /// Instanced meshes and their placements (empty for most scenes, and then free).
     pub instances: Instances,
     pub materials: Vec<Material>,
-    pub textures: Vec<Texture>,
+    pub textures: Arc<[Texture]>,
     pub lights: Lights,
     pub camera: Camera,
     pub info: SceneInfo,
@@ -127,7 +132,7 @@ impl Scene {
     /// Drops degenerate triangles, builds the BVH and the light distributions.
     pub fn build(parts: SceneParts) -> Result<Scene, SceneError> {
         let SceneParts {
-            mut mesh,
+            mesh,
             prototypes,
             placements,
             materials,
@@ -137,48 +142,10 @@ impl Scene {
             warnings,
             degenerate_dropped: dropped_by_loader,
         } = parts;
-        mesh.validate()?;
-        if let Some((triangle, &material)) = mesh
-            .material
-            .iter()
-            .enumerate()
-            .find(|(_, &m)| m as usize >= materials.len())
-        {
-            return Err(SceneError::MaterialIndex {
-                triangle,
-                material,
-                count: materials.len(),
-            });
-        }
-        let mut prototypes = prototypes;
-        let mut prototype_dropped = 0;
-        for (prototype, proto) in prototypes.iter_mut().enumerate() {
-            proto
-                .validate()
-                .map_err(|source| SceneError::PrototypeMesh { prototype, source })?;
-            for (triangle, &material) in proto.material.iter().enumerate() {
-                match materials.get(material as usize) {
-                    None => {
-                        return Err(SceneError::PrototypeMaterial {
-                            prototype,
-                            triangle,
-                            material,
-                            count: materials.len(),
-                        })
-                    }
-                    Some(m) if m.is_emissive() => {
-                        return Err(SceneError::EmissivePrototype {
-                            prototype,
-                            material,
-                        })
-                    }
-                    Some(_) => {}
-                }
-            }
-            prototype_dropped += drop_degenerate(proto);
-        }
+        let world = World::build(mesh, &materials, &textures)?;
+        let (prototypes, prototype_dropped) = build_prototypes(prototypes, &materials)?;
         // Drop zero-area and non-finite triangles: they cannot be hit, sampled or shaded.
-        let (instances, unplaced) = Instances::build(prototypes, &placements)?;
+        let (instances, unplaced) = Instances::place(prototypes, &placements)?;
         if unplaced.placements > 0 {
             tracing::info!(
                 placements = unplaced.placements,
@@ -187,45 +154,54 @@ impl Scene {
         }
         // A dropped placement's triangles are as degenerate as a flattened copy of them would be.
         let degenerate_dropped =
-            dropped_by_loader + drop_degenerate(&mut mesh) + prototype_dropped + unplaced.triangles;
+            dropped_by_loader + world.dropped + prototype_dropped + unplaced.triangles;
         if degenerate_dropped > 0 {
-            if mesh.is_empty() && instances.is_empty() {
+            if world.mesh.is_empty() && instances.is_empty() {
                 return Err(SceneError::AllDegenerate {
                     dropped: degenerate_dropped,
                 });
             }
             tracing::info!(degenerate_dropped, "dropped zero-area triangles");
         }
-        let started = std::time::Instant::now();
-        let (bvh, order) = Bvh::build(&mesh);
-        let bvh_seconds = started.elapsed().as_secs_f64();
-        mesh.reorder(&order);
-        tracing::debug!(
-            triangles = mesh.len(),
-            bvh_seconds,
-            reorder_seconds = started.elapsed().as_secs_f64() - bvh_seconds,
-            "built the BVH"
-        );
+        Ok(Scene::assemble(Assembly {
+            world: &world,
+            instances,
+            materials,
+            textures: textures.into(),
+            punctual_lights,
+            camera,
+            warnings,
+            degenerate_dropped,
+        }))
+    }
 
-        let (mut lo, mut hi) = mesh.bounds();
+    /// A scene of parts built already (and perhaps shared with other scenes): only the light
+    /// choice, the default camera and what is derived from the materials are made here.
+    pub fn assemble(a: Assembly<'_>) -> Scene {
+        let Assembly {
+            world,
+            instances,
+            materials,
+            textures,
+            punctual_lights,
+            camera,
+            warnings,
+            degenerate_dropped,
+        } = a;
+        let (mut lo, mut hi) = world.bounds();
         if let Some((ilo, ihi)) = instances.bounds() {
             lo = lo.min(ilo);
             hi = hi.max(ihi);
         }
-        if mesh.is_empty() && instances.is_empty() {
+        if world.mesh.is_empty() && instances.is_empty() {
             lo = Vec3::ZERO;
             hi = Vec3::ZERO;
         }
         let radius = 0.5 * (hi - lo).length();
-        let started = std::time::Instant::now();
-        let area = AreaLights::new(&mesh, &materials, &textures);
-        tracing::debug!(
-            lights = area.triangles.len(),
-            seconds = started.elapsed().as_secs_f64(),
-            "collected the area lights"
-        );
-        let lights = Lights::new(area, punctual_lights, radius.max(1e-3));
+        let lights = Lights::new(world.area.clone(), punctual_lights, radius.max(1e-3));
         let camera = camera.unwrap_or_else(|| Camera::framing(0.5 * (lo + hi), radius.max(1e-3)));
+        let mesh = world.mesh.clone();
+        let bvh = world.bvh.clone();
         let info = SceneInfo {
             triangles: mesh.len() + instances.stored_triangles(),
             instances: instances.instances.len(),
@@ -254,7 +230,7 @@ impl Scene {
             })
             .collect::<Vec<_>>();
         let diffuse = DiffuseScene::new(&materials, &bsdf_templates, &mesh, &instances, &lights);
-        Ok(Scene {
+        Scene {
             bsdf_templates,
             diffuse,
             mesh,
@@ -267,7 +243,7 @@ impl Scene {
             info,
             any_alpha,
             any_volume,
-        })
+        }
     }
 
     /// True if some material has alpha (MASK or BLEND).
@@ -318,9 +294,64 @@ impl Scene {
     }
 }
 
+/// What [`Scene::assemble`] puts together.
+pub struct Assembly<'w> {
+    /// The world-space triangles (their `Arc`s are shared with the new scene).
+    pub world: &'w World,
+    pub instances: Instances,
+    pub materials: Vec<Material>,
+    pub textures: Arc<[Texture]>,
+    pub punctual_lights: Vec<PunctualLight>,
+    /// `None`: frame the scene with a default camera.
+    pub camera: Option<Camera>,
+    pub warnings: Vec<String>,
+    /// Degenerate triangles dropped on the way, everywhere.
+    pub degenerate_dropped: usize,
+}
+
+/// Checks the instanced meshes against the materials (none may emit), drops their degenerate
+/// triangles and builds each one's BVH; returns them and how many triangles were dropped.
+pub fn build_prototypes(
+    prototypes: Vec<Mesh>,
+    materials: &[Material],
+) -> Result<(Vec<Arc<Prototype>>, usize), SceneError> {
+    let mut prototypes = prototypes;
+    let mut dropped = 0;
+    for (prototype, proto) in prototypes.iter_mut().enumerate() {
+        proto
+            .validate()
+            .map_err(|source| SceneError::PrototypeMesh { prototype, source })?;
+        for (triangle, &material) in proto.material.iter().enumerate() {
+            match materials.get(material as usize) {
+                None => {
+                    return Err(SceneError::PrototypeMaterial {
+                        prototype,
+                        triangle,
+                        material,
+                        count: materials.len(),
+                    })
+                }
+                Some(m) if m.is_emissive() => {
+                    return Err(SceneError::EmissivePrototype {
+                        prototype,
+                        material,
+                    })
+                }
+                Some(_) => {}
+            }
+        }
+        dropped += drop_degenerate(proto);
+    }
+    let built = prototypes
+        .into_iter()
+        .map(|m| Arc::new(Prototype::new(m)))
+        .collect();
+    Ok((built, dropped))
+}
+
 /// Drops the mesh's zero-area and non-finite triangles (they cannot be hit, sampled or shaded);
 /// returns how many.
-fn drop_degenerate(mesh: &mut Mesh) -> usize {
+pub(crate) fn drop_degenerate(mesh: &mut Mesh) -> usize {
     let keep: Vec<u32> = (0..mesh.len())
         .filter(|&i| mesh.is_renderable(i))
         .map(|i| i as u32)
