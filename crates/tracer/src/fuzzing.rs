@@ -33,3 +33,44 @@ pub fn gltf_load(bytes: &[u8]) {
         }
     }
 }
+
+/// Fuzz target `gltf_animated`: `bytes` through the animated loader ([`gltf::AnimatedScene`], what
+/// a frame of a farm job will load), then the scene built at the animation's ends, its middle and
+/// outside it, and the middle frame's samples rendered as [`gltf_load`] renders them. The same
+/// findings as [`gltf_load`]: a panic, or [`GltfError::Internal`].
+pub fn gltf_animated(bytes: &[u8]) {
+    let check = |r: Result<crate::Scene, GltfError>| match r {
+        Err(GltfError::Internal(message)) => {
+            panic!("the animated glTF loader panicked (caught as GltfError::Internal): {message}")
+        }
+        other => other.ok(),
+    };
+    let scene =
+        match gltf::AnimatedScene::load(bytes, &NoExternalResources, &LoadOptions::default()) {
+            Ok(scene) => scene,
+            Err(GltfError::Internal(message)) => {
+                panic!(
+                    "the animated glTF loader panicked (caught as GltfError::Internal): {message}"
+                )
+            }
+            Err(_) => return,
+        };
+    let span = scene.time_span().unwrap_or(gltf::TimeSpan {
+        start: 0.0,
+        end: 0.0,
+    });
+    for time in [span.start, span.end, -1.0, f32::NAN] {
+        check(scene.scene_at(time));
+    }
+    let Some(frame) = check(scene.scene_at(0.5 * (span.start + span.end))) else {
+        return;
+    };
+    let mut settings = RenderSettings::new(4, 4);
+    settings.max_depth = Some(4);
+    for y in 0..settings.height {
+        for x in 0..settings.width {
+            let mut pixel = PixelAccum::default();
+            pixel.add_sample(render_sample(&frame, &settings, x, y, 0).radiance);
+        }
+    }
+}

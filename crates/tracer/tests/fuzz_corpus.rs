@@ -50,3 +50,15 @@ fn gltf_load_corpus_and_regressions() {
     );
     eprintln!("gltf_load: replayed {corpus} corpus inputs and {regressions} regressions");
 }
+
+/// The same inputs through the animated loader (`fuzzing::gltf_animated`), and the animated scene
+/// Blender exports.
+#[test]
+fn gltf_animated_corpus_and_regressions() {
+    let check = pathfarm_tracer::fuzzing::gltf_animated;
+    let corpus = replay(&inputs("corpus", "gltf_load"), check);
+    let regressions = replay(&inputs("regressions", "gltf_load"), check);
+    let blender = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/suite/animated.glb");
+    replay(&[blender], check);
+    eprintln!("gltf_animated: replayed {corpus} corpus inputs and {regressions} regressions");
+}

@@ -176,6 +176,13 @@ pub struct RenderArgs {
     /// Camera name (default: the scene's first camera).
     #[arg(long)]
     pub camera: Option<String>,
+    /// Render the scene at this frame of its animation (time = frame / fps; every animation of
+    /// the file plays at once). Without it an animated file renders at rest.
+    #[arg(long, allow_negative_numbers = true)]
+    pub frame: Option<i64>,
+    /// Frames per second of --frame.
+    #[arg(long, default_value_t = gltf::DEFAULT_FPS, requires = "frame")]
+    pub fps: f64,
     /// PNG exposure in stops (the PNG tone map is ×2^exposure, clamp, sRGB).
     #[arg(long, default_value_t = 0.0)]
     pub exposure: f32,
@@ -212,6 +219,47 @@ pub fn load_scene(path: &Path, camera: Option<String>) -> Result<Scene> {
     Ok(scene)
 }
 
+/// Reads a scene file and builds it at frame `frame` of its animation at `fps` frames per second
+/// (a file without animations is its still scene, with a warning).
+pub fn load_scene_at(path: &Path, camera: Option<String>, frame: i64, fps: f64) -> Result<Scene> {
+    if !(fps.is_finite() && fps > 0.0) {
+        bail!("--fps must be a positive number, not {fps}");
+    }
+    let bytes =
+        std::fs::read(path).with_context(|| format!("cannot read scene {}", path.display()))?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let resolver = DirectoryResolver { base };
+    let options = LoadOptions {
+        camera,
+        ..LoadOptions::default()
+    };
+    let source = gltf::SceneSource::load(&bytes, &resolver, &options)
+        .with_context(|| format!("cannot load {}", path.display()))?;
+    match source.time_span() {
+        Some(span) => {
+            let frames = span.frames(fps);
+            tracing::info!(
+                first_frame = frames.start(),
+                last_frame = frames.end(),
+                fps,
+                seconds = span.end - span.start,
+                "animation"
+            );
+            if !frames.contains(&frame) {
+                tracing::warn!(
+                    frame,
+                    "frame outside the animation's keys: the nearest key's pose is rendered"
+                );
+            }
+        }
+        None => tracing::warn!("{} has no animations; --frame ignored", path.display()),
+    }
+    let time = gltf::frame_time(frame, fps);
+    source
+        .into_scene_at(time)
+        .with_context(|| format!("cannot build {} at frame {frame}", path.display()))
+}
+
 pub fn run(args: RenderArgs) -> Result<()> {
     let settings = args.settings.to_settings();
     if settings.width == 0 || settings.height == 0 {
@@ -228,7 +276,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let t_load = Instant::now();
     let environment = args.environment.load()?;
-    let scene = load_scene(&args.scene, args.camera.clone())?.with_environment(environment);
+    let scene = match args.frame {
+        Some(frame) => load_scene_at(&args.scene, args.camera.clone(), frame, args.fps)?,
+        None => load_scene(&args.scene, args.camera.clone())?,
+    }
+    .with_environment(environment);
     let info = &scene.info;
     tracing::info!(
         triangles = info.triangles,

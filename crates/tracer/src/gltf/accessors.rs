@@ -355,20 +355,25 @@ impl<'r, 'a> Accessors<'r, 'a> {
         })
     }
 
-    /// Reads a float vector attribute (`N` = 2, 3 or 4 components) with every value finite.
+    /// Reads a float vector attribute (`N` = 2, 3 or 4 components; 1 reads a SCALAR accessor, 16
+    /// a MAT4 of floats) with every value finite.
     pub fn read_vec<const N: usize>(
         &self,
         index: usize,
         usage: &str,
     ) -> Result<Vec<[f32; N]>, GltfError> {
         let ty = match N {
+            1 => Type::Scalar,
             2 => Type::Vec2,
             3 => Type::Vec3,
             4 => Type::Vec4,
+            16 => Type::Mat4,
             _ => return Err(GltfError::Internal(format!("read_vec::<{N}>"))),
         };
         let loc = self.locate(index, usage, &[ty])?;
-        if loc.ct == ComponentType::U32 {
+        // Integer matrices pad their columns to 4 bytes; only float ones are read (glTF's
+        // inverseBindMatrices are float).
+        if loc.ct == ComponentType::U32 || (N == 16 && loc.ct != ComponentType::F32) {
             return Err(self.err(
                 index,
                 usage,

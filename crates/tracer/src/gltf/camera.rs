@@ -26,6 +26,18 @@ pub(crate) fn choose(
     instances: &[Instance],
     wanted: Option<&str>,
 ) -> Result<Option<Camera>, GltfError> {
+    match pick(root, instances, wanted)? {
+        Some((instance, index)) => convert(root, index, instance).map(Some),
+        None => Ok(None),
+    }
+}
+
+/// The scene's camera as [`choose`] picks it: the node instance carrying it and the camera's index.
+pub(crate) fn pick<'i>(
+    root: &json::Root,
+    instances: &'i [Instance],
+    wanted: Option<&str>,
+) -> Result<Option<(&'i Instance, usize)>, GltfError> {
     let with_camera: Vec<(&Instance, usize)> = instances
         .iter()
         .filter_map(|i| {
@@ -63,13 +75,15 @@ pub(crate) fn choose(
             }
         }
     };
-    let Some(&(instance, index)) = chosen else {
-        return Ok(None);
-    };
-    convert(root, index, instance).map(Some)
+    Ok(chosen.copied())
 }
 
-fn convert(root: &json::Root, index: usize, instance: &Instance) -> Result<Camera, GltfError> {
+/// Camera `index` placed by `instance` (its node and world transform).
+pub(crate) fn convert(
+    root: &json::Root,
+    index: usize,
+    instance: &Instance,
+) -> Result<Camera, GltfError> {
     let object = format!(
         "{} (on {})",
         camera_label(root, index),

@@ -185,20 +185,35 @@ fn validation_error(e: gltf::Error) -> GltfError {
     }
 }
 
-/// One warning per ignored feature: unsupported `extensionsUsed`, skins, animations.
-pub(crate) fn feature_warnings(root: &json::Root, instances: &[Instance], warnings: &mut Warnings) {
+/// One warning per ignored feature: unsupported `extensionsUsed`, and for a scene loaded still
+/// (not at a time of its animation), skins and animations.
+pub(crate) fn feature_warnings(
+    root: &json::Root,
+    instances: &[Instance],
+    animated: bool,
+    warnings: &mut Warnings,
+) {
     for ext in &root.extensions_used {
         if !SUPPORTED_EXTENSIONS.contains(&ext.as_str()) {
             warnings.once(format!("extension {ext} is not supported; ignored"));
         }
     }
+    if animated {
+        return;
+    }
     if instances
         .iter()
         .any(|i| root.nodes.get(i.node).is_some_and(|n| n.skin.is_some()))
     {
-        warnings.once("skins are not supported; skinned meshes are rendered in their bind pose");
+        warnings.once(
+            "skins are applied only in animated scenes rendered at a time; skinned meshes are \
+             rendered in their bind pose",
+        );
     }
     if !root.animations.is_empty() {
-        warnings.once("animations are not supported; the scene is rendered at rest");
+        warnings.once(
+            "the scene is rendered at rest, not at a time of its animations (render a frame with \
+             gltf::SceneSource, or `pathfarm render --frame`)",
+        );
     }
 }

@@ -1,6 +1,7 @@
 //! The loader's error type. Every message names the glTF object at fault (with its index and, where it
 //! has one, its name) and says what is wrong with it.
 
+use super::animated::AnimationError;
 use crate::scene::SceneError;
 use std::collections::hash_map::DefaultHasher;
 use std::collections::HashSet;
@@ -48,6 +49,9 @@ pub enum GltfError {
     /// The loaded parts could not be built into a scene.
     #[error(transparent)]
     Scene(#[from] SceneError),
+    /// An animation, skin or morph target is unusable, or the scene cannot be built at a time.
+    #[error(transparent)]
+    Animation(#[from] AnimationError),
     /// A bug in the loader (a caught panic). Please report it with the file.
     #[error("internal error while loading glTF (a bug in the loader): {0}")]
     Internal(String),

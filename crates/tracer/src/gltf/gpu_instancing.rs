@@ -118,9 +118,18 @@ pub(crate) fn placements(
     node: usize,
     world: &DMat4,
 ) -> Result<Vec<DMat4>, GltfError> {
+    Ok(match rows(acc, node)? {
+        None => vec![*world],
+        Some(rows) => rows.iter().map(|row| *world * *row).collect(),
+    })
+}
+
+/// The local transforms of node `node`'s instancing rows (each placement is the node's world
+/// transform times one), or `None` without the extension.
+pub(crate) fn rows(acc: &Accessors<'_, '_>, node: usize) -> Result<Option<Vec<DMat4>>, GltfError> {
     let root = acc.root();
     let Some(attrs) = attributes(root, node)? else {
-        return Ok(vec![*world]);
+        return Ok(None);
     };
     let rows = placement_count(root, node)? as usize;
     let label = |name: &str| format!("{name} of {} ({EXTENSION})", node_label(root, node));
@@ -154,7 +163,7 @@ pub(crate) fn placements(
                 format!("row {row} has a zero-length ROTATION quaternion"),
             ));
         }
-        out.push(*world * DMat4::from_scale_rotation_translation(s, q / len, t));
+        out.push(DMat4::from_scale_rotation_translation(s, q / len, t));
     }
-    Ok(out)
+    Ok(Some(out))
 }

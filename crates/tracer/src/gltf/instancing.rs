@@ -8,8 +8,12 @@
 //! - a mesh that two or more nodes place (or one node, by two or more rows of
 //!   EXT_mesh_gpu_instancing: `gpu_instancing`) is kept instanced, unless one of its primitives' materials
 //!   may emit light (a non-zero `emissiveFactor`): lights are sampled over world-space triangles,
-//!   so an emitter is flattened however often it is placed.
+//!   so an emitter is flattened however often it is placed;
+//! - in an animated scene, a mesh that a moving node places is kept instanced too (unless it may
+//!   emit): its BVH is built once and each frame only moves its placement. A node whose mesh
+//!   deforms (skinned, or with morph targets) places no prototype: its triangles are made anew.
 
+use super::animated::Motion;
 use super::error::GltfError;
 use super::gpu_instancing::placement_count;
 use super::nodes::Instance;
@@ -23,28 +27,43 @@ fn may_emit(root: &json::Root, material: Option<usize>) -> bool {
         .is_some_and(|m| m.emissive_factor.0.iter().any(|&f| f > 0.0 || f.is_nan()))
 }
 
-/// The meshes to keep instanced among those the scene's nodes place.
+/// Whether a primitive of mesh `mesh` has a material that may emit.
+pub(crate) fn mesh_may_emit(root: &json::Root, mesh: usize) -> bool {
+    root.meshes.get(mesh).is_some_and(|m| {
+        m.primitives
+            .iter()
+            .any(|p| may_emit(root, p.material.map(|i| i.value())))
+    })
+}
+
+/// The meshes to keep instanced among those the scene's nodes place (`motion`: which nodes move
+/// or deform, nothing for a still scene).
 pub(crate) fn instanced_meshes(
     root: &json::Root,
     nodes: &[Instance],
+    motion: &Motion,
 ) -> Result<BTreeSet<usize>, GltfError> {
     let mut uses: HashMap<usize, u64> = HashMap::new();
     for inst in nodes {
+        if motion.deforms(inst.node) {
+            continue;
+        }
         if let Some(m) = root.nodes.get(inst.node).and_then(|n| n.mesh) {
             let count = uses.entry(m.value()).or_default();
-            *count = count.saturating_add(placement_count(root, inst.node)?);
+            // A moving node's mesh is kept instanced as if placed twice.
+            let placed = placement_count(root, inst.node)?;
+            let placed = if motion.moves(inst.node) {
+                placed.max(2)
+            } else {
+                placed
+            };
+            *count = count.saturating_add(placed);
         }
     }
     Ok(uses
         .into_iter()
         .filter(|&(_, count)| count >= 2)
         .map(|(mesh, _)| mesh)
-        .filter(|&mesh| {
-            root.meshes.get(mesh).is_some_and(|m| {
-                !m.primitives
-                    .iter()
-                    .any(|p| may_emit(root, p.material.map(|i| i.value())))
-            })
-        })
+        .filter(|&mesh| root.meshes.get(mesh).is_some() && !mesh_may_emit(root, mesh))
         .collect())
 }

@@ -60,9 +60,17 @@
 //!   one "… and N more warnings" for the rest.
 //! - Ignored with one warning each (in `SceneParts::warnings` and through `tracing::warn!`):
 //!   unsupported `extensionsUsed` (e.g. KHR_materials_iridescence, _unlit, KHR_texture_basisu
-//!   as optional), skins (bind pose), morph targets (base geometry), animations (rest pose), COLOR_0,
-//!   light `range`, TEXCOORD_2+ (TEXCOORD_1 is used). Occlusion textures, camera aspect ratio and
-//!   clip planes, and texture min filters are ignored silently.
+//!   as optional), COLOR_0, light `range`, TEXCOORD_2+ (TEXCOORD_1 is used); and by [`load`] and
+//!   [`load_parts`], which render a file at rest, skins (bind pose), morph targets (base geometry)
+//!   and animations. Occlusion textures, camera aspect ratio and clip planes, and texture min
+//!   filters are ignored silently.
+//!
+//! # Animation
+//! [`SceneSource`] loads a file for rendering at any time: a still file exactly as [`load`] does,
+//! an animated one as an [`AnimatedScene`] (node translation, rotation and scale, morph weights,
+//! skins; LINEAR, STEP and CUBICSPLINE; all animations at once), parsed once, whose
+//! [`AnimatedScene::scene_at`] builds the scene at a time and shares what does not move between
+//! frames. See `animated/mod.rs`.
 //!
 //! # Robustness
 //! Every length, offset, index and count in the file is checked before use, and every error names the
@@ -71,12 +79,14 @@
 //! returned as [`GltfError::Internal`].
 
 mod accessors;
+mod animated;
 mod bounds;
 mod camera;
 mod compact;
 mod components;
 mod document;
 mod draco;
+mod emit;
 mod error;
 mod glb;
 mod gpu_instancing;
@@ -86,10 +96,15 @@ mod materials;
 mod mesh;
 mod meshopt;
 mod nodes;
+mod prepare;
+mod primitive;
 mod resources;
 mod tangents;
 mod textures;
 
+pub use animated::{
+    frame_time, AnimatedScene, AnimationError, NodeTrs, SceneSource, TimeSpan, DEFAULT_FPS,
+};
 pub use bounds::MAX_COORDINATE;
 pub use document::SUPPORTED_EXTENSIONS;
 pub use error::GltfError;
@@ -100,15 +115,13 @@ pub use mesh::MAX_TRIANGLES;
 pub use resources::MAX_DECOMPRESSED_BYTES;
 pub use textures::{MAX_IMAGE_BYTES, MAX_IMAGE_SIZE, MAX_SCENE_TEXTURE_BYTES};
 
-use crate::material::Material;
 use crate::scene::{Scene, SceneParts};
 use accessors::Accessors;
+use animated::Motion;
 use error::Warnings;
-use mesh::{MeshBuilder, Needs, PrimitiveMaterial};
+use mesh::MeshBuilder;
 use resources::Resources;
-use std::collections::{BTreeSet, HashMap};
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use textures::TextureCache;
 
 /// Fetches the bytes of an external URI (relative to the scene file). The tracer does no I/O itself.
 ///
@@ -191,121 +204,33 @@ fn load_parts_unguarded(
     resolver: &dyn ResourceResolver,
     options: &LoadOptions,
 ) -> Result<SceneParts, GltfError> {
-    let parsed = document::parse(bytes)?;
+    load_parsed(document::parse(bytes)?, resolver, options)
+}
+
+/// The still load of a parsed document.
+fn load_parsed(
+    parsed: document::Parsed<'_>,
+    resolver: &dyn ResourceResolver,
+    options: &LoadOptions,
+) -> Result<SceneParts, GltfError> {
     let root = &parsed.root;
     let mut warnings = Warnings::default();
     for w in parsed.warnings {
         warnings.once(w);
     }
-    let (roots, note) = nodes::scene_roots(root);
-    if let Some(note) = note {
-        warnings.once(note);
-    }
-    let instances = nodes::traverse(root, &roots)?;
-    document::feature_warnings(root, &instances, &mut warnings);
-    let mesh_of = |node: usize| root.nodes.get(node).and_then(|n| n.mesh).map(|m| m.value());
-
-    // What the geometry will cost, before any of it is read: a few bytes of JSON can place a
-    // mesh ten thousand times. A mesh kept instanced is stored once; a flattened one per node.
-    let instanced = instancing::instanced_meshes(root, &instances)?;
-    let limit = options.max_triangles.min(MAX_TRIANGLES as u64);
-    let mut per_mesh = HashMap::new();
-    let mut placed_instanced = BTreeSet::new();
-    let mut declared = 0u64;
-    for inst in &instances {
-        let Some(m) = mesh_of(inst.node) else {
-            continue;
-        };
-        let copies = if instanced.contains(&m) {
-            u64::from(placed_instanced.insert(m))
-        } else {
-            gpu_instancing::placement_count(root, inst.node)?
-        };
-        let triangles = *per_mesh
-            .entry(m)
-            .or_insert_with(|| mesh::declared_triangles(root, m));
-        declared = declared.saturating_add(copies.saturating_mul(triangles));
-    }
-    if declared > limit {
-        return Err(GltfError::Limit(format!(
-            "the scene declares {declared} triangles to store ({} mesh instances; {} instanced \
-             meshes stored once), over the limit of {limit}",
-            instances
-                .iter()
-                .filter(|i| mesh_of(i.node).is_some())
-                .count(),
-            instanced.len()
-        )));
-    }
-
-    // What the scene's primitives use, from the JSON alone.
-    let mut used_materials = BTreeSet::new();
-    let mut default_material = false;
-    let mut any_normals = false;
-    let mut scanned = BTreeSet::new();
-    for inst in &instances {
-        let Some(m) = mesh_of(inst.node) else {
-            continue;
-        };
-        if !scanned.insert(m) {
-            continue;
-        }
-        for info in mesh::scan_mesh(root, m, &mut warnings) {
-            match info.material {
-                Some(i) => {
-                    used_materials.insert(i);
-                }
-                None => default_material = true,
-            }
-            any_normals |= info.has_normals;
-        }
-    }
-
+    let instances = prepare::scene_nodes(root, &mut warnings)?;
+    let scan = prepare::scan(root, instances, options, &Motion::default(), &mut warnings)?;
+    let instances = &scan.instances;
     let res = Resources::new(root, parsed.bin, resolver);
-    let mut texture_cache = TextureCache::new(root, &res);
-    let mut materials: Vec<Material> = Vec::new();
-    let mut material_map: HashMap<usize, PrimitiveMaterial> = HashMap::new();
-    for &i in &used_materials {
-        let m = materials::convert(root, i, &mut texture_cache, &mut warnings)?;
-        let normal_map_uv = m.tangent_space_map().map(|r| r.texcoord);
-        material_map.insert(
-            i,
-            PrimitiveMaterial {
-                index: materials.len() as u32,
-                normal_map_uv,
-            },
-        );
-        materials.push(m);
-    }
-    let default_index = materials.len() as u32;
-    if default_material {
-        materials.push(Material::default());
-    }
-    let mut needs = Needs {
-        normals: any_normals,
-        ..Needs::default()
-    };
-    for m in &materials {
-        for r in m.texture_refs() {
-            needs.uv[(r.texcoord as usize).min(1)] = true;
-        }
-        needs.tangents |= m.tangent_space_map().is_some();
-    }
-
+    let mats = prepare::Materials::convert(root, &res, &scan, &mut warnings)?;
     let acc = Accessors::new(root, &res);
-    let mut builder = MeshBuilder::new(&acc, needs);
-    let material_of = |m: Option<usize>| match m.and_then(|i| material_map.get(&i)) {
-        Some(pm) => *pm,
-        None => PrimitiveMaterial {
-            index: default_index,
-            normal_map_uv: None,
-        },
-    };
+    let mut builder = MeshBuilder::new(&acc, mats.needs);
+    let material_of = |m: Option<usize>| mats.of(m);
     let mut punctual_lights = Vec::new();
-    for inst in &instances {
-        if let Some(m) = mesh_of(inst.node) {
+    for inst in instances {
+        if let Some(m) = prepare::mesh_of(root, inst.node) {
             for world in gpu_instancing::placements(&acc, inst.node, &inst.world)? {
-                if instanced.contains(&m) {
+                if scan.instanced.contains(&m) {
                     builder.add_placement(inst.node, m, &world, &material_of, &mut warnings)?;
                 } else {
                     builder.add_instance(inst.node, m, &world, &material_of, &mut warnings)?;
@@ -323,13 +248,13 @@ fn load_parts_unguarded(
     });
     let built = builder.finish();
     bounds::check(root, built.far)?;
-    let camera = camera::choose(root, &instances, options.camera.as_deref())?;
+    let camera = camera::choose(root, instances, options.camera.as_deref())?;
     Ok(SceneParts {
         mesh: built.mesh,
         prototypes: built.prototypes,
         placements: built.placements,
-        materials,
-        textures: texture_cache.finish(),
+        materials: mats.materials,
+        textures: mats.textures.finish(),
         punctual_lights,
         camera,
         warnings: warnings.into_vec(),

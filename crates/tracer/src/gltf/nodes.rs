@@ -25,6 +25,46 @@ fn finite(values: &[f32]) -> bool {
     values.iter().all(|v| v.is_finite())
 }
 
+/// A node's translation, rotation quaternion (x, y, z, w) and scale, as the file writes them (an
+/// animation replaces some of them at each frame).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Trs {
+    pub translation: [f32; 3],
+    pub rotation: [f32; 4],
+    pub scale: [f32; 3],
+}
+
+/// The node's TRS properties (their defaults where absent), or `None` for a node with a matrix.
+pub(crate) fn node_trs(node: &json::Node) -> Option<Trs> {
+    if node.matrix.is_some() {
+        return None;
+    }
+    Some(Trs {
+        translation: node.translation.unwrap_or([0.0; 3]),
+        rotation: node.rotation.as_ref().map_or([0.0, 0.0, 0.0, 1.0], |q| q.0),
+        scale: node.scale.unwrap_or([1.0; 3]),
+    })
+}
+
+/// translation · rotation · scale, composed in f64 with the quaternion normalised; or why not.
+pub(crate) fn trs_matrix(trs: &Trs) -> Result<DMat4, &'static str> {
+    let (t, r, s) = (trs.translation, trs.rotation, trs.scale);
+    if !finite(&t) || !finite(&r) || !finite(&s) {
+        return Err("non-finite translation, rotation or scale");
+    }
+    let q = DQuat::from_xyzw(r[0] as f64, r[1] as f64, r[2] as f64, r[3] as f64);
+    let len = q.length();
+    // The components are finite, so the length is a number.
+    if len <= 1e-12 {
+        return Err("zero-length rotation quaternion");
+    }
+    Ok(DMat4::from_scale_rotation_translation(
+        DVec3::new(s[0] as f64, s[1] as f64, s[2] as f64),
+        q / len,
+        DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64),
+    ))
+}
+
 /// The node's local transform (matrix, or translation · rotation · scale).
 pub(crate) fn local_transform(root: &json::Root, index: usize) -> Result<DMat4, GltfError> {
     let err = |reason: &str| GltfError::Object {
@@ -34,29 +74,16 @@ pub(crate) fn local_transform(root: &json::Root, index: usize) -> Result<DMat4, 
     let Some(node) = root.nodes.get(index) else {
         return Err(err("does not exist"));
     };
-    if let Some(m) = &node.matrix {
-        if !finite(m) {
-            return Err(err("non-finite matrix"));
+    match (&node.matrix, node_trs(node)) {
+        (Some(m), _) => {
+            if !finite(m) {
+                return Err(err("non-finite matrix"));
+            }
+            Ok(DMat4::from_cols_array(&m.map(|v| v as f64)))
         }
-        return Ok(DMat4::from_cols_array(&m.map(|v| v as f64)));
+        (None, Some(trs)) => trs_matrix(&trs).map_err(err),
+        (None, None) => Err(err("has neither a matrix nor TRS")),
     }
-    let t = node.translation.unwrap_or([0.0; 3]);
-    let r = node.rotation.as_ref().map_or([0.0, 0.0, 0.0, 1.0], |q| q.0);
-    let s = node.scale.unwrap_or([1.0; 3]);
-    if !finite(&t) || !finite(&r) || !finite(&s) {
-        return Err(err("non-finite translation, rotation or scale"));
-    }
-    let q = DQuat::from_xyzw(r[0] as f64, r[1] as f64, r[2] as f64, r[3] as f64);
-    let len = q.length();
-    // The components are finite, so the length is a number.
-    if len <= 1e-12 {
-        return Err(err("zero-length rotation quaternion"));
-    }
-    Ok(DMat4::from_scale_rotation_translation(
-        DVec3::new(s[0] as f64, s[1] as f64, s[2] as f64),
-        q / len,
-        DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64),
-    ))
 }
 
 /// The root nodes of the scene to render: `scene`, else the first scene, else (no scenes at all) every

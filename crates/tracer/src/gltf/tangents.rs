@@ -58,7 +58,7 @@
 //! case: 16 bytes a vertex, transformed once per vertex and instance), else one per corner
 //! (MikkTSpace may split a vertex, e.g. where mirrored UVs meet).
 
-use super::mesh::generate_tangent;
+use super::emit::generate_tangent;
 use crate::math::det;
 use bevy_mikktspace::{Geometry, Ops, TangentSpace};
 use glam::{Vec2, Vec3, Vec4};
