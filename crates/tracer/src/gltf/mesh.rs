@@ -29,7 +29,7 @@
 
 use super::accessors::Accessors;
 use super::bounds::{outside, Far};
-use super::emit::{emit, Origin, Vertices};
+use super::emit::{emit, Emitted, Origin, Vertices};
 use super::error::{label, GltfError, Warnings};
 use super::primitive::{read_primitive, Primitive, ReadPrimitive};
 use crate::geometry::{Mesh, Placement};
@@ -314,10 +314,7 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             Origin { node, mesh },
             self.far.is_none(),
         );
-        self.dropped += done.dropped;
-        if self.far.is_none() {
-            self.far = done.far;
-        }
+        self.count(done);
     }
 
     fn check_limit(&self, p: &Primitive) -> Result<(), GltfError> {
@@ -446,6 +443,11 @@ impl<'r, 'a> MeshBuilder<'r, 'a> {
             Origin { node, mesh },
             self.far.is_none(),
         );
+        self.count(done);
+    }
+
+    /// Counts what `emit` dropped, and keeps the first far triangle it found.
+    fn count(&mut self, done: Emitted) {
         self.dropped += done.dropped;
         if self.far.is_none() {
             self.far = done.far;
