@@ -346,6 +346,22 @@ fn uv_at(mesh: &Mesh, tri: usize, b1: f32, b2: f32) -> [Vec2; 2] {
     ]
 }
 
+/// The shading normal at barycentrics `b` of a triangle whose corners carry `normals`, on the side
+/// of its geometric normal `ng`: the scalar integrator's (`Scene::surface`) and the wavefront
+/// lanes' one body of code, so both have the same bits.
+#[inline(always)]
+pub(crate) fn shading_normal([n0, n1, n2]: [Vec3; 3], [b0, b1, b2]: [f32; 3], ng: Vec3) -> Vec3 {
+    let s = (n0 * b0 + n1 * b1 + n2 * b2).normalize_or_zero();
+    if s == Vec3::ZERO || !s.is_finite() {
+        ng
+    } else if s.dot(ng) < 0.0 {
+        // Normals that disagree with the winding: trust the winding for the side.
+        -s
+    } else {
+        s
+    }
+}
+
 /// The surface at barycentrics (b1, b2) of a world-space triangle with these corners (front-face
 /// order) and corner attributes.
 #[allow(clippy::too_many_arguments)]
@@ -365,17 +381,7 @@ fn interaction(
     let p = a * b0 + b * b1 + c * b2;
     let ng = (b - a).cross(c - a).normalize();
     let ns = match normals {
-        Some([n0, n1, n2]) => {
-            let s = (n0 * b0 + n1 * b1 + n2 * b2).normalize_or_zero();
-            if s == Vec3::ZERO || !s.is_finite() {
-                ng
-            } else if s.dot(ng) < 0.0 {
-                // Normals that disagree with the winding: trust the winding for the side.
-                -s
-            } else {
-                s
-            }
-        }
+        Some(corners) => shading_normal(corners, [b0, b1, b2], ng),
         None => ng,
     };
     let tangent = tangents.map(|[t0, t1, t2]| t0 * b0 + t1 * b1 + t2 * b2);

@@ -5,6 +5,7 @@
 mod intersect;
 mod world;
 
+pub(crate) use intersect::shading_normal;
 pub use intersect::{Hit, SurfaceInteraction};
 pub use world::World;
 
@@ -230,6 +231,10 @@ impl Scene {
             })
             .collect::<Vec<_>>();
         let diffuse = DiffuseScene::new(&materials, &bsdf_templates, &mesh, &instances, &lights);
+        tracing::debug!(
+            wavefront = diffuse.is_some(),
+            "whether the scene's materials and lights let the wavefront lanes render it"
+        );
         Scene {
             bsdf_templates,
             diffuse,

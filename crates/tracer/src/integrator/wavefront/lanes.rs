@@ -41,7 +41,7 @@ use crate::integrator::PathResult;
 use crate::math::{is_black, offset_unit_normal, spawn_clearance, Frame};
 use crate::sampler::{bounce_dim, dims, owen_sobol_group_lanewise};
 use crate::sampling::power_heuristic;
-use crate::scene::{Hit, Scene};
+use crate::scene::{shading_normal, Hit, Scene};
 use crate::settings::{RenderSettings, RussianRoulette};
 use glam::{Vec2, Vec3};
 
@@ -102,6 +102,10 @@ pub(super) struct Lanes<'a> {
     corner_a: V3,
     corner_b: V3,
     corner_c: V3,
+    /// The hit triangle's vertex normals (zero for a mesh without them: never read then).
+    normal_a: V3,
+    normal_b: V3,
+    normal_c: V3,
     albedo: V3,
     emission_front: V3,
     emission_back: V3,
@@ -111,6 +115,8 @@ pub(super) struct Lanes<'a> {
     // Set by `shade_hit`.
     p: V3,
     ng: V3,
+    /// The shading normal (`ng` for a mesh without vertex normals).
+    ns: V3,
     /// The path goes on from this vertex (it is within the depth limit).
     go: B,
 
@@ -169,6 +175,9 @@ impl<'a> Lanes<'a> {
             corner_a: V3::ZERO,
             corner_b: V3::ZERO,
             corner_c: V3::ZERO,
+            normal_a: V3::ZERO,
+            normal_b: V3::ZERO,
+            normal_c: V3::ZERO,
             albedo: V3::ZERO,
             emission_front: V3::ZERO,
             emission_back: V3::ZERO,
@@ -176,6 +185,7 @@ impl<'a> Lanes<'a> {
             light_density: [0.0; LANES],
             p: V3::ZERO,
             ng: V3::ZERO,
+            ns: V3::ZERO,
             go: [false; LANES],
             light_ok: [false; LANES],
             light_point: V3::ZERO,
@@ -251,6 +261,12 @@ impl<'a> Lanes<'a> {
             self.corner_a.set(i, a);
             self.corner_b.set(i, b);
             self.corner_c.set(i, c);
+            if let Some(normals) = &scene.mesh.normals {
+                let [na, nb, nc] = normals[tri];
+                self.normal_a.set(i, na);
+                self.normal_b.set(i, nb);
+                self.normal_c.set(i, nc);
+            }
             let m = &self.materials[scene.mesh.material[tri] as usize];
             self.albedo.set(i, m.albedo);
             self.emission_front.set(i, m.emission_front);
@@ -270,13 +286,15 @@ impl<'a> Lanes<'a> {
         }
     }
 
-    /// The surface at each hit (`Scene::surface` without vertex normals), the emission the ray
+    /// The surface at each hit (`Scene::surface`), the emission the ray
     /// sees (`trace_path` step 1), and the sample values of the light sample.
     #[inline(always)]
     fn shade_hit(&mut self, isa: Isa) {
         // Inputs and outputs are copied to locals: the compiler vectorises a loop over distinct
         // local arrays, not one over fields of `self` indexed by a variable.
         let (hit, ca, cb, cc) = (self.hit, self.corner_a, self.corner_b, self.corner_c);
+        let (na, nb, nc) = (self.normal_a, self.normal_b, self.normal_c);
+        let smooth = self.scene.mesh.normals.is_some();
         let (b1s, b2s, ds, ts) = (self.b1, self.b2, self.d, self.t);
         let (ef, eb, mis, dens, pdfs) = (
             self.emission_front,
@@ -286,7 +304,7 @@ impl<'a> Lanes<'a> {
             self.bsdf_pdf,
         );
         let (mut ls, betas, mut vertices, depths) = (self.l, self.beta, self.vertices, self.depth);
-        let (mut go, mut ps, mut ngs) = ([false; LANES], V3::ZERO, V3::ZERO);
+        let (mut go, mut ps, mut ngs, mut nss) = ([false; LANES], V3::ZERO, V3::ZERO, V3::ZERO);
         let (keys, revs) = (self.key, self.index_rev);
         let (mut u_select, mut u_light) = ([0.0; LANES], [[0.0; LANES]; 2]);
         let limit = self.depth_limit;
@@ -315,6 +333,13 @@ impl<'a> Lanes<'a> {
             go[i] = on && depths[i] < limit;
             ps.set(i, p);
             ngs.set(i, ng);
+            let normals = [na.get(i), nb.get(i), nc.get(i)];
+            let ns = if smooth {
+                shading_normal(normals, [b0, b1, b2], ng)
+            } else {
+                ng
+            };
+            nss.set(i, ns);
         }
         // The light sample's values in a loop of their own (see `scatter`).
         for i in 0..LANES {
@@ -329,6 +354,7 @@ impl<'a> Lanes<'a> {
             (u_light[0][i], u_light[1][i], u_select[i]) = (point0, point1, select);
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
+        self.ns = nss;
         let Some(lights) = self.lights else {
             self.sample_by_tree(&u_select, &u_light);
             return;
@@ -390,6 +416,7 @@ impl<'a> Lanes<'a> {
     fn scatter(&mut self, rr: RussianRoulette) {
         // Copied to locals, as in `shade_hit`.
         let (gos, ps, ngs, ds, albedos) = (self.go, self.p, self.ng, self.d, self.albedo);
+        let nss = self.ns;
         // How far from the surface rays spawned at the hit start (`spawn_clearance`), from the
         // hit triangles' corners, which are still in place.
         let (ca, cb, cc) = (self.corner_a, self.corner_b, self.corner_c);
@@ -423,7 +450,7 @@ impl<'a> Lanes<'a> {
             } else {
                 light_back.get(i)
             };
-            let (f, bsdf_pdf) = lambert_at::eval_pdf(ng, ng, albedo, wo, g.wi);
+            let (f, bsdf_pdf) = lambert_at::eval_pdf(nss.get(i), ng, albedo, wo, g.wi);
             let query = g.value(light_pdf[i], le, f, bsdf_pdf, Vec3::ONE, true);
             let shadow = go && light_ok[i] && query.is_some();
             let value = query.unwrap_or(Vec3::ZERO);
@@ -465,7 +492,7 @@ impl<'a> Lanes<'a> {
             let albedo = albedos.get(i);
             // 3. The continuation: a cosine-weighted direction (one lobe, no lobe choice).
             let u = Vec2::new(u0[i], u1[i]);
-            let frame = Frame::from_z(ng);
+            let frame = Frame::from_z(nss.get(i));
             let bs =
                 lambert_at::sample_wi(&frame, ng, albedo, wo, u).filter(|bs| !is_black(bs.weight));
             sampled_ok[i] = bs.is_some();

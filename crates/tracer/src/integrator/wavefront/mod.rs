@@ -11,7 +11,7 @@
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
 //! untextured materials, emissive triangles as the only lights (no environment), no alpha, no
-//! vertex normals; MIS
+//! tangents (vertex normals are interpolated as `Scene::surface` does); MIS
 //! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
 //! scalar integrator, with the same result it always had. Ray queries stay scalar, one lane at a
 //! time, through the scene's BVH.
@@ -96,7 +96,7 @@ pub(crate) struct DiffuseScene {
 
 impl DiffuseScene {
     /// The lanes' view of a scene, if every material is an untextured pure Lambertian (emissive
-    /// or not) without alpha or volume, the mesh has no vertex normals or tangents, and the only
+    /// or not) without alpha or volume, the mesh has no tangents (it may have vertex normals), and the only
     /// lights are emissive triangles (at least one): no punctual lights, no environment, and no
     /// instanced meshes (the lanes trace the world-space mesh alone). The one place that decides
     /// which scenes the lanes render.
@@ -109,7 +109,6 @@ impl DiffuseScene {
     ) -> Option<DiffuseScene> {
         let area = &lights.area;
         if !instances.is_empty()
-            || mesh.normals.is_some()
             || mesh.tangents.is_some()
             || !lights.punctual.is_empty()
             || lights.environment.is_some()

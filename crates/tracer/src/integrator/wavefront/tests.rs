@@ -132,6 +132,54 @@ fn double_sided_lights_black_and_emissive_walls_are_the_scalar_integrators() {
     }
 }
 
+/// A mesh with vertex normals: the lanes interpolate them as `Scene::surface` does. The box's
+/// normals are tilted by a different amount at every corner, and some corners are made to
+/// disagree with the winding, to cancel out (zero: the geometric normal is used) or to be NaN.
+#[test]
+fn vertex_normals_are_interpolated_as_the_scalar_integrator_does() {
+    let mut p = parts("cornell");
+    let mut normals = Vec::with_capacity(p.mesh.positions.len());
+    for (t, &[a, b, c]) in p.mesh.positions.iter().enumerate() {
+        let ng = (b - a).cross(c - a).normalize();
+        let corner = |k: usize| {
+            let h = crate::sampler::hash_u32((t * 3 + k) as u32);
+            let tilt = |shift: u32| ((h >> shift) & 0xff) as f32 / 255.0 - 0.5;
+            (ng + 0.6 * Vec3::new(tilt(0), tilt(8), tilt(16))).normalize()
+        };
+        let mut n = [corner(0), corner(1), corner(2)];
+        match t % 7 {
+            // Disagrees with the winding: the interpolated normal is flipped to ng's side.
+            1 => n = n.map(|v| -v),
+            // Cancels out everywhere on the triangle's centre line: the geometric normal.
+            2 => n = [Vec3::ZERO; 3],
+            3 => n[0] = Vec3::splat(f32::NAN),
+            _ => {}
+        }
+        normals.push(n);
+    }
+    p.mesh.normals = Some(normals);
+    let scene = scene(p);
+    assert!(
+        scene.diffuse.is_some(),
+        "the lanes take a mesh with normals"
+    );
+    for (seed, rr) in [(3, RussianRoulette::Auto), (4, RussianRoulette::Off)] {
+        let max_depth = (rr == RussianRoulette::Off).then_some(5);
+        assert_same_bits(&scene, &settings(seed, rr, max_depth), 0..8);
+    }
+    // The normals change the image: this is not the flat box again.
+    let flat = self::scene(parts("cornell"));
+    let s = settings(3, RussianRoulette::Auto, None);
+    let differ = (0..s.height)
+        .flat_map(|y| (0..s.width).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            render_sample(&scene, &s, x, y, 0).radiance
+                != render_sample(&flat, &s, x, y, 0).radiance
+        })
+        .count();
+    assert!(differ > (s.width * s.height / 4) as usize, "{differ}");
+}
+
 /// The camera rays the lanes make ahead (`lanes/refill.rs`) are `Camera::generate_ray`'s: an
 /// orthographic camera and a perspective one, turned, scaled unevenly and moved; and a camera
 /// that collapses every direction to zero, whose samples are handed on at once as NaN.
