@@ -30,12 +30,7 @@ impl Vertex<'_> {
     /// A ray leaving the vertex towards `wi`, its origin offset to the side `wi` goes to.
     #[inline]
     fn spawn(&self, wi: Vec3) -> Ray {
-        let side = if wi.dot(self.ng) > 0.0 {
-            self.ng
-        } else {
-            -self.ng
-        };
-        Ray::new(offset_ray_origin(self.p, side, self.clearance), wi)
+        spawn(self.p, self.ng, self.clearance, wi)
     }
 
     #[inline]
@@ -45,6 +40,14 @@ impl Vertex<'_> {
             _ => Vec3::ONE,
         }
     }
+}
+
+/// A ray leaving `p` (geometric normal `ng`) towards `wi`, its origin offset to the side `wi` goes
+/// to.
+#[inline]
+fn spawn(p: Vec3, ng: Vec3, clearance: f32, wi: Vec3) -> Ray {
+    let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
+    Ray::new(offset_ray_origin(p, side, clearance), wi)
 }
 
 /// Shadow rays stop this fraction short of the light so they do not hit the light's own triangle.
@@ -59,30 +62,70 @@ pub(crate) fn direct_punctual(
     depth: u32,
     rays: &mut u32,
 ) -> Vec3 {
-    let Some((light, pmf)) = scene
-        .lights
-        .choose_punctual(s.bounce1(depth, dims::PUNCTUAL_SELECT))
-    else {
+    let at = PunctualAt {
+        p: v.p,
+        ng: v.ng,
+        clearance: v.clearance,
+        u_select: s.bounce1(depth, dims::PUNCTUAL_SELECT),
+        alpha_u: if scene.any_alpha() {
+            s.bounce1(depth, dims::ALPHA)
+        } else {
+            0.0
+        },
+    };
+    punctual_at::<false>(
+        scene,
+        &at,
+        rays,
+        |wi| v.bsdf.eval(v.wo, wi),
+        |dist| v.transmittance(dist),
+    )
+}
+
+/// Where [`punctual_at`] lights, and its sample values.
+pub(crate) struct PunctualAt {
+    pub p: Vec3,
+    pub ng: Vec3,
+    pub clearance: f32,
+    /// Chooses the light (`dims::PUNCTUAL_SELECT`).
+    pub u_select: f32,
+    /// The shadow ray's alpha-coverage value (`dims::ALPHA`).
+    pub alpha_u: f32,
+}
+
+/// [`direct_punctual`]'s body, with the BSDF's f · |cos θi| towards `wi` as `eval` and the
+/// medium's transmittance over a distance as `transmittance`: the scalar integrator and the
+/// wavefront lanes (which keep no `Bsdf`) share it, so their bits are the same. `INLINED`: the
+/// shadow ray's query inlined, as in `Scene::visible_in`.
+#[inline(always)]
+pub(crate) fn punctual_at<const INLINED: bool>(
+    scene: &Scene,
+    at: &PunctualAt,
+    rays: &mut u32,
+    eval: impl Fn(Vec3) -> Vec3,
+    transmittance: impl Fn(f32) -> Vec3,
+) -> Vec3 {
+    let Some((light, pmf)) = scene.lights.choose_punctual(at.u_select) else {
         return Vec3::ZERO;
     };
-    let Some(ls) = light.sample_li(v.p) else {
+    let Some(ls) = light.sample_li(at.p) else {
         return Vec3::ZERO;
     };
-    let f = v.bsdf.eval(v.wo, ls.wi);
+    let f = eval(ls.wi);
     if is_black(f) {
         return Vec3::ZERO;
     }
-    let ray = v.spawn(ls.wi);
+    let ray = spawn(at.p, at.ng, at.clearance, ls.wi);
     *rays += 1;
     let t_max = if ls.dist.is_finite() {
         ls.dist * (1.0 - SHADOW_EPSILON)
     } else {
         f32::INFINITY
     };
-    if !scene.visible(&ray, t_max, s.bounce1(depth, dims::ALPHA)) {
+    if !scene.visible_in::<INLINED>(&ray, t_max, at.alpha_u) {
         return Vec3::ZERO;
     }
-    f * ls.li * v.transmittance(ls.dist) / pmf
+    f * ls.li * transmittance(ls.dist) / pmf
 }
 
 /// A shadow ray whose answer is still to come, and what it adds to the path's radiance if the

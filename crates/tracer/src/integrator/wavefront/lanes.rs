@@ -35,7 +35,7 @@ use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::geometry::Ray;
-use crate::integrator::direct::LightGeometry;
+use crate::integrator::direct::{punctual_at, LightGeometry, PunctualAt};
 use crate::integrator::path::survival;
 use crate::integrator::PathResult;
 use crate::math::{is_black, offset_unit_normal, spawn_clearance, Frame};
@@ -66,6 +66,8 @@ pub(super) struct Lanes<'a> {
     lights: Option<&'a LightTable>,
     settings: &'a RenderSettings,
     depth_limit: u32,
+    /// The scene has punctual lights: each vertex samples one (`light_punctual`).
+    punctual: bool,
 
     // The sample each lane renders.
     x: U,
@@ -127,6 +129,8 @@ pub(super) struct Lanes<'a> {
     light_pdf_area: F,
     light_front: V3,
     light_back: V3,
+    /// The sample value that chooses the punctual light.
+    u_punctual: F,
 
     // Set by `scatter`.
     shadow: B,
@@ -150,6 +154,7 @@ impl<'a> Lanes<'a> {
             lights: diffuse.lights.as_deref(),
             settings,
             depth_limit: settings.depth_limit(),
+            punctual: !scene.lights.punctual.is_empty(),
             x: [0; LANES],
             y: [0; LANES],
             index: [0; LANES],
@@ -193,6 +198,7 @@ impl<'a> Lanes<'a> {
             light_pdf_area: [0.0; LANES],
             light_front: V3::ZERO,
             light_back: V3::ZERO,
+            u_punctual: [0.0; LANES],
             shadow: [false; LANES],
             shadow_o: V3::ZERO,
             shadow_d: V3::ZERO,
@@ -217,6 +223,9 @@ impl<'a> Lanes<'a> {
             }
             self.trace_closest_for(isa);
             self.shade_hit_for(isa);
+            if self.punctual {
+                self.light_punctual_for(isa);
+            }
             self.scatter_for(isa);
             self.trace_shadows_for(isa, &mut each);
         }
@@ -307,6 +316,7 @@ impl<'a> Lanes<'a> {
         let (mut go, mut ps, mut ngs, mut nss) = ([false; LANES], V3::ZERO, V3::ZERO, V3::ZERO);
         let (keys, revs) = (self.key, self.index_rev);
         let (mut u_select, mut u_light) = ([0.0; LANES], [[0.0; LANES]; 2]);
+        let mut u_punctual = [0.0; LANES];
         let limit = self.depth_limit;
         for i in 0..LANES {
             let on = hit[i];
@@ -345,16 +355,22 @@ impl<'a> Lanes<'a> {
         for i in 0..LANES {
             // One group of four dimensions (`dims`): its seed and shuffle computed once.
             let group = bounce_dim(depths[i], dims::LIGHT_POINT);
-            let [point0, point1, select] = owen_sobol_group_lanewise(
+            let [point0, point1, select, punctual] = owen_sobol_group_lanewise(
                 keys[i],
                 revs[i],
                 group,
-                [0, 1, dims::LIGHT_SELECT - dims::LIGHT_POINT],
+                [
+                    0,
+                    1,
+                    dims::LIGHT_SELECT - dims::LIGHT_POINT,
+                    dims::PUNCTUAL_SELECT - dims::LIGHT_POINT,
+                ],
             );
             (u_light[0][i], u_light[1][i], u_select[i]) = (point0, point1, select);
+            u_punctual[i] = punctual;
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
-        self.ns = nss;
+        (self.ns, self.u_punctual) = (nss, u_punctual);
         let Some(lights) = self.lights else {
             self.sample_by_tree(&u_select, &u_light);
             return;
@@ -391,6 +407,39 @@ impl<'a> Lanes<'a> {
             self.light_pdf_area[i] = ls.pdf_area;
             self.light_front.set(i, m.emission_front);
             self.light_back.set(i, m.emission_back);
+        }
+    }
+
+    /// Each lane's punctual light sample, traced at once (`trace_path`'s `direct_punctual`, lane
+    /// by lane through its body `punctual_at`): added before the area light's sample, whose shadow
+    /// ray is traced later, as `trace_path` adds them.
+    #[inline(always)]
+    fn light_punctual(&mut self) {
+        let scene = self.scene;
+        for i in 0..LANES {
+            if !(self.go[i] && self.diffuse_on[i]) {
+                continue;
+            }
+            let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
+            let albedo = self.albedo.get(i);
+            let corners = [
+                self.corner_a.get(i),
+                self.corner_b.get(i),
+                self.corner_c.get(i),
+            ];
+            let at = PunctualAt {
+                p: self.p.get(i),
+                ng,
+                clearance: spawn_clearance(corners),
+                u_select: self.u_punctual[i],
+                alpha_u: 0.0,
+            };
+            let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
+            let rays = &mut self.rays[i];
+            // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
+            let value = punctual_at::<true>(scene, &at, rays, eval, |_| Vec3::ONE);
+            let l = self.l.get(i) + self.beta.get(i) * value;
+            self.l.set(i, l);
         }
     }
 

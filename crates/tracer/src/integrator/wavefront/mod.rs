@@ -10,8 +10,8 @@
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
-//! untextured materials, emissive triangles as the only lights (no environment), no alpha, no
-//! tangents (vertex normals are interpolated as `Scene::surface` does); MIS
+//! untextured materials, emissive triangles and punctual lamps as the lights (no environment), no
+//! alpha, no tangents (vertex normals are interpolated as `Scene::surface` does); MIS
 //! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
 //! scalar integrator, with the same result it always had. Ray queries stay scalar, one lane at a
 //! time, through the scene's BVH.
@@ -90,16 +90,17 @@ pub(crate) struct DiffuseMaterial {
 pub(crate) struct DiffuseScene {
     pub materials: Vec<DiffuseMaterial>,
     /// The lights in the lanes' layout, for a scene that chooses its lights by power; None for
-    /// one that chooses by the light tree, which each lane walks on its own.
+    /// one that chooses by the light tree, which each lane walks on its own (and for one without
+    /// emissive triangles, where the walk finds none).
     pub lights: Option<Box<LightTable>>,
 }
 
 impl DiffuseScene {
     /// The lanes' view of a scene, if every material is an untextured pure Lambertian (emissive
-    /// or not) without alpha or volume, the mesh has no tangents (it may have vertex normals), and the only
-    /// lights are emissive triangles (at least one): no punctual lights, no environment, and no
-    /// instanced meshes (the lanes trace the world-space mesh alone). The one place that decides
-    /// which scenes the lanes render.
+    /// or not) without alpha or volume, the mesh has no tangents (it may have vertex normals), the
+    /// lights are emissive triangles and punctual lamps (at least one of either), no environment,
+    /// and no instanced meshes (the lanes trace the world-space mesh alone). The one place that
+    /// decides which scenes the lanes render.
     pub(crate) fn new(
         materials: &[Material],
         templates: &[Option<crate::bsdf::Bsdf>],
@@ -108,14 +109,11 @@ impl DiffuseScene {
         lights: &Lights,
     ) -> Option<DiffuseScene> {
         let area = &lights.area;
-        if !instances.is_empty()
-            || mesh.tangents.is_some()
-            || !lights.punctual.is_empty()
-            || lights.environment.is_some()
-        {
+        if !instances.is_empty() || mesh.tangents.is_some() || lights.environment.is_some() {
             return None;
         }
-        if area.is_empty() {
+        // Without a sampled light (area or punctual) there is nothing for the lanes to speed up.
+        if area.is_empty() && lights.punctual.is_empty() {
             return None;
         }
         let mut out = Vec::with_capacity(materials.len());
@@ -132,7 +130,7 @@ impl DiffuseScene {
                 diffuse_on: bsdf.has_non_delta(),
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),
-                light_density: if area.has_tree() {
+                light_density: if area.has_tree() || area.is_empty() {
                     0.0
                 } else {
                     area.power_density(m as u32)
@@ -141,7 +139,9 @@ impl DiffuseScene {
             });
         }
         // Lights chosen by power are chosen in the lanes, from the table; by the tree, lane by lane.
-        let lights = match area.has_tree() {
+        // Without area lights, the tree's path finds none (`AreaLights::sample`), as `trace_path`
+        // samples none.
+        let lights = match area.has_tree() || area.is_empty() {
             false => Some(LightTable::new(area, &out, &mesh.material)?),
             true => None,
         };

@@ -180,6 +180,49 @@ fn vertex_normals_are_interpolated_as_the_scalar_integrator_does() {
     assert!(differ > (s.width * s.height / 4) as usize, "{differ}");
 }
 
+/// Punctual lamps (a point, a spot and a sun) beside the box's area light, and lighting the box
+/// alone once its light is switched off: each vertex's lamp sample is `direct_punctual`'s.
+#[test]
+fn punctual_lamps_light_the_lanes_as_they_light_the_scalar_integrator() {
+    use crate::light::{DirectionalLight, PointLight, PunctualLight, SpotLight};
+    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    let mut p = parts("cornell");
+    for corner in p.mesh.positions.iter().flatten() {
+        (lo, hi) = (lo.min(*corner), hi.max(*corner));
+    }
+    let (centre, size) = ((lo + hi) * 0.5, hi - lo);
+    p.punctual_lights = vec![
+        PunctualLight::Point(PointLight {
+            position: centre + Vec3::new(0.2, 0.3, 0.1) * size,
+            intensity: Vec3::new(0.8, 0.6, 0.4) * size.length_squared(),
+        }),
+        PunctualLight::Spot(SpotLight {
+            position: centre + Vec3::new(-0.2, 0.4, 0.0) * size,
+            direction: Vec3::new(0.1, -1.0, 0.2).normalize(),
+            intensity: Vec3::splat(2.0) * size.length_squared(),
+            cos_inner: 0.9,
+            cos_outer: 0.7,
+        }),
+        PunctualLight::Directional(DirectionalLight {
+            direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
+            illuminance: Vec3::new(1.0, 1.0, 0.8),
+        }),
+    ];
+    let lit = scene(p.clone());
+    assert!(lit.diffuse.is_some(), "the lanes take punctual lamps");
+    for (seed, rr) in [(5, RussianRoulette::Auto), (6, RussianRoulette::Fixed(0.6))] {
+        assert_same_bits(&lit, &settings(seed, rr, None), 0..6);
+    }
+    // The lamps alone: no emissive triangle, so no area light sample at all.
+    for m in &mut p.materials {
+        m.emissive = Vec3::ZERO;
+    }
+    let lamps_only = scene(p);
+    assert!(lamps_only.lights.area.is_empty());
+    assert!(lamps_only.diffuse.is_some());
+    assert_same_bits(&lamps_only, &settings(7, RussianRoulette::Auto, None), 0..6);
+}
+
 /// The camera rays the lanes make ahead (`lanes/refill.rs`) are `Camera::generate_ray`'s: an
 /// orthographic camera and a perspective one, turned, scaled unevenly and moved; and a camera
 /// that collapses every direction to zero, whose samples are handed on at once as NaN.

@@ -1,5 +1,5 @@
 //! The builds of the lanes' steps: the vector ones (`make_rays`, `shade_hit`, `scatter`) and the
-//! scalar ray queries around them (`trace_closest`, `trace_shadows`), each compiled once per
+//! scalar ray queries around them (`trace_closest`, `light_punctual`, `trace_shadows`), each compiled once per
 //! instruction set (`#[target_feature]`), and the dispatch on the [`Isa`] that proves the
 //! processor runs them.
 
@@ -61,6 +61,12 @@ impl Lanes<'_> {
         fn trace_shadows_for, trace_shadows_avx512, trace_shadows_avx2
             (&mut self, isa: Isa, each: &mut impl FnMut(u32, u32, u32, PathResult)) {
             self.trace_shadows(each);
+        }
+
+        /// [`Lanes::light_punctual`] compiled for `isa`.
+        fn light_punctual_for, light_punctual_avx512, light_punctual_avx2
+            (&mut self, isa: Isa) {
+            self.light_punctual();
         }
 
         /// [`Lanes::shade_hit`] compiled for `isa`.
