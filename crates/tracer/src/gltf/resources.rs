@@ -349,41 +349,34 @@ pub(crate) fn decode_data_uri(rest: &str) -> Result<Vec<u8>, String> {
             .decode(&cleaned)
             .map_err(|e| format!("invalid base64: {e}"))
     } else {
-        percent_decode(payload)
-            .map(String::into_bytes)
-            .or_else(|_| percent_decode_bytes(payload))
+        // RFC 2397: the data are percent-encoded bytes (not necessarily UTF-8).
+        check_escapes(payload)?;
+        Ok(percent_encoding::percent_decode_str(payload).collect())
     }
 }
 
-fn percent_decode_bytes(s: &str) -> Result<Vec<u8>, String> {
+/// Refuses a `%` not followed by two hexadecimal digits, naming where: the `percent-encoding`
+/// crate passes such a `%` through as it is, and a URI that carries one is malformed (RFC 3986).
+fn check_escapes(s: &str) -> Result<(), String> {
     let bytes = s.as_bytes();
-    let mut out = Vec::with_capacity(bytes.len());
-    let mut i = 0;
-    while i < bytes.len() {
-        let b = bytes[i];
-        if b == b'%' {
-            let hex = bytes
-                .get(i + 1..i + 3)
-                .ok_or_else(|| format!("truncated escape at byte {i}"))?;
-            let hex = std::str::from_utf8(hex).map_err(|_| format!("bad escape at byte {i}"))?;
-            let v = u8::from_str_radix(hex, 16)
-                .map_err(|_| format!("bad escape %{hex} at byte {i}"))?;
-            out.push(v);
-            i += 3;
-        } else {
-            out.push(b);
-            i += 1;
+    for (i, _) in s.match_indices('%') {
+        let hex = bytes.get(i + 1..i + 3);
+        if !hex.is_some_and(|h| h.iter().all(u8::is_ascii_hexdigit)) {
+            let shown: String = s[i..].chars().take(3).collect();
+            return Err(format!("bad escape {shown:?} at byte {i}"));
         }
     }
-    Ok(out)
+    Ok(())
 }
 
-/// RFC 3986 percent-decoding into a UTF-8 string.
+/// RFC 3986 percent-decoding of a file URI into the UTF-8 path the resolver is given. This is the
+/// only place a glTF URI is decoded: resolvers take the result as it is (a file literally named
+/// `a%20b.bin` is written `a%2520b.bin` in the glTF).
 pub(crate) fn percent_decode(s: &str) -> Result<String, String> {
-    if !s.contains('%') {
-        return Ok(s.to_string());
-    }
-    String::from_utf8(percent_decode_bytes(s)?)
+    check_escapes(s)?;
+    percent_encoding::percent_decode_str(s)
+        .decode_utf8()
+        .map(|p| p.into_owned())
         .map_err(|_| "percent-decoded URI is not UTF-8".to_string())
 }
 
@@ -407,5 +400,12 @@ mod tests {
         assert_eq!(percent_decode("my%20file.bin").unwrap(), "my file.bin");
         assert!(percent_decode("bad%2").is_err());
         assert!(percent_decode("bad%zz").is_err());
+        assert!(percent_decode("bad%").is_err());
+        // Decoded once: an escaped '%' stays a '%'; UTF-8 escapes give their characters.
+        assert_eq!(percent_decode("a%2520b.bin").unwrap(), "a%20b.bin");
+        assert_eq!(percent_decode("caf%C3%A9.bin").unwrap(), "café.bin");
+        assert_eq!(percent_decode("café.bin").unwrap(), "café.bin");
+        assert!(percent_decode("%FF.bin").is_err());
+        assert_eq!(decode_data_uri(",%FF%00").unwrap(), vec![0xff, 0]);
     }
 }
