@@ -124,3 +124,303 @@ async fn buffer_files_named_with_spaces_percent_signs_and_non_ascii_load() {
         "{stderr}"
     );
 }
+
+/// `pathfarm ARGS…` against `farm`, expected to succeed; its stdout.
+async fn ok(farm: &Farm, args: &[&str]) -> String {
+    let mut all: Vec<&str> = args.to_vec();
+    all.extend(["--server", farm.url.as_str()]);
+    let out = run_cli(&farm.dir, &all, Duration::from_secs(60)).await;
+    assert_success(&out, &format!("pathfarm {}", args.join(" ")));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// `pathfarm ARGS… --json` against `farm`: its stdout parsed (it must be one JSON document).
+async fn json(farm: &Farm, args: &[&str]) -> serde_json::Value {
+    let mut all = args.to_vec();
+    all.push("--json");
+    let stdout = ok(farm, &all).await;
+    serde_json::from_str(&stdout).unwrap_or_else(|e| {
+        panic!(
+            "pathfarm {} --json printed no JSON ({e}):\n{stdout}",
+            args.join(" ")
+        )
+    })
+}
+
+/// `pathfarm ARGS…` expected to fail: its stderr, which must be one line.
+fn one_error_line(out: &std::process::Output, what: &str) -> String {
+    assert!(!out.status.success(), "{what} succeeded");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "{what}: not one line of error:\n{stderr}");
+    assert!(lines[0].starts_with("error: "), "{what}: {stderr}");
+    lines[0].to_string()
+}
+
+/// Every API operation from the command line, against a real server and worker, each with
+/// `--json` (one JSON document on stdout) and as text: submit, jobs, priority, pause, resume,
+/// workers, job with --out (the EXR bit-identical to a local render), cancel, delete.
+#[tokio::test]
+async fn every_api_operation_has_a_command_that_works_with_and_without_json() {
+    let farm = Farm::new("cli-ops");
+    let _server = farm.serve("server", &[]).await;
+    let settings = [
+        "--width", "24", "--height", "16", "--spp", "8", "--seed", "3",
+    ];
+    let reference = render_reference(&farm.dir, "local.exr", &settings);
+
+    // submit --json: the API's answer; the job waits, no worker runs yet.
+    let mut submit = vec!["submit", SCENE];
+    submit.extend(settings);
+    let created = json(&farm, &submit).await;
+    let id = created["id"].as_str().expect("an id").to_string();
+    assert!(created["samples_planned"].as_u64() > Some(0), "{created}");
+
+    let list = json(&farm, &["jobs"]).await;
+    assert!(
+        list["jobs"]
+            .as_array()
+            .is_some_and(|j| j.iter().any(|j| j["id"] == id.as_str())),
+        "{list}"
+    );
+    assert!(ok(&farm, &["jobs"]).await.contains(&id));
+
+    let j = json(&farm, &["priority", &id, "7"]).await;
+    assert_eq!(j["priority"], 7, "{j}");
+    let text = ok(&farm, &["priority", &id, "-3"]).await;
+    assert!(text.contains("priority -3"), "{text}");
+    assert_eq!(json(&farm, &["job", &id]).await["priority"], -3);
+
+    let j = json(&farm, &["pause", &id]).await;
+    assert_eq!(j["state"], "paused", "{j}");
+    let j = json(&farm, &["resume", &id]).await;
+    assert_eq!(j["state"], "queued", "{j}");
+    let text = ok(&farm, &["pause", &id]).await;
+    assert!(text.contains("paused"), "{text}");
+    let text = ok(&farm, &["resume", &id]).await;
+    assert!(text.contains("queued"), "{text}");
+
+    // A worker renders it.
+    let _worker = farm.worker("w1", 4);
+    let api = farm.api();
+    wait_completed(&api, &id, Duration::from_secs(120)).await;
+    let workers = json(&farm, &["workers"]).await;
+    assert!(
+        workers["workers"]
+            .as_array()
+            .is_some_and(|w| w.iter().any(|w| w["name"] == "w1")),
+        "{workers}"
+    );
+    assert!(ok(&farm, &["workers"]).await.contains("w1"));
+
+    // job ID --out: the image later, bit-identical to the local render; as PNG too.
+    let exr = farm.dir.arg("job.exr");
+    let text = ok(&farm, &["job", &id, "--out", &exr]).await;
+    assert!(
+        text.contains("wrote") && text.contains("completed"),
+        "{text}"
+    );
+    let farm_exr = std::fs::read(&exr).expect("read the downloaded EXR");
+    let local = reference.await.expect("the local render");
+    assert_same_bytes(&farm_exr, &local, "job --out");
+    let png = farm.dir.arg("job.png");
+    let j = json(&farm, &["job", &id, "--out", &png, "--exposure", "-1"]).await;
+    assert_eq!(j["state"], "completed", "{j}");
+    let png_bytes = std::fs::read(&png).expect("read the downloaded PNG");
+    assert!(png_bytes.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
+
+    // cancel --json (it was ignored once), then delete; the job is gone.
+    let mut big = vec![
+        "submit", SCENE, "--width", "64", "--height", "64", "--spp", "100000",
+    ];
+    big.push("--json");
+    let mut args = big.clone();
+    args.extend(["--server", farm.url.as_str()]);
+    let out = run_cli(&farm.dir, &args, Duration::from_secs(30)).await;
+    assert_success(&out, "submit");
+    let created: serde_json::Value = serde_json::from_slice(&out.stdout).expect("submit --json");
+    let id2 = created["id"].as_str().expect("an id").to_string();
+    let j = json(&farm, &["cancel", &id2]).await;
+    assert_eq!(j["state"], "cancelled", "{j}");
+    let d = json(&farm, &["delete", &id2]).await;
+    assert_eq!(d, serde_json::json!({"id": id2, "deleted": true}));
+    let out = run_cli(
+        &farm.dir,
+        &["job", &id2, "--server", &farm.url],
+        Duration::from_secs(30),
+    )
+    .await;
+    let line = one_error_line(&out, "job of a deleted job");
+    assert!(line.contains("404") && line.contains(&id2), "{line}");
+    let text = ok(&farm, &["delete", &id]).await;
+    assert!(text.contains(&format!("deleted job {id}")), "{text}");
+}
+
+/// Bad input fails at once with one line naming what is wrong: an unreachable server (reqwest's
+/// message once, not twice), a log filter that does not parse, an output folder that does not
+/// exist (before the render, not after it), `job --out` likewise before downloading.
+#[tokio::test]
+async fn errors_are_one_line_and_bad_input_is_refused_before_any_work() {
+    let dir = TestDir::new("cli-errors");
+    let dead = format!("http://127.0.0.1:{}", free_port());
+    let out = run_cli(&dir, &["jobs", "--server", &dead], Duration::from_secs(30)).await;
+    let line = one_error_line(&out, "jobs against a dead port");
+    assert!(line.contains("cannot reach the server"), "{line}");
+    assert_eq!(
+        line.matches("error sending request").count(),
+        1,
+        "reqwest's message repeated: {line}"
+    );
+
+    for args in [
+        vec!["--log", "pathfarm=loud", "jobs", "--server", dead.as_str()],
+        vec![
+            "jobs",
+            "--log",
+            "info,pathfarm_worker=loud",
+            "--server",
+            dead.as_str(),
+        ],
+    ] {
+        let out = run_cli(&dir, &args, Duration::from_secs(30)).await;
+        assert_eq!(out.status.code(), Some(2), "{args:?} was accepted");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            stderr.contains("--log") && stderr.contains("not a log filter"),
+            "{args:?}: {stderr}"
+        );
+    }
+
+    // A render that would take minutes fails at once on its output folder.
+    let missing = dir.arg("missing_dir/x.exr");
+    let t = std::time::Instant::now();
+    let out = run_cli(
+        &dir,
+        &[
+            "render", SCENE, "--width", "512", "--height", "512", "--spp", "100000", "--out",
+            &missing,
+        ],
+        Duration::from_secs(60),
+    )
+    .await;
+    let line = one_error_line(&out, "render --out missing_dir/x.exr");
+    assert!(line.contains("missing_dir"), "{line}");
+    assert!(
+        t.elapsed() < Duration::from_secs(10),
+        "refused only after {:?}",
+        t.elapsed()
+    );
+    let out = run_cli(
+        &dir,
+        &["job", "any", "--out", &missing, "--server", &dead],
+        Duration::from_secs(30),
+    )
+    .await;
+    let line = one_error_line(&out, "job --out missing_dir/x.exr");
+    assert!(
+        line.contains("missing_dir") && !line.contains("cannot reach"),
+        "{line}"
+    );
+    let out = run_cli(
+        &dir,
+        &[
+            "submit", SCENE, "--wait", "--out", &missing, "--server", &dead,
+        ],
+        Duration::from_secs(30),
+    )
+    .await;
+    let line = one_error_line(&out, "submit --out missing_dir/x.exr");
+    assert!(line.contains("missing_dir"), "{line}");
+}
+
+/// A scene whose light is too bright to accumulate makes many samples invalid: `render` and a
+/// farm worker each say so once (count and first example), not once per sample.
+#[tokio::test]
+async fn invalid_samples_are_reported_once_with_a_count_not_once_each() {
+    let farm = Farm::new("cli-invalid");
+    let text = std::fs::read_to_string(SCENE).expect("read the Cornell box");
+    let mut gltf: serde_json::Value = serde_json::from_str(&text).expect("parse it");
+    let materials = gltf["materials"].as_array_mut().expect("materials");
+    let light = materials
+        .iter_mut()
+        .find(|m| m.get("emissiveFactor").is_some())
+        .expect("an emissive material");
+    // Radiance 1e10 is above what a sample may carry (2^32): every path that sees it is invalid.
+    light["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] =
+        serde_json::json!(1e10);
+    let scene = farm.dir.arg("bright.gltf");
+    std::fs::write(&scene, gltf.to_string()).expect("write the scene");
+
+    let out_path = farm.dir.arg("bright.exr");
+    let out = run_cli(
+        &farm.dir,
+        &[
+            "render", &scene, "--width", "32", "--height", "32", "--spp", "8", "--out", &out_path,
+        ],
+        Duration::from_secs(120),
+    )
+    .await;
+    assert_success(&out, "render of the bright scene");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let warnings: Vec<&str> = stderr.lines().filter(|l| l.contains("invalid")).collect();
+    assert_eq!(warnings.len(), 1, "{stderr}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let count: u64 = stdout
+        .trim()
+        .split(", ")
+        .find_map(|p| p.strip_suffix(" invalid samples")?.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no invalid-sample count in {stdout}"));
+    assert!(
+        count > 10,
+        "only {count} invalid samples: the test needs many"
+    );
+    assert!(
+        warnings[0].contains(&format!("count={count}")) && warnings[0].contains("--debug-sample"),
+        "{}",
+        warnings[0]
+    );
+
+    let _server = farm.serve("server", &[]).await;
+    let id = submit(
+        &farm.dir,
+        &farm.url,
+        &[
+            "--width", "32", "--height", "32", "--spp", "8", "--tile", "16",
+        ],
+    )
+    .await;
+    // That submitted the plain Cornell box; now the bright one, on a worker with small slices.
+    let out = run_cli(
+        &farm.dir,
+        &[
+            "submit", &scene, "--width", "32", "--height", "32", "--spp", "8", "--tile", "16",
+            "--server", &farm.url,
+        ],
+        Duration::from_secs(30),
+    )
+    .await;
+    assert_success(&out, "submit of the bright scene");
+    let bright = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    let mut worker = farm.worker("w1", 2);
+    let api = farm.api();
+    wait_completed(&api, &id, Duration::from_secs(120)).await;
+    wait_completed(&api, &bright, Duration::from_secs(120)).await;
+    worker.signal(libc::SIGTERM);
+    worker.wait_exit(Duration::from_secs(30)).await;
+    let log = worker.log_text();
+    let warnings: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("invalid samples dropped"))
+        .collect();
+    assert_eq!(warnings.len(), 1, "{log}");
+    assert!(
+        warnings[0].contains(&bright) && warnings[0].contains("first="),
+        "{}",
+        warnings[0]
+    );
+    let stopped = log
+        .lines()
+        .find(|l| l.contains("worker stopped"))
+        .unwrap_or_else(|| panic!("no `worker stopped` line:\n{log}"));
+    assert!(!stopped.contains("invalid_samples=0"), "{stopped}");
+}

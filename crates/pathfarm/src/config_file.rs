@@ -52,7 +52,8 @@ fn tables_for(command: &str) -> &'static [&'static str] {
         "serve" => &["serve"],
         "up" => &["up", "serve"],
         "worker" => &["worker"],
-        "submit" | "jobs" | "job" | "cancel" => &["client"],
+        "submit" | "jobs" | "job" | "cancel" | "pause" | "resume" | "delete" | "priority"
+        | "workers" => &["client"],
         _ => &[],
     }
 }
@@ -125,7 +126,8 @@ fn scalar_or_list(v: &toml::Value) -> Result<String> {
 
 /// The subcommands (as `main.rs` names them).
 pub(crate) const COMMANDS: &[&str] = &[
-    "render", "serve", "worker", "up", "submit", "jobs", "job", "cancel", "bench", "help",
+    "render", "serve", "worker", "up", "submit", "jobs", "job", "cancel", "pause", "resume",
+    "delete", "priority", "workers", "bench", "help",
 ];
 
 /// The global options that take a value (as `main.rs` declares them).

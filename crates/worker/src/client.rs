@@ -9,9 +9,9 @@
 //! after [`BULK_TIMEOUT`]; a scene upload (`submit`) is limited by [`BULK_TIMEOUT`] alone.
 
 use pathfarm_wire::api::{
-    Convergence, ErrorBody, Heartbeat, HeartbeatReply, JobCreated, JobList, JobSettings, JobView,
-    Lease, PreviewView, Release, SliceAck, WorkerList, WorkerRegistered, WorkerRegistration,
-    LEASE_TOKEN_HEADER, SCALE_MAX_HEADER, SCALE_MIN_HEADER, SLICE_CONTENT_TYPE,
+    Convergence, ErrorBody, Heartbeat, HeartbeatReply, JobCreated, JobList, JobPatch, JobSettings,
+    JobView, Lease, PreviewView, Release, SliceAck, WorkerList, WorkerRegistered,
+    WorkerRegistration, LEASE_TOKEN_HEADER, SCALE_MAX_HEADER, SCALE_MIN_HEADER, SLICE_CONTENT_TYPE,
 };
 use reqwest::{Method, RequestBuilder, Response, StatusCode, Url};
 use serde::de::DeserializeOwned;
@@ -342,6 +342,15 @@ impl ApiClient {
     /// `action`: cancel, pause or resume.
     pub async fn job_action(&self, id: &str, action: &str) -> Result<JobView, ClientError> {
         Self::json(self.request(Method::POST, &format!("/api/v1/jobs/{id}/{action}"))).await
+    }
+
+    /// `PATCH /api/v1/jobs/{id}`: sets the job's priority (higher runs first).
+    pub async fn set_priority(&self, id: &str, priority: i32) -> Result<JobView, ClientError> {
+        Self::json(
+            self.request(Method::PATCH, &format!("/api/v1/jobs/{id}"))
+                .json(&JobPatch { priority }),
+        )
+        .await
     }
 
     pub async fn delete_job(&self, id: &str) -> Result<(), ClientError> {

@@ -97,6 +97,42 @@ pub struct WorkerReport {
     pub tasks: u64,
     pub slices: u64,
     pub samples: u64,
+    /// Samples rendered invalid (NaN, infinite, negative or huge) and dropped.
+    pub invalid_samples: u64,
+    /// The jobs whose invalid samples were reported: one warning per job, not one per sample.
+    invalid_jobs_reported: std::collections::HashSet<String>,
+}
+
+impl WorkerReport {
+    /// Counts a slice's invalid samples. The first slice of a job that has any logs one warning
+    /// with the count and the first example; later ones only add to the count (given when the
+    /// worker stops) and log at debug level, so a broken scene cannot flood the log.
+    fn note_invalid(&mut self, job: &str, acc: &pathfarm_tracer::Accumulation) {
+        if acc.invalid_count == 0 {
+            return;
+        }
+        self.invalid_samples += acc.invalid_count;
+        let first = acc
+            .invalid
+            .first()
+            .map(|s| format!("pixel ({}, {}) sample {}", s.x, s.y, s.index));
+        if self.invalid_jobs_reported.insert(job.to_string()) {
+            tracing::warn!(
+                job,
+                count = acc.invalid_count,
+                first = first.as_deref().unwrap_or("-"),
+                "invalid samples dropped (NaN, infinite, negative or huge); later ones of this job \
+                 are only counted (re-render one with `pathfarm render --debug-sample X,Y,INDEX`)"
+            );
+        } else {
+            tracing::debug!(
+                job,
+                count = acc.invalid_count,
+                first = first.as_deref().unwrap_or("-"),
+                "invalid samples dropped"
+            );
+        }
+    }
 }
 
 /// The lease the heartbeat extends.
@@ -204,6 +240,7 @@ pub async fn run(
         tasks = report.tasks,
         slices = report.slices,
         samples = report.samples,
+        invalid_samples = report.invalid_samples,
         "worker stopped"
     );
     Ok(report)
@@ -403,6 +440,7 @@ async fn work_on(
         .map_err(|e| TaskError::Join(e.to_string()))?;
         let samples = acc.total_samples() + acc.invalid_count;
         rate.observe(samples, t0.elapsed().as_secs_f64());
+        report.note_invalid(&lease.job_id, &acc);
         let body = encode_slice(&Slice {
             sample_begin: range.start,
             sample_end: range.end,

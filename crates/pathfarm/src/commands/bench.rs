@@ -53,6 +53,7 @@ pub struct BenchArgs {
     /// are set for).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Random seed of the renders.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// The shipped scenes.

@@ -1,13 +1,17 @@
-//! The command-line client: `submit`, `jobs`, `job`, `cancel`.
+//! The command-line client, one command per API operation: `submit`, `jobs`, `job` (with `--out`
+//! to download the image), `cancel`, `pause`, `resume`, `delete`, `priority`, `workers`. Every one
+//! takes `--json` (the API's own JSON on stdout instead of text).
 
+use super::output::{check_output, OutFormat};
 use super::render::{EnvironmentArgs, SettingsArgs};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use pathfarm_wire::api::{EnvironmentSettings, JobSettings, JobView};
+use pathfarm_wire::api::{EnvironmentSettings, JobSettings, JobView, WorkerView};
 use pathfarm_worker::client::{ApiClient, ClientError};
+use serde::Serialize;
 use std::future::Future;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 /// How long `submit --wait` keeps retrying while the server cannot answer (no connection, 5xx):
@@ -16,11 +20,13 @@ pub const WAIT_PATIENCE: Duration = Duration::from_secs(300);
 
 /// Where the server is and how to authenticate.
 #[derive(Args, Clone, Debug)]
+#[command(next_help_heading = "Server")]
 pub struct ClientArgs {
+    /// The server's URL (http:// or https://).
     #[arg(long, env = "PATHFARM_SERVER", default_value = "http://127.0.0.1:8080")]
     pub server: String,
     /// Client token (when the server requires one).
-    #[arg(long, env = "PATHFARM_TOKEN")]
+    #[arg(long, env = "PATHFARM_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
 }
 
@@ -28,6 +34,15 @@ impl ClientArgs {
     fn client(&self) -> Result<ApiClient> {
         Ok(ApiClient::new(&self.server, self.token.clone())?)
     }
+}
+
+/// Prints `value` as pretty JSON on stdout.
+fn print_json<T: Serialize>(value: &T) -> Result<()> {
+    println!(
+        "{}",
+        serde_json::to_string_pretty(value).context("cannot write JSON")?
+    );
+    Ok(())
 }
 
 #[derive(Args, Debug)]
@@ -47,42 +62,31 @@ pub struct SubmitArgs {
     /// Stop after this many seconds of rendering.
     #[arg(long)]
     pub time_limit: Option<f64>,
-    #[arg(long, default_value_t = 0)]
+    /// Priority: higher runs first; equal priorities share the farm (`pathfarm priority` changes
+    /// it later).
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub priority: i32,
+    /// The job's name in lists and the dashboard (default: the scene's file name).
     #[arg(long)]
     pub name: Option<String>,
+    /// Camera name (default: the scene's first camera).
     #[arg(long)]
     pub camera: Option<String>,
     /// Wait for the job to finish, showing progress.
     #[arg(long)]
     pub wait: bool,
-    /// With --wait: save the final image (.exr float32, or .png tone-mapped).
+    /// With --wait: save the final image (.exr float32, or .png tone-mapped). Checked before
+    /// submitting.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// PNG exposure in stops.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub exposure: f32,
+    /// Print JSON: the submission's answer, or with --wait the finished job.
+    #[arg(long)]
+    pub json: bool,
     #[command(flatten)]
     pub client: ClientArgs,
-}
-
-/// What `--out` asks for, from its extension.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum OutFormat {
-    Exr,
-    Png,
-}
-
-fn out_format(out: &Path) -> Result<OutFormat> {
-    let ext = out
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("png") => Ok(OutFormat::Png),
-        Some("exr") => Ok(OutFormat::Exr),
-        _ => bail!("--out must end in .exr or .png (got {})", out.display()),
-    }
 }
 
 /// Runs `call` until it succeeds or fails for good: a transient failure (no answer, 5xx) is retried
@@ -121,7 +125,7 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
         bail!("--out needs --wait");
     }
     // Before anything is submitted: a job must not run only for its image to be refused.
-    let format = args.out.as_deref().map(out_format).transpose()?;
+    let format = args.out.as_deref().map(check_output).transpose()?;
     let client = args.client.client()?;
     let bytes = std::fs::read(&args.scene)
         .with_context(|| format!("cannot read {}", args.scene.display()))?;
@@ -152,9 +156,16 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
         .submit_with_environment(bytes, &file_name, &settings, environment_image)
         .await
         .with_context(|| format!("submitting {}", args.scene.display()))?;
-    println!("{}", created.id);
     if !args.wait {
+        if args.json {
+            print_json(&created)?;
+        } else {
+            println!("{}", created.id);
+        }
         return Ok(());
+    }
+    if !args.json {
+        println!("{}", created.id);
     }
     let bar = ProgressBar::new(created.samples_planned);
     bar.set_style(
@@ -187,7 +198,9 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
         tokio::time::sleep(Duration::from_millis(200)).await;
     };
     bar.finish_and_clear();
-    print_summary(&job);
+    if !args.json {
+        print_summary(&job);
+    }
     if let (Some(out), Some(format)) = (&args.out, format) {
         let quiet = |e: &ClientError| eprintln!("no answer from the server ({e}); retrying");
         let bytes = match format {
@@ -206,7 +219,14 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
         .with_context(|| format!("fetching the image of job {}", job.id))?;
         pathfarm_worker::files::write_atomic(out, &bytes)
             .with_context(|| format!("cannot write {}", out.display()))?;
-        println!("wrote {}", out.display());
+        if args.json {
+            eprintln!("wrote {}", out.display());
+        } else {
+            println!("wrote {}", out.display());
+        }
+    }
+    if args.json {
+        print_json(&job)?;
     }
     if job.state.as_str() != "completed" {
         bail!("job {} ended {}", job.id, job.state.as_str());
@@ -263,10 +283,15 @@ pub struct JobsArgs {
     /// Only jobs in this state (queued, running, paused, completed, cancelled, failed).
     #[arg(long)]
     pub state: Option<String>,
+    /// Page of the list, from 1 (newest jobs first).
     #[arg(long, default_value_t = 1)]
     pub page: u32,
+    /// Jobs per page (at most 500).
     #[arg(long, default_value_t = 50)]
     pub per_page: u32,
+    /// Print the API's JSON page instead of a table.
+    #[arg(long)]
+    pub json: bool,
     #[command(flatten)]
     pub client: ClientArgs,
 }
@@ -276,7 +301,11 @@ pub async fn jobs(args: JobsArgs) -> Result<()> {
         .client
         .client()?
         .jobs(args.state.as_deref(), args.page, args.per_page)
-        .await?;
+        .await
+        .context("listing jobs")?;
+    if args.json {
+        return print_json(&list);
+    }
     println!(
         "{:<32}  {:<10} {:>4} {:>7} {:>9}  NAME",
         "ID", "STATE", "PRIO", "DONE", "ERROR"
@@ -304,43 +333,206 @@ pub async fn jobs(args: JobsArgs) -> Result<()> {
 
 #[derive(Args, Debug)]
 pub struct JobArgs {
+    /// The job's id (as `submit` and `jobs` print it).
     pub id: String,
-    /// Print the full JSON.
+    /// Print the API's JSON of the job instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Download the job's image to this file: .exr (float32 linear, the exact accumulation) or
+    /// .png (tone-mapped). The current image of an unfinished job; checked before downloading.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// With --out FILE.png: exposure in stops.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        allow_negative_numbers = true,
+        requires = "out"
+    )]
+    pub exposure: f32,
+    /// With --out FILE.exr: add the `variance` and `samples` channels.
+    #[arg(long, requires = "out")]
+    pub extra_channels: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
+pub async fn job(args: JobArgs) -> Result<()> {
+    let format = args.out.as_deref().map(check_output).transpose()?;
+    if args.extra_channels && format == Some(OutFormat::Png) {
+        bail!("--extra-channels needs an .exr --out");
+    }
+    let client = args.client.client()?;
+    let j = client
+        .job(&args.id)
+        .await
+        .with_context(|| format!("job {}", args.id))?;
+    if let (Some(out), Some(format)) = (&args.out, format) {
+        let bytes = match format {
+            OutFormat::Exr => client.image_exr(&j.id, args.extra_channels).await,
+            OutFormat::Png => client.preview_png(&j.id, args.exposure).await,
+        }
+        .with_context(|| format!("downloading the image of job {}", j.id))?;
+        pathfarm_worker::files::write_atomic(out, &bytes)
+            .with_context(|| format!("cannot write {}", out.display()))?;
+        let line = format!(
+            "wrote {} (job {}: {}, {}/{} samples)",
+            out.display(),
+            j.id,
+            j.state.as_str(),
+            j.samples_done,
+            j.samples_planned
+        );
+        if args.json {
+            eprintln!("{line}");
+        } else {
+            println!("{line}");
+            return Ok(());
+        }
+    }
+    if args.json {
+        print_json(&j)
+    } else {
+        print_details(&j);
+        Ok(())
+    }
+}
+
+/// `cancel`, `pause`, `resume` and `delete`: one job by id.
+#[derive(Args, Debug)]
+pub struct JobActionArgs {
+    /// The job's id (as `submit` and `jobs` print it).
+    pub id: String,
+    /// Print the API's JSON answer (the job; for `delete`, {"id", "deleted"}) instead of text.
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
     pub client: ClientArgs,
 }
 
-pub async fn job(args: JobArgs) -> Result<()> {
-    let j = args.client.client()?.job(&args.id).await?;
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&j)?);
-    } else {
-        print_details(&j);
-    }
-    Ok(())
+/// What a job command asks of the server.
+#[derive(Clone, Copy, Debug)]
+pub enum JobAction {
+    Cancel,
+    Pause,
+    Resume,
+    Delete,
 }
 
-pub async fn cancel(args: JobArgs) -> Result<()> {
-    let j = args.client.client()?.job_action(&args.id, "cancel").await?;
-    print_summary(&j);
+#[derive(Serialize)]
+struct Deleted<'a> {
+    id: &'a str,
+    deleted: bool,
+}
+
+pub async fn job_action(action: JobAction, args: JobActionArgs) -> Result<()> {
+    let client = args.client.client()?;
+    let verb = match action {
+        JobAction::Cancel => "cancel",
+        JobAction::Pause => "pause",
+        JobAction::Resume => "resume",
+        JobAction::Delete => {
+            client
+                .delete_job(&args.id)
+                .await
+                .with_context(|| format!("deleting job {}", args.id))?;
+            if args.json {
+                return print_json(&Deleted {
+                    id: &args.id,
+                    deleted: true,
+                });
+            }
+            println!("deleted job {}", args.id);
+            return Ok(());
+        }
+    };
+    let j = client
+        .job_action(&args.id, verb)
+        .await
+        .with_context(|| format!("{verb} job {}", args.id))?;
+    if args.json {
+        print_json(&j)
+    } else {
+        print_summary(&j);
+        Ok(())
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct PriorityArgs {
+    /// The job's id (as `submit` and `jobs` print it).
+    pub id: String,
+    /// The new priority: higher runs first; equal priorities share the farm.
+    #[arg(allow_negative_numbers = true)]
+    pub priority: i32,
+    /// Print the API's JSON of the job instead of text.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
+pub async fn priority(args: PriorityArgs) -> Result<()> {
+    let j = args
+        .client
+        .client()?
+        .set_priority(&args.id, args.priority)
+        .await
+        .with_context(|| format!("setting the priority of job {}", args.id))?;
+    if args.json {
+        print_json(&j)
+    } else {
+        print_summary(&j);
+        println!("priority {}", j.priority);
+        Ok(())
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct WorkersArgs {
+    /// Print the API's JSON list instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
+fn print_worker(w: &WorkerView) {
+    println!(
+        "{:<24} {:<8} {:>7} {:>10.2} {:>13}  {}",
+        w.name,
+        w.state.as_str(),
+        w.threads,
+        w.samples_per_second / 1e6,
+        w.samples_done,
+        w.current_job.as_deref().unwrap_or("-")
+    );
+}
+
+pub async fn workers(args: WorkersArgs) -> Result<()> {
+    let list = args
+        .client
+        .client()?
+        .workers()
+        .await
+        .context("listing workers")?;
+    if args.json {
+        return print_json(&list);
+    }
+    println!(
+        "{:<24} {:<8} {:>7} {:>10} {:>13}  JOB",
+        "NAME", "STATE", "THREADS", "M SAMPLE/S", "SAMPLES"
+    );
+    for w in &list.workers {
+        print_worker(w);
+    }
+    println!("{} workers", list.workers.len());
     Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn out_format_is_known_from_the_extension() {
-        assert_eq!(out_format(Path::new("a/b.PNG")).unwrap(), OutFormat::Png);
-        assert_eq!(out_format(Path::new("b.exr")).unwrap(), OutFormat::Exr);
-        for bad in ["b.jpg", "b", "exr", "dir/.png.txt"] {
-            let e = out_format(Path::new(bad)).unwrap_err().to_string();
-            assert!(e.contains("--out must end in .exr or .png"), "{bad}: {e}");
-        }
-    }
 
     /// Against a real port nothing listens on: transient failures are retried until the patience
     /// runs out, then the last error is returned; a lasting failure is not retried.

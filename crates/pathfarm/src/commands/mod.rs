@@ -1,5 +1,6 @@
 pub mod bench;
 pub mod client;
+pub mod output;
 pub mod render;
 pub mod serve;
 pub mod up;

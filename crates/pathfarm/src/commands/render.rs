@@ -1,5 +1,6 @@
 //! `pathfarm render`: render a scene on this machine, in progressive passes, to EXR or PNG.
 
+use super::output::{check_output, OutFormat};
 use crate::resolver::DirectoryResolver;
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -20,13 +21,16 @@ use std::time::{Duration, Instant};
 /// Render settings shared by `render` and (later) `submit`.
 #[derive(Args, Clone, Debug)]
 pub struct SettingsArgs {
+    /// Image width in pixels.
     #[arg(long, default_value_t = 256)]
     pub width: u32,
+    /// Image height in pixels.
     #[arg(long, default_value_t = 256)]
     pub height: u32,
     /// Samples (camera paths) per pixel.
     #[arg(long, default_value_t = 64)]
     pub spp: u32,
+    /// Random seed: the image depends only on the scene, the settings and this.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Direct-lighting strategy: hemisphere, cosine, bsdf, light or mis.
@@ -196,7 +200,8 @@ pub struct RenderArgs {
     /// against it as a fraction of the reference's mean (for speed-against-accuracy measurements).
     #[arg(long)]
     pub reference: Option<PathBuf>,
-    /// Output file: .exr (float32 linear) or .png (tone-mapped sRGB).
+    /// Output file: .exr (float32 linear) or .png (tone-mapped sRGB). Its folder must exist;
+    /// checked before the scene is loaded.
     #[arg(long)]
     pub out: Option<PathBuf>,
 }
@@ -268,6 +273,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if args.settings.spp == 0 && args.debug_sample.is_none() {
         bail!("--spp must be positive");
     }
+    // The output file is checked before anything is loaded or rendered.
+    let out = match (&args.out, &args.debug_sample) {
+        (Some(out), _) => Some((out.clone(), check_output(out)?)),
+        (None, Some(_)) => None,
+        (None, None) => bail!("--out FILE.exr|FILE.png is required"),
+    };
     if let Some(threads) = args.threads {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads.max(1))
@@ -315,16 +326,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
         );
         return Ok(());
     }
-    let Some(out) = args.out.clone() else {
+    let Some((out, format)) = out else {
         bail!("--out FILE.exr|FILE.png is required")
     };
-    let ext = out
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    if !matches!(ext.as_deref(), Some("exr") | Some("png")) {
-        bail!("--out must end in .exr or .png, not {}", out.display());
-    }
 
     let reference = match &args.reference {
         Some(path) => {
@@ -359,9 +363,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     );
     let samples = acc.total_samples();
     let secs = elapsed.as_secs_f64();
-    let bytes = match ext.as_deref() {
-        Some("png") => encode_png(&acc, args.exposure)?,
-        _ => encode_exr(
+    let bytes = match format {
+        OutFormat::Png => encode_png(&acc, args.exposure)?,
+        OutFormat::Exr => encode_exr(
             &acc,
             ExrChannels {
                 variance: args.extra_channels,
@@ -372,7 +376,17 @@ pub fn run(args: RenderArgs) -> Result<()> {
     pathfarm_worker::files::write_atomic(&out, &bytes)
         .with_context(|| format!("cannot write {}", out.display()))?;
     if acc.invalid_count > 0 {
-        tracing::warn!(count = acc.invalid_count, first = ?acc.invalid.first(), "invalid samples were dropped; re-render one with --debug-sample X,Y,INDEX");
+        // One line for them all (the tracer counts them rather than logging each).
+        let first = acc
+            .invalid
+            .first()
+            .map_or("-".to_string(), |s| format!("{},{},{}", s.x, s.y, s.index));
+        tracing::warn!(
+            count = acc.invalid_count,
+            first = %first,
+            "invalid samples (NaN, infinite, negative or huge) were dropped; re-render one with \
+             --debug-sample X,Y,INDEX (the first: --debug-sample {first})"
+        );
     }
     let rel = acc
         .relative_error()

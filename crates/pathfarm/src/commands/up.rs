@@ -18,6 +18,7 @@ pub struct UpArgs {
     /// Render threads per worker.
     #[arg(long, env = "PATHFARM_THREADS_PER_WORKER", default_value_t = 1)]
     pub threads_per_worker: usize,
+    /// Port to listen on (the dashboard and API at http://HOST:PORT).
     #[arg(long, env = "PATHFARM_PORT", default_value_t = 8080)]
     pub port: u16,
     /// Address to listen on.

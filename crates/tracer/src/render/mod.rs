@@ -81,7 +81,9 @@ fn render_row(
                 invalid.sort_by_key(|s| (s.x, s.index));
                 invalid.truncate(MAX_RECORDED_INVALID);
             }
-            tracing::warn!(x, y, index, radiance = ?r.radiance, "invalid sample dropped (NaN, infinite, negative or huge)");
+            // Counted and recorded, not logged one by one: callers report the count and the
+            // first examples once (a broken scene can make every sample invalid).
+            tracing::trace!(x, y, index, radiance = ?r.radiance, "invalid sample dropped (NaN, infinite, negative or huge)");
         }
     });
     invalid.sort_by_key(|s| (s.x, s.index));
