@@ -62,6 +62,40 @@ impl Default for Limits {
     }
 }
 
+/// How long the server waits for a client, and how many connections it serves at once
+/// ([`crate::connections`]). Every wait has a bound, so a client that stalls is let go and a
+/// crowd of them cannot take more than [`ConnectionLimits::max_connections`] sockets.
+#[derive(Clone, Debug)]
+pub struct ConnectionLimits {
+    /// A request's header must arrive within this much time of its first byte (of the accept, for
+    /// a connection's first request); else the connection is closed.
+    pub header_timeout: Duration,
+    /// A keep-alive connection with no request under way is closed after this much silence.
+    pub keep_alive_timeout: Duration,
+    /// A request body is cut off (408 `body_timeout`, the connection closed) when no byte of it
+    /// arrives for this long, or when it falls behind [`ConnectionLimits::body_min_rate`]: the
+    /// body must have arrived by `body_timeout` plus its bytes so far at that rate after it began.
+    pub body_timeout: Duration,
+    /// Bytes a second a request body must keep up on average (after the grace of
+    /// [`ConnectionLimits::body_timeout`]); 0: only the idle bound applies.
+    pub body_min_rate: u64,
+    /// Most connections open at once. Beyond it the server stops accepting: further connections
+    /// wait in the kernel's accept queue (the listen backlog) until one closes.
+    pub max_connections: usize,
+}
+
+impl Default for ConnectionLimits {
+    fn default() -> Self {
+        ConnectionLimits {
+            header_timeout: Duration::from_secs(10),
+            keep_alive_timeout: Duration::from_secs(60),
+            body_timeout: Duration::from_secs(30),
+            body_min_rate: 64 << 10,
+            max_connections: 1024,
+        }
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct ServerConfig {
     /// `sqlite://FILE` or `postgres://…`.
@@ -90,6 +124,8 @@ pub struct ServerConfig {
     /// How long image work waits for room in the image budget before it is refused (503 `busy`
     /// with `Retry-After`).
     pub image_wait: Duration,
+    /// Timeouts and the connection cap.
+    pub connections: ConnectionLimits,
 }
 
 impl ServerConfig {
@@ -104,6 +140,7 @@ impl ServerConfig {
             limits: Limits::default(),
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,
+            connections: ConnectionLimits::default(),
         }
     }
 

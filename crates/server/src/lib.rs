@@ -7,6 +7,7 @@
 
 pub mod auth;
 pub mod config;
+pub mod connections;
 pub mod dashboard;
 pub mod error;
 pub mod heatmap;
@@ -22,7 +23,7 @@ pub mod single_flight;
 pub mod states;
 pub mod store;
 
-pub use config::{Limits, ServerConfig};
+pub use config::{ConnectionLimits, Limits, ServerConfig};
 pub use store::Store;
 
 use axum::extract::DefaultBodyLimit;
@@ -88,7 +89,10 @@ fn router(state: AppState, listen: Option<std::net::SocketAddr>) -> Router {
     let mut router = Router::new();
     for r in routes::api_routes() {
         let limit = routes::body_limit(&r.method, r.path, &state.config.limits);
-        router = router.route(r.path, r.handler.layer(DefaultBodyLimit::max(limit)));
+        let handler = r.handler.layer(DefaultBodyLimit::max(limit)).layer(
+            axum::middleware::from_fn_with_state(limit, connections::declared_length),
+        );
+        router = router.route(r.path, handler);
     }
     let router = router
         .route_layer(axum::middleware::from_fn_with_state(
@@ -119,11 +123,16 @@ fn router(state: AppState, listen: Option<std::net::SocketAddr>) -> Router {
         .layer(axum::middleware::map_response(error::json_errors))
         .layer(DefaultBodyLimit::max(config::MAX_JSON_BODY_BYTES))
         .layer(tower_http::trace::TraceLayer::new_for_http())
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            connections::track,
+        ))
         .with_state(state)
 }
 
 /// Serves the API on `listener` until `shutdown` resolves, running the monitor loop alongside;
-/// in-flight requests finish before it returns.
+/// in-flight requests finish before it returns. Connections are held to the timeouts and the cap
+/// of [`ConnectionLimits`] ([`connections`]).
 pub async fn serve(
     state: AppState,
     listener: tokio::net::TcpListener,
@@ -131,7 +140,10 @@ pub async fn serve(
 ) -> std::io::Result<()> {
     let listen = listener.local_addr()?;
     let monitor = tokio::spawn(monitor::run(state.clone()));
-    let result = axum::serve(listener, app_listening_on(state.clone(), listen))
+    let listener = connections::GuardedListener::new(listener, state.clone());
+    let app = app_listening_on(state.clone(), listen)
+        .into_make_service_with_connect_info::<connections::ConnHandle>();
+    let result = axum::serve(listener, app)
         .with_graceful_shutdown(shutdown)
         .await;
     monitor.abort();

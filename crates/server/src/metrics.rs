@@ -25,6 +25,14 @@ pub struct Metrics {
     pub lease_expiries: AtomicU64,
     pub leases: AtomicU64,
     pub lease_micros_total: AtomicU64,
+    /// Connections open now ([`crate::connections`]).
+    pub open_connections: AtomicU64,
+    /// Connections closed because a request's header did not arrive in time.
+    pub header_timeouts: AtomicU64,
+    /// Idle keep-alive connections closed.
+    pub keep_alive_timeouts: AtomicU64,
+    /// Request bodies cut off (408 `body_timeout`).
+    pub body_timeouts: AtomicU64,
     /// Request latency per (method, route template).
     requests: Mutex<BTreeMap<(String, String), Histogram>>,
 }
@@ -119,6 +127,30 @@ impl Metrics {
             "pathfarm_lease_expiries_total",
             "Leases that expired without their task finishing (their unmerged samples requeued).",
             get(&self.lease_expiries),
+        );
+        counter(
+            &mut out,
+            "pathfarm_http_header_timeouts_total",
+            "Connections closed because a request's header did not arrive within the header timeout.",
+            get(&self.header_timeouts),
+        );
+        counter(
+            &mut out,
+            "pathfarm_http_keep_alive_timeouts_total",
+            "Keep-alive connections closed after the idle timeout.",
+            get(&self.keep_alive_timeouts),
+        );
+        counter(
+            &mut out,
+            "pathfarm_http_body_timeouts_total",
+            "Request bodies cut off by the body timeout (answered 408).",
+            get(&self.body_timeouts),
+        );
+        let _ = writeln!(
+            out,
+            "# HELP pathfarm_http_connections Connections open now.\n\
+             # TYPE pathfarm_http_connections gauge\npathfarm_http_connections {}",
+            get(&self.open_connections)
         );
         let gauge = |out: &mut String, name: &str, help: &str, values: &[(&str, u64)]| {
             let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge");

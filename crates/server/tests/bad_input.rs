@@ -116,16 +116,19 @@ async fn malformed_requests_get_documented_errors() {
                     .header("pathfarm-lease-token", "t")
                     .body(Body::from(&b"PFSL\x01\x00garbage"[..]))
                     .unwrap(),
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "invalid_slice",
+                // The lease is checked before the body is read: there is no task 1.
+                StatusCode::NOT_FOUND,
+                "not_found",
             ),
             (
-                req(
-                    "POST",
-                    "/api/v1/tasks/1/slices",
-                    Some("application/x-pathfarm-slice"),
-                    vec![0u8; 2 << 20],
-                ),
+                // A declared length over the route's limit is refused before anything else.
+                Request::builder()
+                    .method("POST")
+                    .uri("/api/v1/tasks/1/slices")
+                    .header("content-type", "application/x-pathfarm-slice")
+                    .header("content-length", 2 << 20)
+                    .body(Body::from(vec![0u8; 2 << 20]))
+                    .unwrap(),
                 StatusCode::PAYLOAD_TOO_LARGE,
                 "too_large",
             ),

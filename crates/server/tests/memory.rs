@@ -144,7 +144,8 @@ async fn plans_over_the_limits_are_refused_before_they_are_built() {
 /// A slice body over the slice limit is refused with 413 (JSON, naming the limit), a JSON body
 /// over the JSON limit too; a slice that claims a tile other than its task's, or comes without
 /// the task's lease, is refused before its pixels are decoded: the largest allocation stays
-/// around the body's size, where decoding the claimed 800,000 pixels took 64 MB.
+/// around the body's size, where decoding the claimed 40,000 pixels would take 2.9 MB. (A body
+/// over the largest slice of its task's tile is refused before it is read: `connections.rs`.)
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slice_uploads_allocate_no_more_than_their_tile() {
     let _serial = SERIAL.lock().await;
@@ -200,13 +201,15 @@ async fn slice_uploads_allocate_no_more_than_their_tile() {
     .await;
     assert_eq!(status, StatusCode::PAYLOAD_TOO_LARGE, "{err}");
 
-    // A well-formed body (valid checksum) claiming 1000x800 pixels, all of them there.
-    let pixels = 1000 * 800;
+    // A well-formed body (valid checksum) claiming 200x200 pixels, all of them there: within
+    // the largest slice of the task's 64x64 tile, so it is read, but decoded it would take 72
+    // bytes a pixel.
+    let pixels = 200 * 200;
     let mut body = Vec::with_capacity(4 << 20);
     body.extend_from_slice(b"PFSL");
     body.extend_from_slice(&1u16.to_le_bytes());
     body.extend_from_slice(&0u16.to_le_bytes());
-    for v in [0u32, 0, 1000, 800, 0, 1] {
+    for v in [0u32, 0, 200, 200, 0, 1] {
         body.extend_from_slice(&v.to_le_bytes());
     }
     body.extend_from_slice(&[0, 0, 0]); // rays, invalid, recorded (invalid stays honest below)

@@ -42,6 +42,23 @@ pub struct ServerArgs {
     /// image work that finds no room within 30 s is answered 503.
     #[arg(long, env = "PATHFARM_IMAGE_CACHE_MIB", default_value_t = 1024)]
     pub image_cache_mib: usize,
+    /// Seconds a request's header may take from its first byte (from the accept, for a
+    /// connection's first request); a client slower than this is disconnected.
+    #[arg(long, env = "PATHFARM_HEADER_TIMEOUT_SECONDS", default_value_t = 10.0)]
+    pub header_timeout_seconds: f64,
+    /// Seconds an idle keep-alive connection is kept open.
+    #[arg(long, env = "PATHFARM_KEEP_ALIVE_SECONDS", default_value_t = 60.0)]
+    pub keep_alive_seconds: f64,
+    /// Seconds a request body may go without a byte; past this grace it must also keep up
+    /// `--body-min-kib-per-second` on average, or it is cut off with 408.
+    #[arg(long, env = "PATHFARM_BODY_TIMEOUT_SECONDS", default_value_t = 30.0)]
+    pub body_timeout_seconds: f64,
+    /// Least average rate of a request body, in KiB/s (0: only `--body-timeout-seconds`).
+    #[arg(long, env = "PATHFARM_BODY_MIN_KIB_PER_SECOND", default_value_t = 64)]
+    pub body_min_kib_per_second: u64,
+    /// Most connections open at once; further ones wait to be accepted until one closes.
+    #[arg(long, env = "PATHFARM_MAX_CONNECTIONS", default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_connections: u32,
 }
 
 impl ServerArgs {
@@ -68,6 +85,21 @@ impl ServerArgs {
         c.limits.scene_checks = usize::from(self.scene_checks);
         c.limits.max_scene_triangles = self.max_scene_triangles;
         c.image_cache_bytes = self.image_cache_mib.saturating_mul(1 << 20);
+        let seconds = |flag: &str, v: f64| {
+            if (0.001..=1e6).contains(&v) {
+                Ok(Duration::from_secs_f64(v))
+            } else {
+                Err(anyhow::anyhow!(
+                    "--{flag} must be between 0.001 and 1000000 seconds"
+                ))
+            }
+        };
+        c.connections.header_timeout =
+            seconds("header-timeout-seconds", self.header_timeout_seconds)?;
+        c.connections.keep_alive_timeout = seconds("keep-alive-seconds", self.keep_alive_seconds)?;
+        c.connections.body_timeout = seconds("body-timeout-seconds", self.body_timeout_seconds)?;
+        c.connections.body_min_rate = self.body_min_kib_per_second.saturating_mul(1024);
+        c.connections.max_connections = self.max_connections as usize;
         Ok(c)
     }
 }

@@ -1,18 +1,22 @@
 //! What workers call while rendering: fetch a scene, upload slices, give a lease back.
 
-use super::{body_error, json_body, json_bytes, no_nul, parse_id};
+use super::{json_body, json_bytes, no_nul, parse_id};
 use crate::auth::WorkerAuth;
+use crate::connections::content_length;
 use crate::error::{ApiError, ApiResult};
 use crate::store::MergeOutcome;
 use crate::AppState;
-use axum::body::Bytes;
+use axum::body::{Body, Bytes};
 use axum::extract::rejection::BytesRejection;
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::IntoResponse;
 use axum::Json;
+use http_body_util::BodyExt;
 use pathfarm_wire::api::{Release, SliceAck, LEASE_TOKEN_HEADER, SLICE_CONTENT_TYPE};
-use pathfarm_wire::{decode_slice, decode_slice_header, SliceError, SliceLimits};
+use pathfarm_wire::{
+    decode_slice, decode_slice_header, max_slice_body_bytes, SliceError, SliceLimits,
+};
 use std::sync::atomic::Ordering;
 
 /// The scene bytes by content hash (immutable, so cacheable forever).
@@ -34,17 +38,19 @@ pub async fn scene(
 /// `POST /api/v1/tasks/{id}/slices`: one slice's accumulation, binary (`application/x-pathfarm-slice`),
 /// with the lease token in the `Pathfarm-Lease-Token` header.
 ///
-/// The body is read within the slice limit; its pixels are decoded only once the token is known
-/// to hold the task and the header names the task's tile, so an upload makes the server allocate
-/// no more than the tile it may write to.
+/// Everything that can refuse the upload without its body is checked before a byte of it is
+/// read: the worker token, the content type, the lease token against the task, and the declared
+/// length against the largest honest slice of the task's tile (`wire::max_slice_body_bytes`)
+/// and the slice limit. The body is then read within that bound; its pixels are decoded only
+/// once its header names the task's tile, so an upload makes the server allocate no more than
+/// the tile it may write to.
 pub async fn upload_slice(
     _: WorkerAuth,
     State(state): State<AppState>,
     Path(id): Path<String>,
     headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
+    body: Body,
 ) -> ApiResult<Json<SliceAck>> {
-    let body = body.map_err(|e| body_error(e, "slice", state.config.limits.max_slice_bytes))?;
     let task_id = parse_id(&id, "task")?;
     let ct = headers
         .get(header::CONTENT_TYPE)
@@ -67,7 +73,7 @@ pub async fn upload_slice(
             )
         })?
         .to_string();
-    match merge_upload(&state, task_id, &token, &body).await {
+    match merge_upload(&state, task_id, &token, &headers, body).await {
         Ok(out) => {
             if out.ack.duplicate {
                 state
@@ -107,16 +113,40 @@ fn slice_error(e: SliceError) -> ApiError {
     }
 }
 
-/// Header, lease, tile, then the pixels, then the merge (which checks the lease again, in its
-/// transaction).
+/// Lease and declared length, then the body, its header against the tile, the pixels, then the
+/// merge (which checks the lease again, in its transaction).
 async fn merge_upload(
     state: &AppState,
     task_id: i64,
     token: &str,
-    body: &[u8],
+    headers: &HeaderMap,
+    body: Body,
 ) -> ApiResult<MergeOutcome> {
-    let claimed = decode_slice_header(body).map_err(slice_error)?;
     let tile = state.store.leased_tile(task_id, token).await?;
+    // A task never spans more than `u32::MAX` samples (a job's spp is a `u32`).
+    let honest = max_slice_body_bytes(tile.pixel_count(), u64::from(u32::MAX));
+    let limit = usize::try_from(honest)
+        .unwrap_or(usize::MAX)
+        .min(state.config.limits.max_slice_bytes);
+    let too_large = |what: String| {
+        ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too_large",
+            format!(
+                "{what} exceeds the limit of {limit} bytes for task {task_id} (its {}x{} tile's \
+                 largest slice, at most the slice limit of {} bytes)",
+                tile.width, tile.height, state.config.limits.max_slice_bytes
+            ),
+        )
+    };
+    let declared = content_length(headers);
+    if let Some(n) = declared.filter(|&n| n > limit as u64) {
+        return Err(too_large(format!("the slice body's declared {n} bytes")));
+    }
+    let body = read_body(body, limit, declared)
+        .await?
+        .ok_or_else(|| too_large("the slice body".to_string()))?;
+    let claimed = decode_slice_header(&body).map_err(slice_error)?;
     if (claimed.x0, claimed.y0, claimed.width, claimed.height)
         != (tile.x0, tile.y0, tile.width, tile.height)
     {
@@ -138,8 +168,32 @@ async fn merge_upload(
     let limits = SliceLimits {
         max_pixels: tile.pixel_count().min(state.config.limits.max_pixels),
     };
-    let slice = decode_slice(body, &limits).map_err(slice_error)?;
+    let slice = decode_slice(&body, &limits).map_err(slice_error)?;
     state.store.merge_slice(task_id, token, slice).await
+}
+
+/// Reads a body of at most `limit` bytes (None: it is longer), into one buffer sized by its
+/// declared length when it has one.
+async fn read_body(
+    mut body: Body,
+    limit: usize,
+    declared: Option<u64>,
+) -> ApiResult<Option<Vec<u8>>> {
+    let capacity = declared.map_or(0, |n| usize::try_from(n).unwrap_or(limit).min(limit));
+    let mut buf = Vec::with_capacity(capacity);
+    while let Some(frame) = body.frame().await {
+        let frame = frame.map_err(|e| {
+            ApiError::bad_request("bad_body", format!("the body could not be read: {e}"))
+        })?;
+        let Ok(chunk) = frame.into_data() else {
+            continue; // trailers
+        };
+        if chunk.len() > limit - buf.len() {
+            return Ok(None);
+        }
+        buf.extend_from_slice(&chunk);
+    }
+    Ok(Some(buf))
 }
 
 pub async fn release(

@@ -1,0 +1,573 @@
+//! Connection hygiene: every wait for a client has a bound, and the connections open at once have
+//! a cap ([`ConnectionLimits`]).
+//!
+//! - [`GuardedListener`] is what [`crate::serve`] accepts from. It takes a permit before each
+//!   accept, so beyond `max_connections` the server stops accepting and further connections wait
+//!   in the kernel's accept queue until one closes (they are neither refused nor answered: a
+//!   client that connects at such a time is served late, not turned away). The permit is held by
+//!   the connection's socket ([`GuardedIo`]) and given back when it closes.
+//! - [`GuardedIo`] closes a connection whose client keeps it waiting: a request's header must
+//!   arrive within `header_timeout` of its first byte (of the accept, for the first request), and
+//!   a connection with no request under way is closed after `keep_alive_timeout` of silence. It
+//!   knows which of the two applies from [`Connection`], which [`track`] keeps up to date: a
+//!   request under way (from its header until its response's body is sent) sets no deadline on
+//!   the connection.
+//! - [`track`] also gives every request body a deadline ([`TimedBody`]): no byte for
+//!   `body_timeout`, or an average rate below `body_min_rate` past that grace, and the body is
+//!   cut off; the request is answered 408 `body_timeout` and the connection closed.
+//!
+//! How much of a body the server reads at all is decided before it reads any: each route's limit
+//! against the declared `Content-Length` ([`declared_length`], 413 `too_large`), and per route the
+//! token, the content type and (for a slice) the lease.
+
+use crate::config::ConnectionLimits;
+use crate::error::ApiError;
+use crate::AppState;
+use axum::body::{Body, Bytes, HttpBody};
+use axum::extract::connect_info::{ConnectInfo, Connected};
+use axum::extract::{Request, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use axum::serve::IncomingStream;
+use http_body::Frame;
+use std::future::Future;
+use std::io;
+use std::net::SocketAddr;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll, Waker};
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tokio::time::{Instant, Sleep};
+
+/// What a connection is doing, as far as its deadlines go.
+#[derive(Clone, Copy, Debug)]
+enum Phase {
+    /// Reading a request's header, since the accept or since its first byte.
+    Header(Instant),
+    /// No request under way, since the last response was sent.
+    Idle(Instant),
+    /// This many requests under way (more than one only with HTTP/2): no deadline on the
+    /// connection; their bodies have their own.
+    Busy(u32),
+}
+
+/// One connection's phase, shared by its socket ([`GuardedIo`]) and its requests ([`track`]).
+#[derive(Debug)]
+pub struct Connection {
+    state: Mutex<ConnState>,
+    header_timeout: Duration,
+    keep_alive_timeout: Duration,
+}
+
+#[derive(Debug)]
+struct ConnState {
+    phase: Phase,
+    /// The task that last found nothing to read while a request was under way. hyper reads
+    /// again after a response only when the socket has data, so when the connection turns idle
+    /// this task is woken to read once more and set the keep-alive deadline.
+    reader: Option<Waker>,
+}
+
+/// Which bound closed a connection.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Expired {
+    Header,
+    KeepAlive,
+}
+
+impl Connection {
+    fn new(limits: &ConnectionLimits) -> Connection {
+        Connection {
+            state: Mutex::new(ConnState {
+                phase: Phase::Header(Instant::now()),
+                reader: None,
+            }),
+            header_timeout: limits.header_timeout,
+            keep_alive_timeout: limits.keep_alive_timeout,
+        }
+    }
+
+    fn with_state<R>(&self, f: impl FnOnce(&mut ConnState) -> R) -> R {
+        // A panic while the lock was held cannot leave the state half-written (each change is
+        // one store).
+        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        f(&mut state)
+    }
+
+    /// When the connection is to be closed if nothing happens, and why; without a deadline,
+    /// `reader` is kept to be woken when one begins.
+    fn deadline(&self, reader: &Waker) -> Option<(Instant, Expired)> {
+        self.with_state(|s| match s.phase {
+            Phase::Header(since) => Some((since + self.header_timeout, Expired::Header)),
+            Phase::Idle(since) => Some((since + self.keep_alive_timeout, Expired::KeepAlive)),
+            Phase::Busy(_) => {
+                if !s.reader.as_ref().is_some_and(|w| w.will_wake(reader)) {
+                    s.reader = Some(reader.clone());
+                }
+                None
+            }
+        })
+    }
+
+    /// Bytes arrived: on an idle connection they begin a request's header.
+    fn bytes_read(&self) {
+        self.with_state(|s| {
+            if let Phase::Idle(_) = s.phase {
+                s.phase = Phase::Header(Instant::now());
+            }
+        })
+    }
+
+    fn request_started(&self) {
+        self.with_state(|s| {
+            s.phase = match s.phase {
+                Phase::Busy(n) => Phase::Busy(n.saturating_add(1)),
+                _ => Phase::Busy(1),
+            }
+        })
+    }
+
+    fn request_finished(&self) {
+        let reader = self.with_state(|s| match s.phase {
+            Phase::Busy(n) if n > 1 => {
+                s.phase = Phase::Busy(n - 1);
+                None
+            }
+            _ => {
+                s.phase = Phase::Idle(Instant::now());
+                s.reader.take()
+            }
+        });
+        if let Some(reader) = reader {
+            reader.wake();
+        }
+    }
+}
+
+/// Marks a request under way on its connection until dropped (with the response's body).
+struct Busy(Arc<Connection>);
+
+impl Busy {
+    fn start(conn: Arc<Connection>) -> Busy {
+        conn.request_started();
+        Busy(conn)
+    }
+}
+
+impl Drop for Busy {
+    fn drop(&mut self) {
+        self.0.request_finished();
+    }
+}
+
+/// The connection a request came on, for [`track`] (through axum's `ConnectInfo`).
+#[derive(Clone, Debug)]
+pub struct ConnHandle {
+    pub remote: SocketAddr,
+    conn: Arc<Connection>,
+}
+
+impl Connected<IncomingStream<'_, GuardedListener>> for ConnHandle {
+    fn connect_info(stream: IncomingStream<'_, GuardedListener>) -> Self {
+        ConnHandle {
+            remote: *stream.remote_addr(),
+            conn: stream.io().conn.clone(),
+        }
+    }
+}
+
+/// A TCP listener that accepts at most `max_connections` connections at once and hands each out
+/// as a [`GuardedIo`].
+pub struct GuardedListener {
+    listener: TcpListener,
+    permits: Arc<Semaphore>,
+    state: AppState,
+}
+
+impl GuardedListener {
+    pub fn new(listener: TcpListener, state: AppState) -> GuardedListener {
+        let cap = state.config.connections.max_connections.max(1);
+        GuardedListener {
+            listener,
+            permits: Arc::new(Semaphore::new(cap)),
+            state,
+        }
+    }
+}
+
+impl axum::serve::Listener for GuardedListener {
+    type Io = GuardedIo;
+    type Addr = SocketAddr;
+
+    async fn accept(&mut self) -> (GuardedIo, SocketAddr) {
+        // Taken before the accept: at the cap, connections wait in the kernel's queue.
+        let Ok(permit) = self.permits.clone().acquire_owned().await else {
+            // The semaphore is never closed; should it be, accept nothing more.
+            return std::future::pending().await;
+        };
+        loop {
+            match self.listener.accept().await {
+                Ok((io, remote)) => {
+                    let conn = Arc::new(Connection::new(&self.state.config.connections));
+                    return (GuardedIo::new(io, conn, permit, self.state.clone()), remote);
+                }
+                Err(e) => accept_error(e).await,
+            }
+        }
+    }
+
+    fn local_addr(&self) -> io::Result<SocketAddr> {
+        self.listener.local_addr()
+    }
+}
+
+/// As axum's own listener: a connection that failed before it was accepted is skipped; any other
+/// error (out of file descriptors, say) is logged and accepting pauses for a second.
+async fn accept_error(e: io::Error) {
+    if matches!(
+        e.kind(),
+        io::ErrorKind::ConnectionRefused
+            | io::ErrorKind::ConnectionAborted
+            | io::ErrorKind::ConnectionReset
+    ) {
+        return;
+    }
+    tracing::error!(error = %e, "accept failed");
+    tokio::time::sleep(Duration::from_secs(1)).await;
+}
+
+/// An accepted connection's socket: reads fail with `TimedOut` once the connection's deadline
+/// ([`Connection::deadline`]) passed with nothing to read, which makes hyper close it.
+pub struct GuardedIo {
+    io: TcpStream,
+    conn: Arc<Connection>,
+    sleep: Pin<Box<Sleep>>,
+    state: AppState,
+    _permit: OwnedSemaphorePermit,
+}
+
+impl GuardedIo {
+    fn new(
+        io: TcpStream,
+        conn: Arc<Connection>,
+        permit: OwnedSemaphorePermit,
+        state: AppState,
+    ) -> GuardedIo {
+        state
+            .metrics
+            .open_connections
+            .fetch_add(1, Ordering::Relaxed);
+        let first = conn
+            .deadline(Waker::noop())
+            .map_or_else(Instant::now, |(at, _)| at);
+        GuardedIo {
+            io,
+            conn,
+            sleep: Box::pin(tokio::time::sleep_until(first)),
+            state,
+            _permit: permit,
+        }
+    }
+}
+
+impl Drop for GuardedIo {
+    fn drop(&mut self) {
+        self.state
+            .metrics
+            .open_connections
+            .fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+impl AsyncRead for GuardedIo {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        let before = buf.filled().len();
+        match Pin::new(&mut this.io).poll_read(cx, buf) {
+            Poll::Ready(Ok(())) => {
+                if buf.filled().len() > before {
+                    this.conn.bytes_read();
+                }
+                return Poll::Ready(Ok(()));
+            }
+            Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+            Poll::Pending => {}
+        }
+        let Some((deadline, why)) = this.conn.deadline(cx.waker()) else {
+            return Poll::Pending;
+        };
+        if this.sleep.deadline() != deadline {
+            this.sleep.as_mut().reset(deadline);
+        }
+        if this.sleep.as_mut().poll(cx).is_pending() {
+            return Poll::Pending;
+        }
+        let metrics = &this.state.metrics;
+        let (counter, what) = match why {
+            Expired::Header => (&metrics.header_timeouts, "request header"),
+            Expired::KeepAlive => (&metrics.keep_alive_timeouts, "keep-alive idle"),
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+        tracing::debug!(timeout = what, "closing a connection");
+        Poll::Ready(Err(io::Error::new(
+            io::ErrorKind::TimedOut,
+            format!("{what} timeout"),
+        )))
+    }
+}
+
+impl AsyncWrite for GuardedIo {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.get_mut().io).poll_write(cx, buf)
+    }
+
+    fn poll_write_vectored(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.get_mut().io).poll_write_vectored(cx, bufs)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.io.is_write_vectored()
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.get_mut().io).poll_flush(cx)
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.get_mut().io).poll_shutdown(cx)
+    }
+}
+
+/// Middleware, outermost: marks the request under way on its connection until its response's
+/// body is sent, and gives its body a deadline ([`TimedBody`]); a body cut off by it is answered
+/// 408 `body_timeout` with `Connection: close`, whatever the handler made of the broken body.
+pub async fn track(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    let busy = req
+        .extensions()
+        .get::<ConnectInfo<ConnHandle>>()
+        .map(|info| Busy::start(info.0.conn.clone()));
+    let cut_off = Arc::new(AtomicBool::new(false));
+    let req = req.map(|body| {
+        Body::new(TimedBody::new(
+            body,
+            &state.config.connections,
+            cut_off.clone(),
+        ))
+    });
+    let mut resp = next.run(req).await;
+    if cut_off.load(Ordering::Relaxed) {
+        state.metrics.body_timeouts.fetch_add(1, Ordering::Relaxed);
+        let limits = &state.config.connections;
+        resp = ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "body_timeout",
+            format!(
+                "the request body stalled: no byte for {:.1} s, or under {} bytes/s on average \
+                 after the first {:.1} s",
+                limits.body_timeout.as_secs_f64(),
+                limits.body_min_rate,
+                limits.body_timeout.as_secs_f64()
+            ),
+        )
+        .into_response();
+        resp.headers_mut()
+            .insert(header::CONNECTION, HeaderValue::from_static("close"));
+    }
+    match busy {
+        Some(busy) => resp.map(|body| {
+            Body::new(UntilSent {
+                inner: body,
+                busy: Some(busy),
+            })
+        }),
+        None => resp,
+    }
+}
+
+/// A response body that keeps its request marked under way until it is sent (or dropped).
+struct UntilSent {
+    inner: Body,
+    busy: Option<Busy>,
+}
+
+impl HttpBody for UntilSent {
+    type Data = Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, axum::Error>>> {
+        let this = self.get_mut();
+        let frame = Pin::new(&mut this.inner).poll_frame(cx);
+        if let Poll::Ready(None) = frame {
+            this.busy = None;
+        }
+        frame
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// The error a [`TimedBody`] ends with.
+#[derive(Debug, thiserror::Error)]
+#[error("request body timed out")]
+pub struct BodyTimeout;
+
+/// A request body with a deadline: it fails with [`BodyTimeout`] when no byte came for
+/// `body_timeout` while the handler waited for one, or once it is behind `body_min_rate` past
+/// the grace of `body_timeout` (counted from the handler's first read: a handler that is busy
+/// before it reads costs the client nothing).
+pub struct TimedBody {
+    inner: Body,
+    idle: Duration,
+    min_rate: u64,
+    started: Option<Instant>,
+    last: Instant,
+    received: u64,
+    sleep: Option<Pin<Box<Sleep>>>,
+    cut_off: Arc<AtomicBool>,
+}
+
+impl TimedBody {
+    fn new(inner: Body, limits: &ConnectionLimits, cut_off: Arc<AtomicBool>) -> TimedBody {
+        TimedBody {
+            inner,
+            idle: limits.body_timeout,
+            min_rate: limits.body_min_rate,
+            started: None,
+            last: Instant::now(),
+            received: 0,
+            sleep: None,
+            cut_off,
+        }
+    }
+
+    /// When the body must have arrived, at the rate so far.
+    fn rate_deadline(&self, started: Instant) -> Option<Instant> {
+        if self.min_rate == 0 {
+            return None;
+        }
+        let allowed = Duration::from_secs_f64(self.received as f64 / self.min_rate as f64);
+        Some(started + self.idle + allowed)
+    }
+
+    fn fail(&mut self) -> Poll<Option<Result<Frame<Bytes>, axum::Error>>> {
+        self.cut_off.store(true, Ordering::Relaxed);
+        Poll::Ready(Some(Err(axum::Error::new(BodyTimeout))))
+    }
+}
+
+impl HttpBody for TimedBody {
+    type Data = Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, axum::Error>>> {
+        let this = self.get_mut();
+        if this.cut_off.load(Ordering::Relaxed) {
+            return Poll::Ready(Some(Err(axum::Error::new(BodyTimeout))));
+        }
+        let now = Instant::now();
+        let started = match this.started {
+            Some(at) => at,
+            None => {
+                this.started = Some(now);
+                this.last = now;
+                now
+            }
+        };
+        match Pin::new(&mut this.inner).poll_frame(cx) {
+            Poll::Ready(Some(Ok(frame))) => {
+                if let Some(data) = frame.data_ref() {
+                    this.received = this.received.saturating_add(data.len() as u64);
+                }
+                this.last = now;
+                if this.rate_deadline(started).is_some_and(|at| now > at) {
+                    return this.fail();
+                }
+                Poll::Ready(Some(Ok(frame)))
+            }
+            Poll::Ready(other) => Poll::Ready(other),
+            Poll::Pending => {
+                let idle_deadline = this.last + this.idle;
+                let deadline = this
+                    .rate_deadline(started)
+                    .map_or(idle_deadline, |at| at.min(idle_deadline));
+                let sleep = this
+                    .sleep
+                    .get_or_insert_with(|| Box::pin(tokio::time::sleep_until(deadline)));
+                if sleep.deadline() != deadline {
+                    sleep.as_mut().reset(deadline);
+                }
+                if sleep.as_mut().poll(cx).is_ready() {
+                    return this.fail();
+                }
+                Poll::Pending
+            }
+        }
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// The `Content-Length` a request declares, if it declares a valid one.
+pub(crate) fn content_length(headers: &axum::http::HeaderMap) -> Option<u64> {
+    headers
+        .get(header::CONTENT_LENGTH)?
+        .to_str()
+        .ok()?
+        .trim()
+        .parse()
+        .ok()
+}
+
+/// Route middleware with the route's body limit as its state: a request that declares a longer
+/// body is answered 413 `too_large` before a byte of it is read. (One without a declared length
+/// is cut off at the limit as it is read.)
+pub(crate) async fn declared_length(
+    State(limit): State<usize>,
+    req: Request,
+    next: Next,
+) -> Response {
+    match content_length(req.headers()) {
+        Some(n) if n > limit as u64 => ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too_large",
+            format!("the body's declared {n} bytes exceed this endpoint's limit of {limit} bytes"),
+        )
+        .into_response(),
+        _ => next.run(req).await,
+    }
+}
