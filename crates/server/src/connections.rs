@@ -67,9 +67,10 @@ pub struct Connection {
 #[derive(Debug)]
 struct ConnState {
     phase: Phase,
-    /// The task that last found nothing to read while a request was under way. hyper reads
-    /// again after a response only when the socket has data, so when the connection turns idle
-    /// this task is woken to read once more and set the keep-alive deadline.
+    /// The task that last found nothing to read. hyper reads again after a response only when
+    /// the socket has data (its last read may have come before the request ended), so when the
+    /// connection turns idle this task is woken to read once more and set the keep-alive
+    /// deadline.
     reader: Option<Waker>,
 }
 
@@ -99,17 +100,17 @@ impl Connection {
         f(&mut state)
     }
 
-    /// When the connection is to be closed if nothing happens, and why; without a deadline,
-    /// `reader` is kept to be woken when one begins.
+    /// When the connection is to be closed if nothing happens, and why; `reader` (found nothing
+    /// to read) is kept to be woken when the connection turns idle.
     fn deadline(&self, reader: &Waker) -> Option<(Instant, Expired)> {
-        self.with_state(|s| match s.phase {
-            Phase::Header(since) => Some((since + self.header_timeout, Expired::Header)),
-            Phase::Idle(since) => Some((since + self.keep_alive_timeout, Expired::KeepAlive)),
-            Phase::Busy(_) => {
-                if !s.reader.as_ref().is_some_and(|w| w.will_wake(reader)) {
-                    s.reader = Some(reader.clone());
-                }
-                None
+        self.with_state(|s| {
+            if !s.reader.as_ref().is_some_and(|w| w.will_wake(reader)) {
+                s.reader = Some(reader.clone());
+            }
+            match s.phase {
+                Phase::Header(since) => Some((since + self.header_timeout, Expired::Header)),
+                Phase::Idle(since) => Some((since + self.keep_alive_timeout, Expired::KeepAlive)),
+                Phase::Busy(_) => None,
             }
         })
     }
@@ -140,7 +141,7 @@ impl Connection {
             }
             _ => {
                 s.phase = Phase::Idle(Instant::now());
-                s.reader.take()
+                s.reader.clone()
             }
         });
         if let Some(reader) = reader {

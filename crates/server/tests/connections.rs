@@ -109,8 +109,10 @@ async fn a_stalled_or_trickled_header_is_disconnected_after_the_header_timeout()
     c.connections.header_timeout = Duration::from_millis(300);
     let server = TestServer::start(c).await;
 
-    let mut stalled = connect(&server).await;
+    // Before the connect: the server's clock starts at its accept, which may come before the
+    // client sees the connection.
     let started = Instant::now();
+    let mut stalled = connect(&server).await;
     stalled
         .write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n")
         .await
@@ -159,10 +161,12 @@ async fn an_idle_keep_alive_is_closed_after_the_idle_timeout() {
     c.connections.header_timeout = Duration::from_secs(30);
     let server = TestServer::start(c).await;
     let mut s = connect(&server).await;
+    // Before the request: the server's idle time starts once its response is sent, which may be
+    // before the client has read it.
+    let idle_from = Instant::now();
     s.write_all(get_healthz(&server).as_bytes()).await.unwrap();
     let (status, _, _) = read_response(&mut s).await;
     assert_eq!(status, 200);
-    let idle_from = Instant::now();
     assert!(read_until_closed(&mut s).await.is_empty());
     assert!(idle_from.elapsed() >= Duration::from_millis(400));
 
