@@ -5,6 +5,7 @@ mod health;
 mod images;
 mod jobs;
 pub(crate) mod metrics;
+mod submit;
 mod tasks;
 mod workers;
 
@@ -42,7 +43,7 @@ pub fn api_routes() -> Vec<Route> {
         route(M::GET, "/healthz", get(health::healthz)),
         route(M::GET, "/readyz", get(health::healthz)),
         route(M::GET, "/metrics", get(metrics::metrics)),
-        route(M::POST, "/api/v1/jobs", post(jobs::submit)),
+        route(M::POST, "/api/v1/jobs", post(submit::submit)),
         route(M::GET, "/api/v1/jobs", get(jobs::list)),
         route(M::GET, "/api/v1/jobs/{id}", get(jobs::show)),
         route(M::PATCH, "/api/v1/jobs/{id}", patch(jobs::patch_job)),
@@ -86,6 +87,42 @@ pub fn api_routes() -> Vec<Route> {
         ),
         route(M::POST, "/api/v1/tasks/{id}/release", post(tasks::release)),
     ]
+}
+
+/// The store's answers in HTTP: its refusals with their status and code, its failures as 503
+/// `database` (or 500 `internal`) with a message of ours; the database's own text is logged, and
+/// never sent.
+impl From<crate::store::Error> for ApiError {
+    fn from(e: crate::store::Error) -> ApiError {
+        use crate::store::Error as E;
+        let message = e.to_string();
+        match e {
+            E::NotFound { .. } => ApiError::new(StatusCode::NOT_FOUND, "not_found", message),
+            E::StaleLease { .. } => ApiError::conflict("stale_lease", message),
+            E::TaskNotLeased { .. } => ApiError::conflict("task_not_leased", message),
+            E::SliceOutOfOrder { .. } => ApiError::conflict("slice_out_of_order", message),
+            E::InvalidState(_) => ApiError::conflict("invalid_state", message),
+            E::SliceShape(_) => ApiError::unprocessable("slice_shape", message),
+            E::SliceValues(_) => ApiError::unprocessable("slice_values", message),
+            E::Interrupted => ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "write_interrupted",
+                message,
+            ),
+            E::Internal(_) => {
+                tracing::error!(error = %message, "store: broken invariant or unreadable data");
+                ApiError::internal("the server could not read its stored data (see its log)")
+            }
+            E::Database(_) => {
+                tracing::error!(error = %message, "database error");
+                ApiError::new(
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    "database",
+                    "the store failed or cannot be reached; retry later",
+                )
+            }
+        }
+    }
 }
 
 /// Parses a JSON body, insisting on the JSON content type, with our error body on failure.

@@ -169,7 +169,7 @@ async fn merge_upload(
         max_pixels: tile.pixel_count().min(state.config.limits.max_pixels),
     };
     let slice = decode_slice(&body, &limits).map_err(slice_error)?;
-    state.store.merge_slice(task_id, token, slice).await
+    Ok(state.store.merge_slice(task_id, token, slice).await?)
 }
 
 /// Reads a body of at most `limit` bytes (None: it is longer), into one buffer sized by its

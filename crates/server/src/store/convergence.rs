@@ -1,7 +1,7 @@
 //! Each job's error estimate and its convergence history (error and samples against time).
 
+use super::error::{Error, StoreResult};
 use super::{now_ms, Store};
-use crate::error::{ApiError, ApiResult};
 use pathfarm_wire::api::{Convergence, ConvergencePoint};
 use sqlx::Row;
 
@@ -37,7 +37,7 @@ fn bindable_error(e: Option<f64>) -> f64 {
 impl Store {
     /// Stores the job's current error estimate (unless a newer one is already stored, as another
     /// server may have made it) and adds a point to its history when enough time has passed.
-    pub async fn record_estimate(&self, id: &str, e: &Estimate) -> ApiResult<()> {
+    pub async fn record_estimate(&self, id: &str, e: &Estimate) -> StoreResult<()> {
         let mut w = self.write().await?;
         let row = sqlx::query(
             "UPDATE jobs SET rel_error = NULLIF($1, -1.0), rel_error_version = $2 \
@@ -89,7 +89,7 @@ impl Store {
     }
 
     /// The job's convergence history, oldest first.
-    pub async fn convergence(&self, id: &str) -> ApiResult<Convergence> {
+    pub async fn convergence(&self, id: &str) -> StoreResult<Convergence> {
         let mut tx = self.pool().begin().await?;
         let exists = sqlx::query("SELECT 1 AS one FROM jobs WHERE id = $1")
             .bind(id)
@@ -97,7 +97,7 @@ impl Store {
             .await?
             .is_some();
         if !exists {
-            return Err(ApiError::not_found("job", id));
+            return Err(Error::not_found("job", id));
         }
         let rows = sqlx::query(
             "SELECT elapsed_ms, samples_done, rel_error FROM job_progress WHERE job_id = $1 \

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 
 impl Store {
     /// Every known state with its count (zero included, so a series never disappears).
-    pub async fn gauges(&self) -> Result<Gauges, sqlx::Error> {
+    pub async fn gauges(&self) -> super::StoreResult<Gauges> {
         let jobs = self.count_by_state("jobs").await?;
         let tasks = self.count_by_state("tasks").await?;
         let workers = self.count_by_state("workers").await?;

@@ -13,36 +13,15 @@
 //! answered with that error (workers retry; merges are idempotent, and a lease that was never
 //! answered was never granted).
 
-use super::tasks::MergeOutcome;
+use super::error::{Error, StoreResult};
+use super::writes::{Done, Op};
 use super::{Store, WriteTx};
-use crate::error::{ApiError, ApiResult};
-use pathfarm_wire::api::Lease;
-use pathfarm_wire::Slice;
 use tokio::sync::oneshot;
-
-/// A write that may share a transaction.
-pub(super) enum Op {
-    Merge {
-        task_id: i64,
-        token: String,
-        slice: Slice,
-    },
-    Lease {
-        worker_id: String,
-        lease_ms: u64,
-    },
-}
-
-/// What an [`Op`] returns.
-pub(super) enum Done {
-    Merged(MergeOutcome),
-    Leased(Option<Box<Lease>>),
-}
 
 struct Pending {
     id: u64,
     op: Op,
-    reply: oneshot::Sender<ApiResult<Done>>,
+    reply: oneshot::Sender<StoreResult<Done>>,
 }
 
 /// Requests waiting for the writer lock.
@@ -53,10 +32,10 @@ pub struct WriteQueue {
 }
 
 impl WriteQueue {
-    fn lock(&self) -> ApiResult<std::sync::MutexGuard<'_, Vec<Pending>>> {
+    fn lock(&self) -> StoreResult<std::sync::MutexGuard<'_, Vec<Pending>>> {
         self.pending
             .lock()
-            .map_err(|_| ApiError::internal("write queue lock poisoned"))
+            .map_err(|_| Error::internal("write queue lock poisoned"))
     }
 }
 
@@ -65,9 +44,9 @@ const MAX_BATCH: usize = 256;
 
 impl Store {
     /// Runs `op` in the next group commit.
-    pub(super) async fn grouped(&self, op: Op) -> ApiResult<Done> {
+    pub(super) async fn grouped(&self, op: Op) -> StoreResult<Done> {
         let (Some(queue), Some(writer)) = (&self.write_queue, &self.sqlite_writer) else {
-            return Err(ApiError::internal("group commit without a SQLite writer"));
+            return Err(Error::internal("group commit without a SQLite writer"));
         };
         let (reply, answer) = oneshot::channel();
         let id = queue
@@ -104,21 +83,15 @@ impl Store {
                 break;
             }
         }
-        answer.await.unwrap_or_else(|_| {
-            Err(ApiError::new(
-                axum::http::StatusCode::SERVICE_UNAVAILABLE,
-                "write_interrupted",
-                "the write was interrupted before it committed; try again",
-            ))
-        })
+        answer.await.unwrap_or_else(|_| Err(Error::Interrupted))
     }
 
     async fn run_batch(&self, mut w: WriteTx<'_>, batch: Vec<Pending>) {
         let mut answers = Vec::with_capacity(batch.len());
-        let mut failure: Option<ApiError> = None;
+        let mut failure: Option<Error> = None;
         for p in batch {
             if failure.is_some() {
-                answers.push((p.reply, Err(ApiError::internal("batch failed"))));
+                answers.push((p.reply, Err(Error::internal("batch failed"))));
                 continue;
             }
             let result = match p.op {
@@ -139,9 +112,9 @@ impl Store {
                     .map(|l| Done::Leased(l.map(Box::new))),
             };
             match result {
-                Err(e) if !e.status.is_client_error() => {
+                Err(e) if !e.is_refusal() => {
                     failure = Some(e);
-                    answers.push((p.reply, Err(ApiError::internal("batch failed"))));
+                    answers.push((p.reply, Err(Error::internal("batch failed"))));
                 }
                 result => answers.push((p.reply, result)),
             }
@@ -160,7 +133,7 @@ impl Store {
                 }
             }
             Err(e) => {
-                let e = ApiError::from(e);
+                let e = Error::from(e);
                 for (reply, _) in answers {
                     let _ = reply.send(Err(e.clone()));
                 }

@@ -2,8 +2,8 @@
 //! tile's sample count and stored size), then the stored accumulations a batch of tiles at a time
 //! within that snapshot, so that assembling an image never holds all of them at once.
 
+use super::error::{Error, StoreResult};
 use super::{Dialect, Store};
-use crate::error::{ApiError, ApiResult};
 use sqlx::{Any, AnyPool, Row, Transaction};
 
 /// What the snapshot says of one tile.
@@ -43,7 +43,7 @@ impl Store {
 
 impl ImageReader {
     /// The job's version and tiles; 404 when the job is gone.
-    pub async fn snapshot(&self, job_id: &str) -> ApiResult<ImageSnapshot> {
+    pub async fn snapshot(&self, job_id: &str) -> StoreResult<ImageSnapshot> {
         let mut tx = self.pool.begin().await?;
         if self.dialect == Dialect::Postgres {
             sqlx::query("SET TRANSACTION ISOLATION LEVEL REPEATABLE READ, READ ONLY")
@@ -56,7 +56,7 @@ impl ImageReader {
             .await?
         {
             Some(r) => r.try_get("version")?,
-            None => return Err(ApiError::not_found("job", job_id)),
+            None => return Err(Error::not_found("job", job_id)),
         };
         let rows = sqlx::query(
             "SELECT tile_index, samples, CAST(COALESCE(length(accum), 0) AS BIGINT) AS stored \
@@ -87,7 +87,7 @@ impl ImageReader {
 impl ImageSnapshot {
     /// The stored accumulations (slice encoding) of the tiles `first..=last` that have one, by
     /// tile index.
-    pub async fn stored(&mut self, first: i64, last: i64) -> ApiResult<Vec<(i64, Vec<u8>)>> {
+    pub async fn stored(&mut self, first: i64, last: i64) -> StoreResult<Vec<(i64, Vec<u8>)>> {
         let rows = sqlx::query(
             "SELECT tile_index, accum FROM tiles WHERE job_id = $1 AND tile_index >= $2 \
              AND tile_index <= $3 AND accum IS NOT NULL ORDER BY tile_index",
@@ -104,7 +104,7 @@ impl ImageSnapshot {
     }
 
     /// Ends the read transaction.
-    pub async fn end(self) -> ApiResult<()> {
+    pub async fn end(self) -> StoreResult<()> {
         self.tx.commit().await?;
         Ok(())
     }

@@ -1,7 +1,7 @@
 //! Jobs, their tiles and scenes.
 
+use super::error::{Error, StoreResult};
 use super::{now_ms, Dialect, Store};
-use crate::error::{ApiError, ApiResult};
 use crate::scheduler::PlannedTask;
 use crate::states::{job_transition, JobEvent, TaskState};
 use pathfarm_tracer::Tile;
@@ -132,11 +132,11 @@ const INSERT_BATCH: usize = 500;
 impl Store {
     /// Stores the scene and the environment image (each once per content hash), the job, its
     /// tiles and its tasks, atomically.
-    pub async fn create_job(&self, job: NewJob) -> ApiResult<()> {
+    pub async fn create_job(&self, job: NewJob) -> StoreResult<()> {
         let settings = serde_json::to_string(&job.settings)
-            .map_err(|e| ApiError::internal(format!("cannot encode settings: {e}")))?;
+            .map_err(|e| Error::internal(format!("cannot encode settings: {e}")))?;
         let warnings = serde_json::to_string(&job.warnings)
-            .map_err(|e| ApiError::internal(format!("cannot encode warnings: {e}")))?;
+            .map_err(|e| Error::internal(format!("cannot encode warnings: {e}")))?;
         let now = now_ms();
         let mut w = self.write().await?;
         let blobs = std::iter::once((&job.scene_hash, &job.scene_bytes))
@@ -211,14 +211,14 @@ impl Store {
         Ok(())
     }
 
-    pub async fn job(&self, id: &str) -> ApiResult<JobRow> {
+    pub async fn job(&self, id: &str) -> StoreResult<JobRow> {
         let row = sqlx::query(sql!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1"))
             .bind(id)
             .fetch_optional(self.pool())
             .await?;
         match row {
             Some(r) => Ok(JobRow::from_row(&r)?),
-            None => Err(ApiError::not_found("job", id)),
+            None => Err(Error::not_found("job", id)),
         }
     }
 
@@ -228,7 +228,7 @@ impl Store {
         state: Option<JobState>,
         offset: u64,
         limit: u64,
-    ) -> ApiResult<(Vec<JobRow>, u64)> {
+    ) -> StoreResult<(Vec<JobRow>, u64)> {
         let filter = "WHERE ($1 = '' OR state = $1)";
         let state_str = state.map_or("", JobState::as_str);
         let rows = sqlx::query(sql!(
@@ -253,7 +253,7 @@ impl Store {
     }
 
     /// Jobs in the given states (for the monitor).
-    pub async fn jobs_in_states(&self, states: &[JobState]) -> ApiResult<Vec<JobRow>> {
+    pub async fn jobs_in_states(&self, states: &[JobState]) -> StoreResult<Vec<JobRow>> {
         let list = states
             .iter()
             .map(|s| format!("'{}'", s.as_str()))
@@ -271,7 +271,7 @@ impl Store {
     }
 
     /// Jobs whose error estimate is older than their image.
-    pub async fn jobs_needing_estimate(&self) -> ApiResult<Vec<(String, i64)>> {
+    pub async fn jobs_needing_estimate(&self) -> StoreResult<Vec<(String, i64)>> {
         let rows = sqlx::query(
             "SELECT id, version FROM jobs WHERE rel_error_version < version ORDER BY created_ms",
         )
@@ -282,7 +282,7 @@ impl Store {
             .collect()
     }
 
-    pub async fn tiles(&self, job_id: &str) -> ApiResult<Vec<TileRow>> {
+    pub async fn tiles(&self, job_id: &str) -> StoreResult<Vec<TileRow>> {
         let rows = sqlx::query(
             "SELECT tile_index, x0, y0, width, height, samples FROM tiles WHERE job_id = $1 \
              ORDER BY tile_index",
@@ -302,7 +302,7 @@ impl Store {
         id: &str,
         event: JobEvent,
         message: Option<&str>,
-    ) -> ApiResult<JobRow> {
+    ) -> StoreResult<JobRow> {
         let mut w = self.write().await?;
         // Tasks first, then the job: the lock order every transaction follows (task, tile, job).
         if matches!(
@@ -327,7 +327,7 @@ impl Store {
         .await?;
         let job = match row {
             Some(r) => JobRow::from_row(&r)?,
-            None => return Err(ApiError::not_found("job", id)),
+            None => return Err(Error::not_found("job", id)),
         };
         let event = match event {
             JobEvent::Resume { .. } => JobEvent::Resume {
@@ -335,8 +335,7 @@ impl Store {
             },
             e => e,
         };
-        let to =
-            job_transition(job.state, event).map_err(|m| ApiError::conflict("invalid_state", m))?;
+        let to = job_transition(job.state, event).map_err(Error::InvalidState)?;
         let now = now_ms();
         if to.is_final() {
             sqlx::query(
@@ -361,7 +360,7 @@ impl Store {
         self.job(id).await
     }
 
-    pub async fn set_priority(&self, id: &str, priority: i32) -> ApiResult<JobRow> {
+    pub async fn set_priority(&self, id: &str, priority: i32) -> StoreResult<JobRow> {
         let mut w = self.write().await?;
         let n = sqlx::query("UPDATE jobs SET priority = $1 WHERE id = $2")
             .bind(priority as i64)
@@ -371,14 +370,14 @@ impl Store {
             .rows_affected();
         w.commit().await?;
         if n == 0 {
-            return Err(ApiError::not_found("job", id));
+            return Err(Error::not_found("job", id));
         }
         self.job(id).await
     }
 
     /// Deletes a job in any state, with its tiles and tasks; its scene and environment image too
     /// once no job uses them.
-    pub async fn delete_job(&self, id: &str) -> ApiResult<()> {
+    pub async fn delete_job(&self, id: &str) -> StoreResult<()> {
         let mut w = self.write().await?;
         sqlx::query("DELETE FROM tasks WHERE job_id = $1")
             .bind(id)
@@ -394,7 +393,7 @@ impl Store {
                 .fetch_optional(&mut *w.tx)
                 .await?;
         let Some(row) = row else {
-            return Err(ApiError::not_found("job", id));
+            return Err(Error::not_found("job", id));
         };
         free_job_workers(&mut w, id).await?;
         let scene: String = row.try_get("scene_hash")?;
@@ -412,14 +411,14 @@ impl Store {
         Ok(())
     }
 
-    pub async fn scene(&self, hash: &str) -> ApiResult<Vec<u8>> {
+    pub async fn scene(&self, hash: &str) -> StoreResult<Vec<u8>> {
         let row = sqlx::query("SELECT bytes FROM scenes WHERE hash = $1")
             .bind(hash)
             .fetch_optional(self.pool())
             .await?;
         match row {
             Some(r) => Ok(r.try_get("bytes")?),
-            None => Err(ApiError::not_found("scene", hash)),
+            None => Err(Error::not_found("scene", hash)),
         }
     }
 }

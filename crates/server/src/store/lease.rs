@@ -4,12 +4,12 @@
 //! tasks), then age; within a job, by pass, so every tile gets its first samples before any gets
 //! more. Lock order as everywhere (see [`super::tasks`]): tasks, tiles, jobs, workers.
 
-use super::group_commit::{Done, Op};
+use super::error::{Error, StoreResult};
 use super::jobs::job_state;
 use super::statements::Statements;
 use super::tasks::{new_token, task_state};
+use super::writes::{Done, Op};
 use super::{now_ms, Dialect, Store};
-use crate::error::{ApiError, ApiResult};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent};
 use pathfarm_wire::api::{JobSettings, Lease, TileRect};
 use sqlx::any::AnyRow;
@@ -36,7 +36,7 @@ struct Picked {
 impl Store {
     /// Leases the next task for `worker_id`, or `None` when there is no work.
     /// On SQLite leases share transactions with merges (group commit).
-    pub async fn lease(&self, worker_id: &str, lease_ms: u64) -> ApiResult<Option<Lease>> {
+    pub async fn lease(&self, worker_id: &str, lease_ms: u64) -> StoreResult<Option<Lease>> {
         if self.write_queue.is_some() {
             let op = Op::Lease {
                 worker_id: worker_id.to_string(),
@@ -44,7 +44,7 @@ impl Store {
             };
             return match self.grouped(op).await? {
                 Done::Leased(lease) => Ok(lease.map(|l| *l)),
-                Done::Merged(_) => Err(ApiError::internal("a lease answered as a merge")),
+                Done::Merged(_) => Err(Error::internal("a lease answered as a merge")),
             };
         }
         let mut w = self.write().await?;
@@ -59,7 +59,7 @@ impl Store {
         tx: &mut sqlx::Transaction<'static, sqlx::Any>,
         worker_id: &str,
         lease_ms: u64,
-    ) -> ApiResult<Option<Lease>> {
+    ) -> StoreResult<Option<Lease>> {
         let picked = match self.dialect() {
             Dialect::Sqlite => pick_sqlite(tx, worker_id).await?,
             Dialect::Postgres => pick_postgres(tx, worker_id).await?,
@@ -82,13 +82,13 @@ impl Store {
             task_state(&task.try_get::<String, _>("state")?)?,
             TaskEvent::Lease,
         )
-        .map_err(ApiError::internal)?;
+        .map_err(Error::internal)?;
         let job = job.as_ref().unwrap_or(&task);
         let state = job_state(&job.try_get::<String, _>("job_state")?)?;
-        let job_to = job_transition(state, JobEvent::Leased).map_err(ApiError::internal)?;
+        let job_to = job_transition(state, JobEvent::Leased).map_err(Error::internal)?;
         let settings: String = job.try_get("settings")?;
         let settings: JobSettings = serde_json::from_str(&settings)
-            .map_err(|e| ApiError::internal(format!("stored settings: {e}")))?;
+            .map_err(|e| Error::internal(format!("stored settings: {e}")))?;
         let g = |c: &str| job.try_get::<i64, _>(c).map(|v| v as u32);
         let tile = TileRect {
             x0: g("x0")?,
@@ -149,7 +149,7 @@ impl Store {
 async fn pick_sqlite(
     tx: &mut sqlx::Transaction<'static, sqlx::Any>,
     worker_id: &str,
-) -> ApiResult<Option<Picked>> {
+) -> StoreResult<Option<Picked>> {
     let row = sqlx::query(concat!(
         "SELECT w.id AS worker, c.* FROM workers w LEFT JOIN (\
          SELECT t.id, t.tile_index, t.done_end, t.sample_end, t.state, \
@@ -166,7 +166,7 @@ async fn pick_sqlite(
     .fetch_optional(&mut **tx)
     .await?;
     let Some(row) = row else {
-        return Err(ApiError::not_found("worker", worker_id));
+        return Err(Error::not_found("worker", worker_id));
     };
     let Some(job_id) = row.try_get::<Option<String>, _>("job_id")? else {
         return Ok(None);
@@ -185,7 +185,7 @@ async fn pick_sqlite(
 async fn pick_postgres(
     tx: &mut sqlx::Transaction<'static, sqlx::Any>,
     worker_id: &str,
-) -> ApiResult<Option<Picked>> {
+) -> StoreResult<Option<Picked>> {
     let candidates = sqlx::query(concat!(
         "SELECT w.id AS worker, j.id AS job_id FROM workers w LEFT JOIN (",
         candidate_jobs!(),
@@ -196,7 +196,7 @@ async fn pick_postgres(
     .fetch_all(&mut **tx)
     .await?;
     if candidates.is_empty() {
-        return Err(ApiError::not_found("worker", worker_id));
+        return Err(Error::not_found("worker", worker_id));
     }
     for cand in candidates {
         let Some(job_id) = cand.try_get::<Option<String>, _>("job_id")? else {

@@ -18,6 +18,7 @@ macro_rules! sql {
 const SQLITE_BEGIN_WRITE: &str = "BEGIN IMMEDIATE";
 
 mod convergence;
+mod error;
 mod gauges;
 mod group_commit;
 mod images;
@@ -27,11 +28,13 @@ mod migrations;
 mod statements;
 mod tasks;
 mod workers;
+mod writes;
 
 pub use convergence::Estimate;
+pub use error::{Error, StoreResult};
 pub use images::{ImageReader, ImageSnapshot, TileMeta};
 pub use jobs::{JobRow, NewJob, TileRow};
-pub use tasks::MergeOutcome;
+pub use writes::MergeOutcome;
 
 use sqlx::any::{AnyPoolOptions, AnyRow};
 use sqlx::{Any, AnyPool, Executor, Row, Transaction};

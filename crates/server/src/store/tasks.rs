@@ -3,11 +3,11 @@
 //! Lock order, in every transaction: tasks, then tiles, then jobs, then workers. PostgreSQL takes
 //! row locks in that order, so concurrent servers never deadlock; SQLite has one writer anyway.
 
-use super::group_commit::{Done, Op};
+use super::error::{Error, StoreResult};
 use super::jobs::job_state;
 use super::statements::Statements;
+use super::writes::{Done, MergeOutcome, Op};
 use super::{now_ms, Dialect, Store};
-use crate::error::{ApiError, ApiResult};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState};
 use pathfarm_tracer::accumulation::MergeError;
 use pathfarm_tracer::{Accumulation, Tile};
@@ -15,25 +15,12 @@ use pathfarm_wire::api::{JobState, SliceAck};
 use pathfarm_wire::{decode_slice, encode_slice, Slice, SliceLimits};
 use sqlx::Row;
 
-/// What a merge did (the ack, plus what the caller may want to log or count).
-#[derive(Clone, Debug)]
-pub struct MergeOutcome {
-    pub ack: SliceAck,
-    pub samples: u64,
-    pub job_completed: bool,
-}
-
 pub(super) fn task_state(s: &str) -> Result<TaskState, sqlx::Error> {
     TaskState::parse(s).ok_or_else(|| sqlx::Error::Protocol(format!("unknown task state {s:?}")))
 }
 
-fn stale_lease(task_id: i64) -> ApiError {
-    ApiError::conflict(
-        "stale_lease",
-        format!(
-            "the lease token does not hold task {task_id} (the lease expired or was given back)"
-        ),
-    )
+fn stale_lease(task_id: i64) -> Error {
+    Error::StaleLease { task_id }
 }
 
 pub(super) fn new_token() -> String {
@@ -46,7 +33,7 @@ impl Store {
     /// An upload is checked with this before its pixels are decoded, so that only a lease holder
     /// makes the server allocate for a slice, and no more than its tile takes. The merge checks
     /// the lease again in its own transaction.
-    pub async fn leased_tile(&self, task_id: i64, token: &str) -> ApiResult<Tile> {
+    pub async fn leased_tile(&self, task_id: i64, token: &str) -> StoreResult<Tile> {
         let row = sqlx::query(
             "SELECT t.lease_token, ti.x0, ti.y0, ti.width, ti.height FROM tasks t JOIN tiles ti \
              ON ti.job_id = t.job_id AND ti.tile_index = t.tile_index WHERE t.id = $1",
@@ -55,7 +42,7 @@ impl Store {
         .fetch_optional(self.pool())
         .await?;
         let Some(row) = row else {
-            return Err(ApiError::not_found("task", task_id));
+            return Err(Error::not_found("task", task_id));
         };
         let lease_token: Option<String> = row.try_get("lease_token")?;
         if lease_token.as_deref() != Some(token) {
@@ -85,7 +72,7 @@ impl Store {
         task_id: i64,
         token: &str,
         slice: Slice,
-    ) -> ApiResult<MergeOutcome> {
+    ) -> StoreResult<MergeOutcome> {
         if self.write_queue.is_some() {
             let op = Op::Merge {
                 task_id,
@@ -94,7 +81,7 @@ impl Store {
             };
             return match self.grouped(op).await? {
                 Done::Merged(out) => Ok(out),
-                Done::Leased(_) => Err(ApiError::internal("a merge answered as a lease")),
+                Done::Leased(_) => Err(Error::internal("a merge answered as a lease")),
             };
         }
         let mut w = self.write().await?;
@@ -112,7 +99,7 @@ impl Store {
         task_id: i64,
         token: &str,
         slice: &Slice,
-    ) -> ApiResult<MergeOutcome> {
+    ) -> StoreResult<MergeOutcome> {
         // SQLite, with its single writer, reads the task and its tile in one statement; PostgreSQL
         // locks them one after the other, in the documented order.
         let joined = self.dialect() == Dialect::Sqlite;
@@ -136,7 +123,7 @@ impl Store {
             .await?
         };
         let Some(task) = task else {
-            return Err(ApiError::not_found("task", task_id));
+            return Err(Error::not_found("task", task_id));
         };
         let job_id: String = task.try_get("job_id")?;
         let tile_index: i64 = task.try_get("tile_index")?;
@@ -151,10 +138,9 @@ impl Store {
         }
         let (s_begin, s_end) = (slice.sample_begin, slice.sample_end);
         if s_begin < t_begin || s_end > t_end {
-            return Err(ApiError::unprocessable(
-                "slice_shape",
-                format!("slice samples [{s_begin}, {s_end}) lie outside task {task_id}'s [{t_begin}, {t_end})"),
-            ));
+            return Err(Error::SliceShape(format!(
+                "slice samples [{s_begin}, {s_end}) lie outside task {task_id}'s [{t_begin}, {t_end})"
+            )));
         }
         if s_end <= done_end {
             return Ok(MergeOutcome {
@@ -169,16 +155,17 @@ impl Store {
             });
         }
         if state != TaskState::Leased {
-            return Err(ApiError::conflict(
-                "task_not_leased",
-                format!("task {task_id} is {}", state.as_str()),
-            ));
+            return Err(Error::TaskNotLeased {
+                task_id,
+                state: state.as_str(),
+            });
         }
         if s_begin != done_end {
-            return Err(ApiError::conflict(
-                "slice_out_of_order",
-                format!("task {task_id} has samples up to {done_end} merged; a slice starting at {s_begin} does not follow them"),
-            ));
+            return Err(Error::SliceOutOfOrder {
+                task_id,
+                done_end,
+                begin: s_begin,
+            });
         }
         let tile = if joined {
             task
@@ -201,13 +188,10 @@ impl Store {
         );
         let a = &slice.acc;
         if (a.x0, a.y0, a.width, a.height) != (x0, y0, tw, th) {
-            return Err(ApiError::unprocessable(
-                "slice_shape",
-                format!(
-                    "slice covers {}x{} at ({}, {}), task {task_id}'s tile is {tw}x{th} at ({x0}, {y0})",
-                    a.width, a.height, a.x0, a.y0
-                ),
-            ));
+            return Err(Error::SliceShape(format!(
+                "slice covers {}x{} at ({}, {}), task {task_id}'s tile is {tw}x{th} at ({x0}, {y0})",
+                a.width, a.height, a.x0, a.y0
+            )));
         }
         let n = s_end - s_begin;
         // Every pixel must account for every sample: valid ones are counted, invalid ones counted
@@ -215,10 +199,9 @@ impl Store {
         let counted: u64 = a.pixels.iter().map(|p| p.count).sum::<u64>() + a.invalid_count;
         let expected = n as u64 * a.pixels.len() as u64;
         if counted != expected {
-            return Err(ApiError::unprocessable(
-                "slice_values",
-                format!("slice holds {counted} samples, its shape needs {expected}"),
-            ));
+            return Err(Error::SliceValues(format!(
+                "slice holds {counted} samples, its shape needs {expected}"
+            )));
         }
         let tile_samples = g("samples")? as u64;
         let accum: Option<Vec<u8>> = tile.try_get("accum")?;
@@ -230,7 +213,7 @@ impl Store {
                         max_pixels: u64::MAX,
                     },
                 )
-                .map_err(|e| ApiError::internal(format!("stored tile accumulation: {e}")))?
+                .map_err(|e| Error::internal(format!("stored tile accumulation: {e}")))?
                 .acc
             }
             None => Accumulation::new(x0, y0, tw, th),
@@ -238,11 +221,10 @@ impl Store {
         // Checked: an overflow refuses this slice (before any write, so a batch goes on) and
         // leaves the tile as it was, so honest slices still merge into it.
         merged.merge(a).map_err(|e| match e {
-            MergeError::Shape { .. } => ApiError::internal(format!("merge: {e}")),
-            e => ApiError::unprocessable(
-                "slice_values",
-                format!("slice refused: merging it into task {task_id}'s tile: {e}"),
-            ),
+            MergeError::Shape { .. } => Error::internal(format!("merge: {e}")),
+            e => Error::SliceValues(format!(
+                "slice refused: merging it into task {task_id}'s tile: {e}"
+            )),
         })?;
         let new_samples = tile_samples + n as u64;
         // The stored tile is the union of sample ranges that may not be contiguous yet (a later
@@ -254,8 +236,7 @@ impl Store {
             acc: merged,
         });
         let complete = s_end == t_end;
-        let to =
-            task_transition(state, TaskEvent::Merged { complete }).map_err(ApiError::internal)?;
+        let to = task_transition(state, TaskEvent::Merged { complete }).map_err(Error::internal)?;
         let samples = n as u64 * a.pixels.len() as u64;
         let now = now_ms();
         // The writes in lock order (tiles, tasks, jobs, workers), in one round trip on SQLite. The
@@ -303,13 +284,13 @@ impl Store {
         let rows = writes.run(tx).await?;
         let job = rows
             .first()
-            .ok_or_else(|| ApiError::internal(format!("job {job_id} vanished during a merge")))?;
+            .ok_or_else(|| Error::internal(format!("job {job_id} vanished during a merge")))?;
         let current = job_state(&job.try_get::<String, _>("state")?)?;
         let done = job.try_get::<i64, _>("samples_done")? as u64;
         let planned = job.try_get::<i64, _>("samples_planned")? as u64;
         let job_completed = done >= planned;
         let new_state = if job_completed {
-            let to = job_transition(current, JobEvent::Complete).map_err(ApiError::internal)?;
+            let to = job_transition(current, JobEvent::Complete).map_err(Error::internal)?;
             sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3")
                 .bind(to.as_str())
                 .bind(now)
@@ -339,7 +320,7 @@ impl Store {
         worker_id: &str,
         lease: Option<(i64, &str)>,
         lease_ms: u64,
-    ) -> ApiResult<bool> {
+    ) -> StoreResult<bool> {
         let now = now_ms();
         let mut w = self.write().await?;
         let mut valid = false;
@@ -370,13 +351,13 @@ impl Store {
         .rows_affected();
         w.commit().await?;
         if n == 0 {
-            return Err(ApiError::not_found("worker", worker_id));
+            return Err(Error::not_found("worker", worker_id));
         }
         Ok(valid)
     }
 
     /// Gives a lease back: the task's unmerged samples are queued again.
-    pub async fn release(&self, task_id: i64, token: &str) -> ApiResult<()> {
+    pub async fn release(&self, task_id: i64, token: &str) -> StoreResult<()> {
         let mut w = self.write().await?;
         let task = sqlx::query(sql!(
             "SELECT state, lease_token, job_id, worker_id FROM tasks WHERE id = $1{}",
@@ -386,15 +367,12 @@ impl Store {
         .fetch_optional(&mut *w.tx)
         .await?;
         let Some(task) = task else {
-            return Err(ApiError::not_found("task", task_id));
+            return Err(Error::not_found("task", task_id));
         };
         let lease_token: Option<String> = task.try_get("lease_token")?;
         let state = task_state(&task.try_get::<String, _>("state")?)?;
         if lease_token.as_deref() != Some(token) {
-            return Err(ApiError::conflict(
-                "stale_lease",
-                format!("the lease token does not hold task {task_id}"),
-            ));
+            return Err(stale_lease(task_id));
         }
         if state == TaskState::Leased {
             let job_id: String = task.try_get("job_id")?;
@@ -412,9 +390,8 @@ impl Store {
         task_id: i64,
         job_id: &str,
         worker_id: Option<&str>,
-    ) -> ApiResult<()> {
-        let to =
-            task_transition(TaskState::Leased, TaskEvent::Requeue).map_err(ApiError::internal)?;
+    ) -> StoreResult<()> {
+        let to = task_transition(TaskState::Leased, TaskEvent::Requeue).map_err(Error::internal)?;
         sqlx::query(
             "UPDATE tasks SET state = $1, lease_token = NULL, worker_id = NULL, \
              lease_expires_ms = NULL WHERE id = $2",
@@ -446,7 +423,7 @@ impl Store {
 
     /// Puts the tasks whose lease expired back in the queue (only their unmerged samples: the
     /// merged part is kept in `done_end`). Returns how many.
-    pub async fn expire_leases(&self) -> ApiResult<u64> {
+    pub async fn expire_leases(&self) -> StoreResult<u64> {
         let mut w = self.write().await?;
         let rows = sqlx::query(sql!(
             "SELECT id, job_id, worker_id FROM tasks WHERE state = 'leased' \

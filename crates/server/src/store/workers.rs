@@ -1,12 +1,12 @@
 //! Worker registration, liveness and listing.
 
+use super::error::{Error, StoreResult};
 use super::{now_ms, Store};
-use crate::error::{ApiError, ApiResult};
 use pathfarm_wire::api::{WorkerRegistration, WorkerState, WorkerView};
 use sqlx::Row;
 
 impl Store {
-    pub async fn register_worker(&self, reg: &WorkerRegistration) -> ApiResult<String> {
+    pub async fn register_worker(&self, reg: &WorkerRegistration) -> StoreResult<String> {
         let id = uuid::Uuid::new_v4().simple().to_string();
         let now = now_ms();
         let mut w = self.write().await?;
@@ -28,7 +28,7 @@ impl Store {
     }
 
     /// Signs a worker off; a lease it still holds is given back.
-    pub async fn deregister_worker(&self, id: &str) -> ApiResult<()> {
+    pub async fn deregister_worker(&self, id: &str) -> StoreResult<()> {
         let leases = sqlx::query(
             "SELECT id, lease_token FROM tasks WHERE worker_id = $1 AND state = 'leased'",
         )
@@ -41,11 +41,7 @@ impl Store {
             if let Some(token) = token {
                 // A lease that changed hands meanwhile is not ours to give back.
                 match self.release(task, &token).await {
-                    Ok(())
-                    | Err(ApiError {
-                        code: "stale_lease",
-                        ..
-                    }) => {}
+                    Ok(()) | Err(Error::StaleLease { .. }) => {}
                     Err(e) => return Err(e),
                 }
             }
@@ -63,13 +59,13 @@ impl Store {
         .rows_affected();
         w.commit().await?;
         if n == 0 {
-            return Err(ApiError::not_found("worker", id));
+            return Err(Error::not_found("worker", id));
         }
         Ok(())
     }
 
     /// Workers silent for longer than `after_ms` become lost. Returns how many.
-    pub async fn mark_lost_workers(&self, after_ms: u64) -> ApiResult<u64> {
+    pub async fn mark_lost_workers(&self, after_ms: u64) -> StoreResult<u64> {
         let mut w = self.write().await?;
         let n = sqlx::query(
             "UPDATE workers SET state = 'lost' WHERE state IN ('idle', 'busy') AND last_seen_ms < $1",
@@ -82,7 +78,7 @@ impl Store {
         Ok(n)
     }
 
-    pub async fn workers(&self) -> ApiResult<Vec<WorkerView>> {
+    pub async fn workers(&self) -> StoreResult<Vec<WorkerView>> {
         let rows = sqlx::query(
             "SELECT id, name, host, threads, version, state, registered_ms, last_seen_ms, \
              current_task, current_job, samples_done FROM workers \
@@ -116,6 +112,6 @@ impl Store {
                 })
             })
             .collect::<Result<Vec<_>, sqlx::Error>>()
-            .map_err(ApiError::from)
+            .map_err(Error::from)
     }
 }

@@ -1,0 +1,33 @@
+//! The hot writes that may share a transaction (`group_commit.rs` runs them in batches on
+//! SQLite; `tasks.rs` and `lease.rs` do them): what each asks and what each answers. Its own
+//! module, so that the batching and the writes it batches depend on it and not on each other.
+
+use pathfarm_wire::api::{Lease, SliceAck};
+use pathfarm_wire::Slice;
+
+/// A write that may share a transaction.
+pub(super) enum Op {
+    Merge {
+        task_id: i64,
+        token: String,
+        slice: Slice,
+    },
+    Lease {
+        worker_id: String,
+        lease_ms: u64,
+    },
+}
+
+/// What an [`Op`] returns.
+pub(super) enum Done {
+    Merged(MergeOutcome),
+    Leased(Option<Box<Lease>>),
+}
+
+/// What a merge did (the ack, plus what the caller may want to log or count).
+#[derive(Clone, Debug)]
+pub struct MergeOutcome {
+    pub ack: SliceAck,
+    pub samples: u64,
+    pub job_completed: bool,
+}
