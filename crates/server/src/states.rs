@@ -1,7 +1,7 @@
 //! The job, task and worker state machines, enforced here and nowhere else: every state change the
 //! store makes asks these functions first. `ARCHITECTURE.md` draws the same machines.
 
-use pathfarm_wire::api::JobState;
+use pathfarm_wire::api::{JobState, WorkerState};
 
 /// What can happen to a job.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -105,9 +105,82 @@ pub fn task_transition(from: TaskState, event: TaskEvent) -> Result<TaskState, S
     }
 }
 
+/// What can happen to a worker.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WorkerEvent {
+    /// It was given a task.
+    Leased,
+    /// It asked for work and there was none.
+    NoWork,
+    /// One of its slices was merged; `complete` when it finished the task.
+    SliceMerged { complete: bool },
+    /// It said it is alive; `leased` when it still holds the lease it names.
+    Heartbeat { leased: bool },
+    /// Its task was given back or expired, or its job ended: it has nothing to do.
+    TaskTaken,
+    /// It was silent for longer than a lease.
+    Silent,
+    /// It signed off.
+    SignOff,
+}
+
+/// Every worker state, for the store's `CASE` over them ([`worker_transition`]).
+pub const WORKER_STATES: [WorkerState; 4] = [
+    WorkerState::Idle,
+    WorkerState::Busy,
+    WorkerState::Lost,
+    WorkerState::Offline,
+];
+
+/// The state a worker moves to (itself when the event changes nothing). The store writes worker
+/// states in set-based updates, so it asks this for every state at once
+/// (`store::worker_state_after`) rather than reading each worker first.
+pub fn worker_transition(from: WorkerState, event: WorkerEvent) -> WorkerState {
+    use WorkerEvent as E;
+    use WorkerState as S;
+    match (from, event) {
+        (_, E::Leased | E::SliceMerged { complete: false } | E::Heartbeat { leased: true }) => {
+            S::Busy
+        }
+        (_, E::NoWork | E::SliceMerged { complete: true }) => S::Idle,
+        // A busy worker's heartbeat without its lease keeps it busy until its upload or release
+        // says otherwise; a lost or idle one is back and idle.
+        (S::Busy, E::Heartbeat { leased: false }) => S::Busy,
+        (_, E::Heartbeat { leased: false }) => S::Idle,
+        (S::Busy, E::TaskTaken) => S::Idle,
+        (S::Idle | S::Busy, E::Silent) => S::Lost,
+        (_, E::SignOff) => S::Offline,
+        (s, E::TaskTaken | E::Silent) => s,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn workers_come_back_and_sign_off() {
+        use WorkerEvent as E;
+        use WorkerState as S;
+        let lost = worker_transition(S::Busy, E::Silent);
+        assert_eq!(lost, S::Lost);
+        assert_eq!(worker_transition(lost, E::Silent), S::Lost);
+        assert_eq!(
+            worker_transition(lost, E::Heartbeat { leased: false }),
+            S::Idle
+        );
+        assert_eq!(
+            worker_transition(lost, E::Heartbeat { leased: true }),
+            S::Busy
+        );
+        assert_eq!(worker_transition(S::Idle, E::TaskTaken), S::Idle);
+        assert_eq!(worker_transition(S::Busy, E::TaskTaken), S::Idle);
+        assert_eq!(worker_transition(S::Offline, E::Silent), S::Offline);
+        for s in WORKER_STATES {
+            assert_eq!(worker_transition(s, E::SignOff), S::Offline);
+            assert_eq!(worker_transition(s, E::Leased), S::Busy);
+        }
+    }
 
     #[test]
     fn final_job_states_never_change() {

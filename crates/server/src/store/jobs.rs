@@ -3,7 +3,7 @@
 use super::error::{Error, StoreResult};
 use super::{now_ms, Dialect, Store};
 use crate::scheduler::PlannedTask;
-use crate::states::{job_transition, JobEvent, TaskState};
+use crate::states::{job_transition, JobEvent, TaskState, WorkerEvent};
 use pathfarm_tracer::Tile;
 use pathfarm_wire::api::{JobSettings, JobState};
 use sqlx::any::AnyRow;
@@ -76,10 +76,11 @@ pub(crate) fn job_state(s: &str) -> Result<JobState, sqlx::Error> {
 /// Frees the workers busy with a job that ends or disappears. Called after the job row is
 /// written, keeping the lock order (tasks, tiles, jobs, workers).
 async fn free_job_workers(w: &mut super::WriteTx<'_>, job_id: &str) -> Result<(), sqlx::Error> {
-    sqlx::query(
-        "UPDATE workers SET current_task = NULL, current_job = NULL, state = 'idle' \
+    sqlx::query(sql!(
+        "UPDATE workers SET current_task = NULL, current_job = NULL, state = {} \
          WHERE current_job = $1 AND state = 'busy'",
-    )
+        super::worker_state_after(WorkerEvent::TaskTaken)
+    ))
     .bind(job_id)
     .execute(&mut *w.tx)
     .await?;

@@ -10,7 +10,7 @@ use super::statements::Statements;
 use super::tasks::{new_token, task_state};
 use super::writes::{Done, Op};
 use super::{now_ms, Dialect, Store};
-use crate::states::{job_transition, task_transition, JobEvent, TaskEvent};
+use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, WorkerEvent};
 use pathfarm_wire::api::{JobSettings, Lease, TileRect};
 use sqlx::any::AnyRow;
 use sqlx::Row;
@@ -65,10 +65,11 @@ impl Store {
             Dialect::Postgres => pick_postgres(tx, worker_id).await?,
         };
         let Some(Picked { job_id, task, job }) = picked else {
-            sqlx::query(
-                "UPDATE workers SET state = 'idle', current_task = NULL, current_job = NULL, \
+            sqlx::query(sql!(
+                "UPDATE workers SET state = {}, current_task = NULL, current_job = NULL, \
                  last_seen_ms = $1 WHERE id = $2",
-            )
+                super::worker_state_after(WorkerEvent::NoWork)
+            ))
             .bind(now_ms())
             .bind(worker_id)
             .execute(&mut **tx)
@@ -119,8 +120,11 @@ impl Store {
                 vec![job_to.as_str().into(), now.into(), job_id.as_str().into()],
             )
             .push(
-                "UPDATE workers SET state = 'busy', current_task = $1, current_job = $2, \
-                 last_seen_ms = $3 WHERE id = $4",
+                format!(
+                    "UPDATE workers SET state = {}, current_task = $1, current_job = $2, \
+                     last_seen_ms = $3 WHERE id = $4",
+                    super::worker_state_after(WorkerEvent::Leased)
+                ),
                 vec![
                     task_id.into(),
                     job_id.as_str().into(),

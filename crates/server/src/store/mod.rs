@@ -103,6 +103,20 @@ impl WriteTx<'_> {
     }
 }
 
+/// `CASE state WHEN 'idle' THEN … END`: every worker's state after `event`, for a set-based
+/// `UPDATE workers`, spelled out from [`crate::states::worker_transition`] over every state (the
+/// states are constants, never input).
+pub(crate) fn worker_state_after(event: crate::states::WorkerEvent) -> String {
+    let arms: String = crate::states::WORKER_STATES
+        .into_iter()
+        .map(|s| {
+            let to = crate::states::worker_transition(s, event);
+            format!(" WHEN '{}' THEN '{}'", s.as_str(), to.as_str())
+        })
+        .collect();
+    format!("CASE state{arms} ELSE state END")
+}
+
 /// Milliseconds since the Unix epoch: the time base of every timestamp in the store.
 pub fn now_ms() -> i64 {
     SystemTime::now()

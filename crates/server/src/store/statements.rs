@@ -56,8 +56,8 @@ impl Statements {
     }
 
     /// Adds one statement (a constant of the store's code) and its parameters.
-    pub fn push(&mut self, sql: &'static str, args: Vec<Arg>) -> &mut Statements {
-        self.parts.push((sql.to_string(), args));
+    pub fn push(&mut self, sql: impl Into<String>, args: Vec<Arg>) -> &mut Statements {
+        self.parts.push((sql.into(), args));
         self
     }
 

@@ -8,7 +8,7 @@ use super::jobs::job_state;
 use super::statements::Statements;
 use super::writes::{Done, MergeOutcome, Op};
 use super::{now_ms, Dialect, Store};
-use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState};
+use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState, WorkerEvent};
 use pathfarm_tracer::accumulation::MergeError;
 use pathfarm_tracer::{Accumulation, Tile};
 use pathfarm_wire::api::{JobState, SliceAck};
@@ -269,10 +269,13 @@ impl Store {
             );
         if let Some(worker) = &worker_id {
             writes.push(
-                "UPDATE workers SET samples_done = samples_done + $1, last_seen_ms = $2, \
-                 state = CASE WHEN $3 = 1 THEN 'idle' ELSE 'busy' END, \
+                format!(
+                    "UPDATE workers SET samples_done = samples_done + $1, last_seen_ms = $2, \
+                 state = {}, \
                  current_task = CASE WHEN $3 = 1 THEN NULL ELSE current_task END, \
                  current_job = CASE WHEN $3 = 1 THEN NULL ELSE current_job END WHERE id = $4",
+                    super::worker_state_after(WorkerEvent::SliceMerged { complete })
+                ),
                 vec![
                     (samples as i64).into(),
                     now.into(),
@@ -338,13 +341,11 @@ impl Store {
             .rows_affected()
                 == 1;
         }
-        let n = sqlx::query(
-            "UPDATE workers SET last_seen_ms = $1, \
-             state = CASE WHEN $2 = 1 THEN 'busy' WHEN state = 'busy' THEN 'busy' ELSE 'idle' END \
-             WHERE id = $3",
-        )
+        let n = sqlx::query(sql!(
+            "UPDATE workers SET last_seen_ms = $1, state = {} WHERE id = $2",
+            super::worker_state_after(WorkerEvent::Heartbeat { leased: valid })
+        ))
         .bind(now)
-        .bind(valid as i64)
         .bind(worker_id)
         .execute(&mut *w.tx)
         .await?
@@ -408,11 +409,11 @@ impl Store {
         .execute(&mut *w.tx)
         .await?;
         if let Some(worker) = worker_id {
-            sqlx::query(
-                "UPDATE workers SET current_task = NULL, current_job = NULL, \
-                 state = CASE WHEN state = 'busy' THEN 'idle' ELSE state END \
+            sqlx::query(sql!(
+                "UPDATE workers SET current_task = NULL, current_job = NULL, state = {} \
                  WHERE id = $1 AND current_task = $2",
-            )
+                super::worker_state_after(WorkerEvent::TaskTaken)
+            ))
             .bind(worker)
             .bind(task_id)
             .execute(&mut *w.tx)

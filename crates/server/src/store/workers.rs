@@ -2,6 +2,7 @@
 
 use super::error::{Error, StoreResult};
 use super::{now_ms, Store};
+use crate::states::WorkerEvent;
 use pathfarm_wire::api::{WorkerRegistration, WorkerState, WorkerView};
 use sqlx::Row;
 
@@ -47,11 +48,11 @@ impl Store {
             }
         }
         let mut w = self.write().await?;
-        let n = sqlx::query(
-            "UPDATE workers SET state = $1, current_task = NULL, current_job = NULL, \
-             last_seen_ms = $2 WHERE id = $3",
-        )
-        .bind(WorkerState::Offline.as_str())
+        let n = sqlx::query(sql!(
+            "UPDATE workers SET state = {}, current_task = NULL, current_job = NULL, \
+             last_seen_ms = $1 WHERE id = $2",
+            super::worker_state_after(WorkerEvent::SignOff)
+        ))
         .bind(now_ms())
         .bind(id)
         .execute(&mut *w.tx)
@@ -67,9 +68,10 @@ impl Store {
     /// Workers silent for longer than `after_ms` become lost. Returns how many.
     pub async fn mark_lost_workers(&self, after_ms: u64) -> StoreResult<u64> {
         let mut w = self.write().await?;
-        let n = sqlx::query(
-            "UPDATE workers SET state = 'lost' WHERE state IN ('idle', 'busy') AND last_seen_ms < $1",
-        )
+        let n = sqlx::query(sql!(
+            "UPDATE workers SET state = {} WHERE state IN ('idle', 'busy') AND last_seen_ms < $1",
+            super::worker_state_after(WorkerEvent::Silent)
+        ))
         .bind(now_ms() - after_ms as i64)
         .execute(&mut *w.tx)
         .await?
