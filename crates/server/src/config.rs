@@ -126,6 +126,9 @@ pub struct ServerConfig {
     pub image_wait: Duration,
     /// Timeouts and the connection cap.
     pub connections: ConnectionLimits,
+    /// Where the store reads the time (the system's clock; tests move a
+    /// [`crate::store::ManualClock`] instead of waiting).
+    pub clock: std::sync::Arc<dyn crate::store::Clock>,
 }
 
 impl ServerConfig {
@@ -141,6 +144,7 @@ impl ServerConfig {
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,
             connections: ConnectionLimits::default(),
+            clock: std::sync::Arc::new(crate::store::SystemClock),
         }
     }
 

@@ -3,7 +3,7 @@
 //! a transaction on the shared store, so any number of servers can run it side by side.
 
 use crate::states::JobEvent;
-use crate::store::{now_ms, Estimate, JobRow};
+use crate::store::{Estimate, JobRow};
 use crate::AppState;
 use pathfarm_wire::api::JobState;
 
@@ -62,7 +62,7 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
             }
         }
     }
-    let now = now_ms();
+    let now = store.now_ms();
     for job in store.jobs_in_states(&[JobState::Running]).await? {
         if let (Some(limit), Some(started)) = (job.settings.time_limit_s, job.started_ms) {
             if now - started >= (limit * 1000.0) as i64 {

@@ -4,7 +4,7 @@ use super::{json_body, json_bytes};
 use crate::auth::{ClientAuth, ReadAuth};
 use crate::error::{ApiError, ApiResult};
 use crate::states::JobEvent;
-use crate::store::{now_ms, JobRow};
+use crate::store::JobRow;
 use crate::AppState;
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
@@ -17,8 +17,7 @@ use pathfarm_wire::api::{
 use serde::Deserialize;
 
 /// The API view of a stored job.
-pub(crate) fn view(job: JobRow, tiles: Option<Vec<TileProgress>>) -> JobView {
-    let now = now_ms();
+pub(crate) fn view(job: JobRow, tiles: Option<Vec<TileProgress>>, now: i64) -> JobView {
     let elapsed_s = job
         .started_ms
         .map(|s| ((job.finished_ms.unwrap_or(now) - s).max(1)) as f64 / 1000.0);
@@ -79,8 +78,9 @@ pub async fn list(
         .store
         .jobs(filter, (page as u64 - 1) * per_page as u64, per_page as u64)
         .await?;
+    let now = state.store.now_ms();
     Ok(Json(JobList {
-        jobs: jobs.into_iter().map(|j| view(j, None)).collect(),
+        jobs: jobs.into_iter().map(|j| view(j, None, now)).collect(),
         total,
         page,
         per_page,
@@ -126,7 +126,7 @@ pub async fn show(
             samples_per_pixel: t.samples,
         })
         .collect();
-    Ok(Json(view(job, Some(tiles))))
+    Ok(Json(view(job, Some(tiles), state.store.now_ms())))
 }
 
 pub async fn patch_job(
@@ -138,7 +138,7 @@ pub async fn patch_job(
 ) -> ApiResult<Json<JobView>> {
     let patch: JobPatch = json_body(&headers, &json_bytes(body)?)?;
     let job = state.store.set_priority(&id, patch.priority).await?;
-    Ok(Json(view(job, None)))
+    Ok(Json(view(job, None, state.store.now_ms())))
 }
 
 pub async fn delete_job(
@@ -155,7 +155,7 @@ pub async fn delete_job(
 async fn event(state: &AppState, id: &str, e: JobEvent) -> ApiResult<Json<JobView>> {
     let job = state.store.job_event(id, e, None).await?;
     tracing::info!(job = %id, state = job.state.as_str(), "job state changed");
-    Ok(Json(view(job, None)))
+    Ok(Json(view(job, None, state.store.now_ms())))
 }
 
 pub async fn cancel(

@@ -1,7 +1,7 @@
 //! Each job's error estimate and its convergence history (error and samples against time).
 
 use super::error::{Error, StoreResult};
-use super::{now_ms, Store};
+use super::Store;
 use pathfarm_wire::api::{Convergence, ConvergencePoint};
 use sqlx::Row;
 
@@ -54,7 +54,8 @@ impl Store {
         let started: Option<i64> = row.try_get("started_ms")?;
         let finished: Option<i64> = row.try_get("finished_ms")?;
         if let Some(started) = started {
-            let elapsed = (finished.unwrap_or_else(now_ms).min(now_ms()) - started).max(0);
+            let now = self.now_ms();
+            let elapsed = (finished.unwrap_or(now).min(now) - started).max(0);
             let last: Option<i64> =
                 sqlx::query("SELECT MAX(elapsed_ms) AS last FROM job_progress WHERE job_id = $1")
                     .bind(id)

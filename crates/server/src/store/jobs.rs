@@ -1,7 +1,7 @@
 //! Jobs, their tiles and scenes.
 
 use super::error::{Error, StoreResult};
-use super::{now_ms, Dialect, Store};
+use super::{Dialect, Store};
 use crate::scheduler::PlannedTask;
 use crate::states::{job_transition, JobEvent, TaskState, WorkerEvent};
 use pathfarm_tracer::Tile;
@@ -138,7 +138,7 @@ impl Store {
             .map_err(|e| Error::internal(format!("cannot encode settings: {e}")))?;
         let warnings = serde_json::to_string(&job.warnings)
             .map_err(|e| Error::internal(format!("cannot encode warnings: {e}")))?;
-        let now = now_ms();
+        let now = self.now_ms();
         let mut w = self.write().await?;
         let blobs = std::iter::once((&job.scene_hash, &job.scene_bytes))
             .chain(job.environment.as_ref().map(|(h, b)| (h, b)));
@@ -337,7 +337,7 @@ impl Store {
             e => e,
         };
         let to = job_transition(job.state, event).map_err(Error::InvalidState)?;
-        let now = now_ms();
+        let now = self.now_ms();
         if to.is_final() {
             sqlx::query(
                 "UPDATE jobs SET state = $1, finished_ms = $2, queued_tasks = 0, leased_tasks = 0, \

@@ -9,7 +9,7 @@ use super::jobs::job_state;
 use super::statements::Statements;
 use super::tasks::{new_token, task_state};
 use super::writes::{Done, Op};
-use super::{now_ms, Dialect, Store};
+use super::{Dialect, Store};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, WorkerEvent};
 use pathfarm_wire::api::{JobSettings, Lease, TileRect};
 use sqlx::any::AnyRow;
@@ -70,7 +70,7 @@ impl Store {
                  last_seen_ms = $1 WHERE id = $2",
                 super::worker_state_after(WorkerEvent::NoWork)
             ))
-            .bind(now_ms())
+            .bind(self.now_ms())
             .bind(worker_id)
             .execute(&mut **tx)
             .await?;
@@ -98,7 +98,7 @@ impl Store {
             height: g("height")?,
         };
         let token = new_token();
-        let now = now_ms();
+        let now = self.now_ms();
         let expires = now + lease_ms as i64;
         // The writes in lock order, in one round trip on SQLite.
         let mut writes = Statements::new(self.dialect());

@@ -17,6 +17,7 @@ macro_rules! sql {
 /// (a deferred read-then-write upgrade fails at once when another connection wrote in between).
 const SQLITE_BEGIN_WRITE: &str = "BEGIN IMMEDIATE";
 
+mod clock;
 mod convergence;
 mod error;
 mod gauges;
@@ -30,6 +31,7 @@ mod tasks;
 mod workers;
 mod writes;
 
+pub use clock::{Clock, ManualClock, SystemClock};
 pub use convergence::Estimate;
 pub use error::{Error, StoreResult};
 pub use images::{ImageReader, ImageSnapshot, TileMeta};
@@ -89,6 +91,8 @@ pub struct Store {
     sqlite_writer: Option<Mutex<()>>,
     /// SQLite only: merges and leases waiting for the next group commit.
     write_queue: Option<group_commit::WriteQueue>,
+    /// The time of every timestamp ([`Store::now_ms`]).
+    clock: std::sync::Arc<dyn Clock>,
 }
 
 /// A write transaction; on SQLite it also holds the process's writer lock until it ends.
@@ -149,6 +153,14 @@ pub fn normalize_url(url: &str) -> Result<(String, Dialect), StoreError> {
 impl Store {
     /// Connects, configures SQLite (WAL, busy timeout) and applies the migrations.
     pub async fn connect(url: &str) -> Result<Store, StoreError> {
+        Store::connect_with_clock(url, std::sync::Arc::new(SystemClock)).await
+    }
+
+    /// [`Store::connect`] with the clock its timestamps come from.
+    pub async fn connect_with_clock(
+        url: &str,
+        clock: std::sync::Arc<dyn Clock>,
+    ) -> Result<Store, StoreError> {
         sqlx::any::install_default_drivers();
         let (url, dialect) = normalize_url(url)?;
         let options = AnyPoolOptions::new()
@@ -190,6 +202,7 @@ impl Store {
             Dialect::Postgres => migrations::POSTGRES.run(&pool).await?,
         }
         Ok(Store {
+            clock,
             pool,
             dialect,
             sqlite_writer: (dialect == Dialect::Sqlite).then(|| Mutex::new(())),
@@ -231,6 +244,11 @@ impl Store {
             return Err(sqlx::Error::Protocol("no migrations applied".into()));
         }
         Ok(())
+    }
+
+    /// Milliseconds since the Unix epoch, by the store's clock.
+    pub fn now_ms(&self) -> i64 {
+        self.clock.now_ms()
     }
 
     pub async fn close(&self) {

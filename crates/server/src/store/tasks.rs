@@ -7,7 +7,7 @@ use super::error::{Error, StoreResult};
 use super::jobs::job_state;
 use super::statements::Statements;
 use super::writes::{Done, MergeOutcome, Op};
-use super::{now_ms, Dialect, Store};
+use super::{Dialect, Store};
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState, WorkerEvent};
 use pathfarm_tracer::accumulation::MergeError;
 use pathfarm_tracer::{Accumulation, Tile};
@@ -238,7 +238,7 @@ impl Store {
         let complete = s_end == t_end;
         let to = task_transition(state, TaskEvent::Merged { complete }).map_err(Error::internal)?;
         let samples = n as u64 * a.pixels.len() as u64;
-        let now = now_ms();
+        let now = self.now_ms();
         // The writes in lock order (tiles, tasks, jobs, workers), in one round trip on SQLite. The
         // job's update returns what decides completion; its state changes (one more statement)
         // only on the job's last merge.
@@ -324,7 +324,7 @@ impl Store {
         lease: Option<(i64, &str)>,
         lease_ms: u64,
     ) -> StoreResult<bool> {
-        let now = now_ms();
+        let now = self.now_ms();
         let mut w = self.write().await?;
         let mut valid = false;
         if let Some((task_id, token)) = lease {
@@ -431,7 +431,7 @@ impl Store {
              AND lease_expires_ms < $1 ORDER BY id LIMIT 256{}",
             self.dialect().skip_locked()
         ))
-        .bind(now_ms())
+        .bind(self.now_ms())
         .fetch_all(&mut *w.tx)
         .await?;
         let n = rows.len() as u64;

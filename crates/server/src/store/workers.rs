@@ -1,7 +1,7 @@
 //! Worker registration, liveness and listing.
 
 use super::error::{Error, StoreResult};
-use super::{now_ms, Store};
+use super::Store;
 use crate::states::WorkerEvent;
 use pathfarm_wire::api::{WorkerRegistration, WorkerState, WorkerView};
 use sqlx::Row;
@@ -9,7 +9,7 @@ use sqlx::Row;
 impl Store {
     pub async fn register_worker(&self, reg: &WorkerRegistration) -> StoreResult<String> {
         let id = uuid::Uuid::new_v4().simple().to_string();
-        let now = now_ms();
+        let now = self.now_ms();
         let mut w = self.write().await?;
         sqlx::query(
             "INSERT INTO workers (id, name, host, threads, version, state, registered_ms, \
@@ -53,7 +53,7 @@ impl Store {
              last_seen_ms = $1 WHERE id = $2",
             super::worker_state_after(WorkerEvent::SignOff)
         ))
-        .bind(now_ms())
+        .bind(self.now_ms())
         .bind(id)
         .execute(&mut *w.tx)
         .await?
@@ -72,7 +72,7 @@ impl Store {
             "UPDATE workers SET state = {} WHERE state IN ('idle', 'busy') AND last_seen_ms < $1",
             super::worker_state_after(WorkerEvent::Silent)
         ))
-        .bind(now_ms() - after_ms as i64)
+        .bind(self.now_ms() - after_ms as i64)
         .execute(&mut *w.tx)
         .await?
         .rows_affected();
@@ -88,7 +88,7 @@ impl Store {
         )
         .fetch_all(self.pool())
         .await?;
-        let now = now_ms();
+        let now = self.now_ms();
         rows.iter()
             .map(|r| {
                 let state: String = r.try_get("state")?;
