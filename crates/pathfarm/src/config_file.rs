@@ -24,6 +24,23 @@ pub const KEYS: &[(&str, &str, &str)] = &[
         "PATHFARM_MAX_SCENE_TRIANGLES",
     ),
     ("serve", "image-cache-mib", "PATHFARM_IMAGE_CACHE_MIB"),
+    (
+        "serve",
+        "header-timeout-seconds",
+        "PATHFARM_HEADER_TIMEOUT_SECONDS",
+    ),
+    ("serve", "keep-alive-seconds", "PATHFARM_KEEP_ALIVE_SECONDS"),
+    (
+        "serve",
+        "body-timeout-seconds",
+        "PATHFARM_BODY_TIMEOUT_SECONDS",
+    ),
+    (
+        "serve",
+        "body-min-kib-per-second",
+        "PATHFARM_BODY_MIN_KIB_PER_SECOND",
+    ),
+    ("serve", "max-connections", "PATHFARM_MAX_CONNECTIONS"),
     ("up", "workers", "PATHFARM_WORKERS"),
     ("up", "threads-per-worker", "PATHFARM_THREADS_PER_WORKER"),
     ("up", "port", "PATHFARM_PORT"),
