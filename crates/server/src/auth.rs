@@ -7,6 +7,7 @@ use crate::AppState;
 use axum::extract::FromRequestParts;
 use axum::http::request::Parts;
 use axum::http::StatusCode;
+use sha2::{Digest, Sha256};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Role {
@@ -14,23 +15,29 @@ pub enum Role {
     Worker,
 }
 
+/// The token of an `Authorization: Bearer …` header. The scheme is matched without regard to case
+/// (RFC 9110, section 11.1: `bearer` and `BEARER` are the same scheme).
 fn bearer(parts: &Parts) -> Option<&str> {
-    parts
+    let value = parts
         .headers
         .get(axum::http::header::AUTHORIZATION)?
         .to_str()
-        .ok()?
-        .strip_prefix("Bearer ")
-        .map(str::trim)
+        .ok()?;
+    let (scheme, token) = value.trim_start().split_once(' ')?;
+    scheme
+        .eq_ignore_ascii_case("bearer")
+        .then_some(token.trim())
 }
 
-/// Compares without an early exit, so the time taken says nothing about the token.
+/// Compares the SHA-256 digests of the two tokens, byte by byte without an early exit: the time
+/// taken says nothing about the token, not even its length (a comparison of the tokens
+/// themselves must stop at the shorter one).
 fn same(a: &str, b: &str) -> bool {
-    a.len() == b.len()
-        && a.bytes()
-            .zip(b.bytes())
-            .fold(0u8, |acc, (x, y)| acc | (x ^ y))
-            == 0
+    let (a, b) = (Sha256::digest(a.as_bytes()), Sha256::digest(b.as_bytes()));
+    a.iter()
+        .zip(b.iter())
+        .fold(0u8, |acc, (x, y)| acc | (x ^ y))
+        == 0
 }
 
 fn role_of(state: &AppState, parts: &Parts) -> Result<Option<Role>, ApiError> {
@@ -106,5 +113,38 @@ impl FromRequestParts<AppState> for ReadAuth {
     type Rejection = ApiError;
     async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, ApiError> {
         role_of(state, parts).map(|_| ReadAuth)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::http::Request;
+
+    fn parts(authorization: &str) -> Parts {
+        let request = Request::builder()
+            .header("authorization", authorization)
+            .body(())
+            .expect("a request");
+        request.into_parts().0
+    }
+
+    #[test]
+    fn the_scheme_is_matched_without_regard_to_case() {
+        for header in ["Bearer t0k", "bearer t0k", "BEARER t0k", "  Bearer   t0k  "] {
+            assert_eq!(bearer(&parts(header)), Some("t0k"), "{header:?}");
+        }
+        for header in ["Basic t0k", "Bearer", "Bearert0k", "t0k"] {
+            assert_eq!(bearer(&parts(header)), None, "{header:?}");
+        }
+    }
+
+    #[test]
+    fn tokens_compare_equal_only_when_equal() {
+        assert!(same("secret", "secret"));
+        assert!(!same("secret", "secreT"));
+        assert!(!same("secret", "secret2"));
+        assert!(!same("", "secret"));
+        assert!(same("", ""));
     }
 }

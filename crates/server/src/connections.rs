@@ -558,7 +558,7 @@ pub(crate) fn content_length(headers: &axum::http::HeaderMap) -> Option<u64> {
 /// body is answered 413 `too_large` before a byte of it is read. (One without a declared length
 /// is cut off at the limit as it is read.)
 pub(crate) async fn declared_length(
-    State(limit): State<usize>,
+    State((limit, reason)): State<(usize, Arc<str>)>,
     req: Request,
     next: Next,
 ) -> Response {
@@ -566,7 +566,10 @@ pub(crate) async fn declared_length(
         Some(n) if n > limit as u64 => ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
             "too_large",
-            format!("the body's declared {n} bytes exceed this endpoint's limit of {limit} bytes"),
+            format!(
+                "the body's declared {n} bytes exceed this endpoint's limit of {limit} bytes: \
+                 {reason}"
+            ),
         )
         .into_response(),
         _ => next.run(req).await,

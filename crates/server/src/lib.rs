@@ -89,8 +89,12 @@ fn router(state: AppState, listen: Option<std::net::SocketAddr>) -> Router {
     let mut router = Router::new();
     for r in routes::api_routes() {
         let limit = routes::body_limit(&r.method, r.path, &state.config.limits);
+        let reason = routes::body_limit_reason(&r.method, r.path, &state.config.limits);
         let handler = r.handler.layer(DefaultBodyLimit::max(limit)).layer(
-            axum::middleware::from_fn_with_state(limit, connections::declared_length),
+            axum::middleware::from_fn_with_state(
+                (limit, std::sync::Arc::<str>::from(reason)),
+                connections::declared_length,
+            ),
         );
         router = router.route(r.path, handler);
     }

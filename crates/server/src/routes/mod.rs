@@ -182,6 +182,18 @@ pub(crate) fn no_nul(code: &'static str, fields: &[(&str, &str)]) -> Result<(), 
     }
 }
 
+/// Refuses display names with control characters (NUL included): they would reach terminals and
+/// log lines as they are (a newline in a name forged a log line).
+pub(crate) fn no_control(code: &'static str, fields: &[(&str, &str)]) -> Result<(), ApiError> {
+    match fields.iter().find(|(_, v)| v.chars().any(char::is_control)) {
+        Some((field, _)) => Err(ApiError::unprocessable(
+            code,
+            format!("{field} contains a control character"),
+        )),
+        None => Ok(()),
+    }
+}
+
 /// Middleware: a path with a NUL character (`%00`) names nothing (no id holds one, and
 /// PostgreSQL could not even look it up), so it is answered 404 `not_found` before any handler.
 pub(crate) async fn nul_paths(req: Request, next: Next) -> Response {
@@ -199,6 +211,21 @@ pub(crate) async fn nul_paths(req: Request, next: Next) -> Response {
 /// The body limit of a route: the scene limit (plus room for the multipart framing and the
 /// settings) for a job submission, the slice limit for a slice upload, and
 /// [`MAX_JSON_BODY_BYTES`] for the rest (JSON, or no body at all).
+/// What [`body_limit`] allows a route, in the words of a 413 answer (e.g. "a scene may be at most
+/// 67108864 bytes (64 MiB)").
+pub(crate) fn body_limit_reason(method: &Method, path: &str, limits: &Limits) -> String {
+    let in_mib = |bytes: usize| format!("{bytes} bytes ({} MiB)", bytes >> 20);
+    match (method.as_str(), path) {
+        ("POST", "/api/v1/jobs") => {
+            format!("a scene may be at most {}", in_mib(limits.max_scene_bytes))
+        }
+        ("POST", "/api/v1/tasks/{id}/slices") => {
+            format!("a slice may be at most {}", in_mib(limits.max_slice_bytes))
+        }
+        _ => format!("a JSON body may be at most {MAX_JSON_BODY_BYTES} bytes"),
+    }
+}
+
 pub fn body_limit(method: &Method, path: &str, limits: &Limits) -> usize {
     match (method.as_str(), path) {
         ("POST", "/api/v1/jobs") => limits.max_scene_bytes.saturating_add(1 << 20),

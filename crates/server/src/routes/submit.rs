@@ -46,6 +46,18 @@ pub const MAX_WARNINGS_BYTES: usize = 16 << 10;
 /// Most bytes of one warning kept.
 pub const MAX_WARNING_BYTES: usize = 1024;
 
+/// A job's default name from the scene part's file name: its control characters (NUL included,
+/// possible with an RFC 5987 `filename*`) dropped and cut at 256 characters, the limits of a name
+/// given in the settings; None when nothing is left.
+fn name_from_file(file_name: &str) -> Option<String> {
+    let name: String = file_name
+        .chars()
+        .filter(|c| !c.is_control())
+        .take(256)
+        .collect();
+    (!name.trim().is_empty()).then_some(name)
+}
+
 /// The loader's warnings as a job keeps them: control characters (NUL included, which no store
 /// takes) removed, each cut to [`MAX_WARNING_BYTES`] and all together to [`MAX_WARNINGS_BYTES`]
 /// (a last line then says how many were left out).
@@ -216,11 +228,10 @@ pub async fn submit(
     .await
     .map_err(|e| ApiError::internal(format!("job planning: {e}")))?;
     let id = uuid::Uuid::new_v4().simple().to_string();
-    // A file name with a NUL (possible with an RFC 5987 `filename*`) is not kept: no store takes it.
     let name = settings
         .name
         .clone()
-        .or(file_name.filter(|n| !n.contains('\0')))
+        .or(file_name.and_then(|n| name_from_file(&n)))
         .unwrap_or_else(|| format!("job {}", &id[..8]));
     let samples_planned = settings.width as u64 * settings.height as u64 * settings.spp as u64;
     let task_count = tasks.len() as u64;
@@ -400,8 +411,15 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
             return bad(format!("time_limit_s must be a positive number (got {t})"));
         }
     }
-    if s.name.as_ref().is_some_and(|n| n.len() > 256) {
-        return bad("name is longer than 256 bytes".into());
+    // In characters, as the contract's `maxLength` counts them.
+    if s.name.as_ref().is_some_and(|n| n.chars().count() > 256) {
+        return bad("name is longer than 256 characters".into());
+    }
+    if s.name
+        .as_ref()
+        .is_some_and(|n| n.chars().any(char::is_control))
+    {
+        return bad("name contains a control character".into());
     }
     for (field, value) in [("name", &s.name), ("camera", &s.camera)] {
         if value.as_deref().is_some_and(|v| v.contains('\0')) {

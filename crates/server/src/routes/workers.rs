@@ -1,6 +1,6 @@
 //! Worker registration, heartbeats and leases.
 
-use super::{json_body, json_bytes, no_nul};
+use super::{json_body, json_bytes, no_control, no_nul};
 use crate::auth::{ReadAuth, WorkerAuth};
 use crate::error::{ApiError, ApiResult};
 use crate::AppState;
@@ -21,14 +21,19 @@ pub async fn register(
     body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<(StatusCode, Json<WorkerRegistered>)> {
     let reg: WorkerRegistration = json_body(&headers, &json_bytes(body)?)?;
-    if reg.name.is_empty() || reg.name.len() > 128 || reg.host.len() > 256 || reg.version.len() > 64
+    // Lengths in characters, as the contract's `maxLength` counts them.
+    let chars = |s: &str| s.chars().count();
+    if reg.name.is_empty()
+        || chars(&reg.name) > 128
+        || chars(&reg.host) > 256
+        || chars(&reg.version) > 64
     {
         return Err(ApiError::unprocessable(
             "invalid_worker",
-            "name must be 1..=128 bytes, host at most 256, version at most 64",
+            "name must be 1..=128 characters, host at most 256, version at most 64",
         ));
     }
-    no_nul(
+    no_control(
         "invalid_worker",
         &[
             ("name", &reg.name),
