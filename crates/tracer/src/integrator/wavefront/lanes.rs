@@ -9,7 +9,8 @@
 //!    sample values;
 //! 4. the light triangle and point each lane's values choose: in the lanes, at the end of step 3,
 //!    from the scene's `LightTable`; for a scene of many lights, from the light tree, lane by lane
-//!    (`sample_by_tree`, scalar);
+//!    (`sample_by_tree`, scalar); and in a scene with punctual lamps, each lane's lamp sample with
+//!    its shadow ray traced at once (`light_punctual`, scalar);
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray;
 //! 6. `trace_shadows` (scalar): each shadow ray, together with the lane's next ray when the path
