@@ -482,6 +482,39 @@ impl TimedBody {
     }
 }
 
+/// How long, and how many bytes, a body that its handler left unread is still read and discarded
+/// after the answer (a lingering close): a client that is still sending a refused upload (413
+/// from its declared length, 409 for a stale lease, …) would otherwise find the connection closed
+/// under it and never read the answer. Bounded in time and bytes, and nothing is kept.
+const DRAIN_TIME: Duration = Duration::from_secs(5);
+const DRAIN_BYTES: u64 = 512 << 20;
+
+impl Drop for TimedBody {
+    fn drop(&mut self) {
+        if self.inner.is_end_stream() || self.cut_off.load(Ordering::Relaxed) {
+            return;
+        }
+        let Ok(runtime) = tokio::runtime::Handle::try_current() else {
+            return;
+        };
+        let mut body = std::mem::replace(&mut self.inner, Body::empty());
+        runtime.spawn(async move {
+            let drain = async {
+                let mut read = 0u64;
+                while let Some(Ok(frame)) =
+                    std::future::poll_fn(|cx| Pin::new(&mut body).poll_frame(cx)).await
+                {
+                    read += frame.data_ref().map_or(0, |d| d.len() as u64);
+                    if read > DRAIN_BYTES {
+                        break;
+                    }
+                }
+            };
+            let _ = tokio::time::timeout(DRAIN_TIME, drain).await;
+        });
+    }
+}
+
 impl HttpBody for TimedBody {
     type Data = Bytes;
     type Error = axum::Error;

@@ -371,3 +371,29 @@ async fn uploads_are_refused_before_their_body_is_read() {
     assert_eq!((status, code.as_str()), (422, "invalid_slice"));
     server.stop().await;
 }
+
+/// A client that sends the whole of a refused upload before it reads the answer (as HTTP clients
+/// do: reqwest writes the body first) still gets the answer: the server reads and discards what
+/// it refused for a while (a lingering close) instead of closing the connection under the client,
+/// which then saw a broken pipe and no answer.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_sends_a_refused_body_whole_still_reads_the_answer() {
+    let mut c = config("linger");
+    c.limits.max_scene_bytes = 4 << 20;
+    let server = TestServer::start(c).await;
+    let length = 48usize << 20;
+    let head = format!(
+        "POST /api/v1/jobs HTTP/1.1\r\nHost: {}\r\nContent-Type: multipart/form-data; \
+         boundary=x\r\nContent-Length: {length}\r\n\r\n",
+        host(&server)
+    );
+    let mut s = connect(&server).await;
+    s.write_all(head.as_bytes()).await.unwrap();
+    // Far more than the socket buffers hold: without the lingering close this write fails.
+    s.write_all(&vec![b'x'; length])
+        .await
+        .expect("the refused body is read to its end");
+    let (status, _, body) = read_response(&mut s).await;
+    assert_eq!((status, error_code(&body).as_str()), (413, "too_large"));
+    server.stop().await;
+}
