@@ -18,7 +18,9 @@
 //!
 //! How much of a body the server reads at all is decided before it reads any: each route's limit
 //! against the declared `Content-Length` ([`declared_length`], 413 `too_large`), and per route the
-//! token, the content type and (for a slice) the lease.
+//! token, the content type and (for a slice) the lease. A body refused so is then read and
+//! discarded for a bounded while (`DRAIN_TIME`, `DRAIN_BYTES`; `TimedBody`'s drop), so that a
+//! client still sending it reads the answer rather than a closed connection.
 
 use crate::config::ConnectionLimits;
 use crate::error::ApiError;
