@@ -31,6 +31,8 @@ type Runs<K, V> = Arc<Mutex<HashMap<K, Run<V>>>>;
 pub struct SingleFlight<K, V> {
     runs: Runs<K, V>,
     next_id: AtomicU64,
+    /// Callers that joined a run under way instead of starting one.
+    joined: AtomicU64,
 }
 
 impl<K, V> Default for SingleFlight<K, V> {
@@ -38,6 +40,7 @@ impl<K, V> Default for SingleFlight<K, V> {
         SingleFlight {
             runs: Arc::default(),
             next_id: AtomicU64::new(0),
+            joined: AtomicU64::new(0),
         }
     }
 }
@@ -74,6 +77,11 @@ where
         lock(&self.runs).len()
     }
 
+    /// How many callers so far joined a run under way (rather than starting one).
+    pub fn joined(&self) -> u64 {
+        self.joined.load(Ordering::Relaxed)
+    }
+
     /// The result of the run of `key` under way whose mark `joins` accepts, or of a new run of
     /// `work` (given the run's mark to set).
     pub async fn run<W, F>(&self, key: K, joins: impl Fn(i64) -> bool, work: W) -> ApiResult<V>
@@ -84,7 +92,10 @@ where
         let mut done = {
             let mut runs = lock(&self.runs);
             match runs.get(&key) {
-                Some(r) if joins(r.mark.load(Ordering::Acquire)) => r.done.clone(),
+                Some(r) if joins(r.mark.load(Ordering::Acquire)) => {
+                    self.joined.fetch_add(1, Ordering::Relaxed);
+                    r.done.clone()
+                }
                 _ => {
                     let id = self.next_id.fetch_add(1, Ordering::Relaxed);
                     let mark = Arc::new(AtomicI64::new(UNMARKED));

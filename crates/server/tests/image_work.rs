@@ -195,7 +195,16 @@ async fn concurrent_requests_share_one_build() {
                 tokio::spawn(async move { get(&state, &id, "preview.png").await })
             })
             .collect();
-        tokio::time::sleep(Duration::from_millis(500)).await;
+        // Every request waits on the one build before room is made: the first started it, the
+        // other fifteen joined it (a fixed sleep here was too short on a loaded machine).
+        let t0 = std::time::Instant::now();
+        while state.images.joined_builds() < 15 {
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "{store}: requests did not join"
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
         assert_eq!(state.images.builds(), 0, "{store}: built without room");
         drop(held);
         let mut bodies = Vec::new();

@@ -233,6 +233,11 @@ impl ImageCache {
         self.shared.builds.load(Ordering::Relaxed)
     }
 
+    /// Requests for an image that joined a build under way rather than starting one, so far.
+    pub fn joined_builds(&self) -> u64 {
+        self.shared.images.joined()
+    }
+
     /// Encodings made so far.
     pub fn encodings(&self) -> u64 {
         self.shared.encodings_made.load(Ordering::Relaxed)
