@@ -33,6 +33,7 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::serve::IncomingStream;
 use http_body::Frame;
+use http_body_util::BodyExt;
 use std::future::Future;
 use std::io;
 use std::net::SocketAddr;
@@ -503,9 +504,7 @@ impl Drop for TimedBody {
         runtime.spawn(async move {
             let drain = async {
                 let mut read = 0u64;
-                while let Some(Ok(frame)) =
-                    std::future::poll_fn(|cx| Pin::new(&mut body).poll_frame(cx)).await
-                {
+                while let Some(Ok(frame)) = body.frame().await {
                     read += frame.data_ref().map_or(0, |d| d.len() as u64);
                     if read > DRAIN_BYTES {
                         break;
