@@ -126,6 +126,9 @@ pub struct ServerConfig {
     pub image_wait: Duration,
     /// Timeouts and the connection cap.
     pub connections: ConnectionLimits,
+    /// The certificate to serve HTTPS with (`serve --tls-cert/--tls-key`); `None`: plain HTTP, as
+    /// behind a reverse proxy that terminates TLS.
+    pub tls: Option<std::sync::Arc<crate::tls::ServerCert>>,
     /// Where the store reads the time (the system's clock; tests move a
     /// [`crate::store::ManualClock`] instead of waiting).
     pub clock: std::sync::Arc<dyn crate::store::Clock>,
@@ -144,6 +147,7 @@ impl ServerConfig {
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,
             connections: ConnectionLimits::default(),
+            tls: None,
             clock: std::sync::Arc::new(crate::store::SystemClock),
         }
     }

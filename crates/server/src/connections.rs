@@ -16,6 +16,11 @@
 //!   `body_timeout`, or an average rate below `body_min_rate` past that grace, and the body is
 //!   cut off; the request is answered 408 `body_timeout` and the connection closed.
 //!
+//! With TLS ([`crate::tls`]) the handshake runs on the accepted socket inside [`GuardedIo`]
+//! ([`Transport`]), so it holds a connection permit and must finish within `header_timeout` of the
+//! accept like a first request's header; a client that speaks plain HTTP to the TLS port is
+//! answered a plain 400 that says to use `https://`, then closed.
+//!
 //! How much of a body the server reads at all is decided before it reads any: each route's limit
 //! against the declared `Content-Length` ([`declared_length`], 413 `too_large`), and per route the
 //! token, the content type and (for a slice) the lease. A body refused so is then read and
@@ -46,6 +51,7 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tokio::time::{Instant, Sleep};
+use tokio_rustls::TlsAcceptor;
 
 /// What a connection is doing, as far as its deadlines go.
 #[derive(Clone, Copy, Debug)]
@@ -186,20 +192,26 @@ impl Connected<IncomingStream<'_, GuardedListener>> for ConnHandle {
 }
 
 /// A TCP listener that accepts at most `max_connections` connections at once and hands each out
-/// as a [`GuardedIo`].
+/// as a [`GuardedIo`], over TLS when given an acceptor.
 pub struct GuardedListener {
     listener: TcpListener,
     permits: Arc<Semaphore>,
     state: AppState,
+    tls: Option<TlsAcceptor>,
 }
 
 impl GuardedListener {
-    pub fn new(listener: TcpListener, state: AppState) -> GuardedListener {
+    pub fn new(
+        listener: TcpListener,
+        state: AppState,
+        tls: Option<TlsAcceptor>,
+    ) -> GuardedListener {
         let cap = state.config.connections.max_connections.max(1);
         GuardedListener {
             listener,
             permits: Arc::new(Semaphore::new(cap)),
             state,
+            tls,
         }
     }
 }
@@ -218,6 +230,12 @@ impl axum::serve::Listener for GuardedListener {
             match self.listener.accept().await {
                 Ok((io, remote)) => {
                     let conn = Arc::new(Connection::new(&self.state.config.connections));
+                    let io = match &self.tls {
+                        // The handshake is left to the connection's task (a slow client must not
+                        // hold up the accept loop), on its first read.
+                        Some(acceptor) => Transport::Sniff(io, acceptor.clone()),
+                        None => Transport::Plain(io),
+                    };
                     return (GuardedIo::new(io, conn, permit, self.state.clone()), remote);
                 }
                 Err(e) => accept_error(e).await,
@@ -248,7 +266,7 @@ async fn accept_error(e: io::Error) {
 /// An accepted connection's socket: reads fail with `TimedOut` once the connection's deadline
 /// ([`Connection::deadline`]) passed with nothing to read, which makes hyper close it.
 pub struct GuardedIo {
-    io: TcpStream,
+    io: Transport,
     conn: Arc<Connection>,
     sleep: Pin<Box<Sleep>>,
     state: AppState,
@@ -257,7 +275,7 @@ pub struct GuardedIo {
 
 impl GuardedIo {
     fn new(
-        io: TcpStream,
+        io: Transport,
         conn: Arc<Connection>,
         permit: OwnedSemaphorePermit,
         state: AppState,
@@ -347,7 +365,11 @@ impl AsyncWrite for GuardedIo {
     }
 
     fn is_write_vectored(&self) -> bool {
-        self.io.is_write_vectored()
+        match &self.io {
+            Transport::Plain(io) => io.is_write_vectored(),
+            Transport::Tls(io) => io.is_write_vectored(),
+            _ => false,
+        }
     }
 
     fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
@@ -356,6 +378,164 @@ impl AsyncWrite for GuardedIo {
 
     fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
         Pin::new(&mut self.get_mut().io).poll_shutdown(cx)
+    }
+}
+
+/// The first bytes of a client that spoke plain HTTP to the TLS port, and the answer it gets: a
+/// request line begins with a method's letters, a TLS connection with a handshake record (22).
+const TLS_HANDSHAKE_RECORD: u8 = 0x16;
+const PLAIN_HTTP_ANSWER: &[u8] = b"HTTP/1.1 400 Bad Request\r\n\
+Content-Type: text/plain; charset=utf-8\r\n\
+Connection: close\r\n\
+Content-Length: 59\r\n\
+\r\n\
+this server speaks HTTPS only: use an https:// URL instead\n";
+
+/// An accepted connection's byte stream: plain TCP, or TLS in its stages.
+pub enum Transport {
+    Plain(TcpStream),
+    /// TLS, before the first byte: a handshake, or plain HTTP sent by mistake?
+    Sniff(TcpStream, TlsAcceptor),
+    Handshake(Box<tokio_rustls::Accept<TcpStream>>),
+    Tls(Box<tokio_rustls::server::TlsStream<TcpStream>>),
+    /// Plain HTTP on the TLS port: sending [`PLAIN_HTTP_ANSWER`] (from this offset), then closing.
+    Refuse(TcpStream, usize),
+    Closed,
+}
+
+impl Transport {
+    /// Drives a TLS connection to its `Tls` stage (a no-op for the others); an error ends it.
+    fn poll_established(&mut self, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        loop {
+            match self {
+                Transport::Plain(_) | Transport::Tls(_) => return Poll::Ready(Ok(())),
+                Transport::Sniff(io, acceptor) => {
+                    let mut first = [0u8; 1];
+                    let mut buf = ReadBuf::new(&mut first);
+                    match io.poll_peek(cx, &mut buf) {
+                        Poll::Pending => return Poll::Pending,
+                        Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+                        Poll::Ready(Ok(0)) => return Poll::Ready(Ok(())), // closed: EOF
+                        Poll::Ready(Ok(_)) => {}
+                    }
+                    let acceptor = acceptor.clone();
+                    let Transport::Sniff(io, _) = std::mem::replace(self, Transport::Closed) else {
+                        unreachable!("matched above")
+                    };
+                    *self = if first[0] == TLS_HANDSHAKE_RECORD {
+                        Transport::Handshake(Box::new(acceptor.accept(io)))
+                    } else {
+                        Transport::Refuse(io, 0)
+                    };
+                }
+                Transport::Handshake(accept) => match Pin::new(accept.as_mut()).poll(cx) {
+                    Poll::Pending => return Poll::Pending,
+                    Poll::Ready(Ok(tls)) => *self = Transport::Tls(Box::new(tls)),
+                    Poll::Ready(Err(e)) => {
+                        *self = Transport::Closed;
+                        tracing::debug!(error = %e, "TLS handshake failed");
+                        return Poll::Ready(Err(e));
+                    }
+                },
+                Transport::Refuse(io, sent) => {
+                    while *sent < PLAIN_HTTP_ANSWER.len() {
+                        match Pin::new(&mut *io).poll_write(cx, &PLAIN_HTTP_ANSWER[*sent..]) {
+                            Poll::Pending => return Poll::Pending,
+                            Poll::Ready(Ok(0)) | Poll::Ready(Err(_)) => break,
+                            Poll::Ready(Ok(n)) => *sent += n,
+                        }
+                    }
+                    if let Poll::Pending = Pin::new(&mut *io).poll_shutdown(cx) {
+                        return Poll::Pending;
+                    }
+                    *self = Transport::Closed;
+                    tracing::debug!("plain HTTP on the TLS port: answered 400 and closed");
+                    return Poll::Ready(Err(io::Error::new(
+                        io::ErrorKind::InvalidData,
+                        "plain HTTP on the TLS port",
+                    )));
+                }
+                Transport::Closed => {
+                    return Poll::Ready(Err(io::ErrorKind::NotConnected.into()));
+                }
+            }
+        }
+    }
+}
+
+impl AsyncRead for Transport {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        match this.poll_established(cx) {
+            Poll::Ready(Ok(())) => {}
+            Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+            Poll::Pending => return Poll::Pending,
+        }
+        match this {
+            Transport::Plain(io) => Pin::new(io).poll_read(cx, buf),
+            Transport::Tls(io) => Pin::new(io.as_mut()).poll_read(cx, buf),
+            // A connection closed before its first byte: end of file.
+            _ => Poll::Ready(Ok(())),
+        }
+    }
+}
+
+impl AsyncWrite for Transport {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        let this = self.get_mut();
+        match this.poll_established(cx) {
+            Poll::Ready(Ok(())) => {}
+            Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+            Poll::Pending => return Poll::Pending,
+        }
+        match this {
+            Transport::Plain(io) => Pin::new(io).poll_write(cx, buf),
+            Transport::Tls(io) => Pin::new(io.as_mut()).poll_write(cx, buf),
+            _ => Poll::Ready(Err(io::ErrorKind::NotConnected.into())),
+        }
+    }
+
+    fn poll_write_vectored(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        let this = self.get_mut();
+        match this.poll_established(cx) {
+            Poll::Ready(Ok(())) => {}
+            Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+            Poll::Pending => return Poll::Pending,
+        }
+        match this {
+            Transport::Plain(io) => Pin::new(io).poll_write_vectored(cx, bufs),
+            Transport::Tls(io) => Pin::new(io.as_mut()).poll_write_vectored(cx, bufs),
+            _ => Poll::Ready(Err(io::ErrorKind::NotConnected.into())),
+        }
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        match self.get_mut() {
+            Transport::Plain(io) => Pin::new(io).poll_flush(cx),
+            Transport::Tls(io) => Pin::new(io.as_mut()).poll_flush(cx),
+            _ => Poll::Ready(Ok(())),
+        }
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        match self.get_mut() {
+            Transport::Plain(io) => Pin::new(io).poll_shutdown(cx),
+            Transport::Tls(io) => Pin::new(io.as_mut()).poll_shutdown(cx),
+            Transport::Sniff(io, _) | Transport::Refuse(io, _) => Pin::new(io).poll_shutdown(cx),
+            Transport::Handshake(_) | Transport::Closed => Poll::Ready(Ok(())),
+        }
     }
 }
 

@@ -22,6 +22,7 @@ pub mod scheduler;
 pub mod single_flight;
 pub mod states;
 pub mod store;
+pub mod tls;
 
 pub use config::{ConnectionLimits, Limits, ServerConfig};
 pub use store::Store;
@@ -117,7 +118,10 @@ fn router(state: AppState, listen: Option<std::net::SocketAddr>) -> Router {
         .layer(axum::middleware::from_fn(routes::nul_paths));
     let router = if state.config.client_tokens.is_empty() {
         router.layer(axum::middleware::from_fn_with_state(
-            origin::OwnOrigin { listen },
+            origin::OwnOrigin {
+                listen,
+                tls: state.config.tls.is_some(),
+            },
             origin::guard,
         ))
     } else {
@@ -136,21 +140,39 @@ fn router(state: AppState, listen: Option<std::net::SocketAddr>) -> Router {
 
 /// Serves the API on `listener` until `shutdown` resolves, running the monitor loop alongside;
 /// in-flight requests finish before it returns. Connections are held to the timeouts and the cap
-/// of [`ConnectionLimits`] ([`connections`]).
+/// of [`ConnectionLimits`] ([`connections`]). With [`ServerConfig::tls`] every connection is
+/// HTTPS, and the certificate files are watched for changes ([`tls::watch`]).
 pub async fn serve(
     state: AppState,
     listener: tokio::net::TcpListener,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     let listen = listener.local_addr()?;
+    let tls = match &state.config.tls {
+        Some(cert) => {
+            let config = cert.server_config().map_err(std::io::Error::other)?;
+            Some((
+                tokio_rustls::TlsAcceptor::from(Arc::new(config)),
+                tokio::spawn(tls::watch(cert.clone())),
+            ))
+        }
+        None => None,
+    };
     let monitor = tokio::spawn(monitor::run(state.clone()));
-    let listener = connections::GuardedListener::new(listener, state.clone());
+    let listener = connections::GuardedListener::new(
+        listener,
+        state.clone(),
+        tls.as_ref().map(|(acceptor, _)| acceptor.clone()),
+    );
     let app = app_listening_on(state.clone(), listen)
         .into_make_service_with_connect_info::<connections::ConnHandle>();
     let result = axum::serve(listener, app)
         .with_graceful_shutdown(shutdown)
         .await;
     monitor.abort();
+    if let Some((_, watcher)) = tls {
+        watcher.abort();
+    }
     state.store.close().await;
     result
 }

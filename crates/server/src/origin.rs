@@ -12,7 +12,8 @@
 //!   requests carry its own name and are refused (403 `bad_host`), reads included. A request
 //!   without `Host` (not from a browser: HTTP/1.1 browsers always send it) is let through.
 //! - **`Origin`**, when present on a state-changing request (POST, PUT, PATCH, DELETE), must be
-//!   the server's own origin: `http://` and a host and port `Host` would accept. `Origin: null`
+//!   the server's own origin: `http://` (`https://` when the server terminates TLS itself) and a
+//!   host and port `Host` would accept. `Origin: null`
 //!   (sandboxed pages, some redirects) is refused, and so is a `Sec-Fetch-Site` of `cross-site`
 //!   or `same-site`, which browsers send beside it (403 `cross_origin`).
 //!
@@ -34,6 +35,10 @@ pub struct OwnOrigin {
     /// The address the server listens on; `None` when unknown (a router used without a
     /// listener, as in tests): then any port is accepted with the loopback names.
     pub listen: Option<SocketAddr>,
+    /// Whether the server terminates TLS itself: its pages' origin is then `https://`, and a
+    /// `Host` or origin without a port means 443. (Behind a TLS proxy the server sees plain HTTP
+    /// and the proxy's `Host`, as before.)
+    pub tls: bool,
 }
 
 /// A host and port as `Host` or an origin's authority gives them: the name lowercased, an IPv6
@@ -63,6 +68,24 @@ fn split_authority(authority: &str) -> Option<(String, Option<u16>)> {
 }
 
 impl OwnOrigin {
+    /// The scheme of this server's own pages.
+    fn scheme(&self) -> &'static str {
+        if self.tls {
+            "https://"
+        } else {
+            "http://"
+        }
+    }
+
+    /// The port a `Host` or origin without one means.
+    fn default_port(&self) -> u16 {
+        if self.tls {
+            443
+        } else {
+            80
+        }
+    }
+
     /// Whether `host` (a name or IP address, lowercase, IPv6 unbracketed) names this server.
     fn host_is_mine(&self, host: &str) -> bool {
         let ip = host.parse::<IpAddr>().ok();
@@ -78,10 +101,10 @@ impl OwnOrigin {
             || (ip.is_some() && listen_ip.is_some_and(|l| l.is_unspecified()))
     }
 
-    /// Whether `host` and `port` (absent: HTTP's default, 80) address this server.
+    /// Whether `host` and `port` (absent: the scheme's default, 80 or 443) address this server.
     fn addresses_me(&self, host: &str, port: Option<u16>) -> bool {
         let port_ok = match self.listen {
-            Some(listen) => port.unwrap_or(80) == listen.port(),
+            Some(listen) => port.unwrap_or(self.default_port()) == listen.port(),
             None => true,
         };
         port_ok && self.host_is_mine(host)
@@ -142,7 +165,7 @@ impl OwnOrigin {
                 format!(
                     "{what}: this server has no client token and changes state only for its own \
                      pages ({})",
-                    self.accepted("http://")
+                    self.accepted(self.scheme())
                 ),
             ))
         };
@@ -159,16 +182,20 @@ impl OwnOrigin {
         };
         let origin = origin.to_str().unwrap_or("(not text)");
         let mine = origin
-            .strip_prefix("http://")
+            .strip_prefix(self.scheme())
             .and_then(split_authority)
             .is_some_and(|(host, port)| {
                 let same_port = match (self.listen, headers.get(header::HOST)) {
                     // Port unknown: the one the request was sent to.
-                    (None, Some(h)) => h
-                        .to_str()
-                        .ok()
-                        .and_then(split_authority)
-                        .is_some_and(|(_, p)| p.unwrap_or(80) == port.unwrap_or(80)),
+                    (None, Some(h)) => {
+                        h.to_str()
+                            .ok()
+                            .and_then(split_authority)
+                            .is_some_and(|(_, p)| {
+                                let default = self.default_port();
+                                p.unwrap_or(default) == port.unwrap_or(default)
+                            })
+                    }
                     _ => true,
                 };
                 same_port && self.addresses_me(&host, port)
@@ -224,6 +251,7 @@ mod tests {
     fn at(addr: &str) -> OwnOrigin {
         OwnOrigin {
             listen: Some(addr.parse().unwrap()),
+            tls: false,
         }
     }
 
@@ -266,7 +294,10 @@ mod tests {
         assert!(own.addresses_me("10.1.2.3", None));
         assert!(!own.addresses_me("localhost", Some(80)));
         // Unknown listen address: loopback names on any port.
-        let own = OwnOrigin { listen: None };
+        let own = OwnOrigin {
+            listen: None,
+            tls: false,
+        };
         assert!(own.addresses_me("localhost", Some(1234)));
         assert!(!own.addresses_me("evil.example", Some(1234)));
     }
@@ -279,7 +310,11 @@ mod tests {
         );
         assert_eq!(at("10.0.0.1:9").accepted(""), "10.0.0.1:9");
         assert_eq!(
-            OwnOrigin { listen: None }.accepted(""),
+            OwnOrigin {
+                listen: None,
+                tls: false,
+            }
+            .accepted(""),
             "localhost, 127.0.0.1 or [::1]"
         );
     }
@@ -318,5 +353,33 @@ mod tests {
             .check_origin(&headers(&[("sec-fetch-site", "cross-site")]))
             .unwrap_err();
         assert!(err.message.contains("cross-site"));
+    }
+
+    #[test]
+    fn a_tls_server_s_origin_is_https() {
+        let own = OwnOrigin {
+            listen: Some("127.0.0.1:8443".parse().unwrap()),
+            tls: true,
+        };
+        let origin = |o: &str| {
+            let mut h = HeaderMap::new();
+            h.insert("origin", o.parse().unwrap());
+            own.check_origin(&h)
+        };
+        assert!(origin("https://localhost:8443").is_ok());
+        assert!(origin("https://127.0.0.1:8443").is_ok());
+        let err = origin("http://127.0.0.1:8443").unwrap_err();
+        assert!(
+            err.message.contains("https://127.0.0.1:8443"),
+            "{}",
+            err.message
+        );
+        // Without a port, an https origin means 443.
+        let on_443 = OwnOrigin {
+            listen: Some("127.0.0.1:443".parse().unwrap()),
+            tls: true,
+        };
+        assert!(on_443.addresses_me("localhost", None));
+        assert!(!own.addresses_me("localhost", None));
     }
 }

@@ -7,6 +7,12 @@
 //! images) go through a second connection pool with a read timeout instead — they fail once the
 //! server sends nothing for [`STALL_TIMEOUT`] (also while it prepares the answer), and in any case
 //! after [`BULK_TIMEOUT`]; a scene upload (`submit`) is limited by [`BULK_TIMEOUT`] alone.
+//!
+//! TLS: `https://` servers are verified against the system's roots and, for a farm with its own
+//! (or a self-signed) certificate, the extra CA certificates of [`ApiClient::with_ca_cert`]
+//! (`--ca-cert`). A failed TLS handshake (an unknown or expired certificate, a name mismatch,
+//! `https://` to a plain HTTP server) is [`ClientError::Tls`]: a configuration mistake that trying
+//! again does not mend, so the worker stops on it instead of retrying.
 
 use pathfarm_wire::api::{
     Convergence, ErrorBody, Heartbeat, HeartbeatReply, JobCreated, JobList, JobPatch, JobSettings,
@@ -15,6 +21,7 @@ use pathfarm_wire::api::{
 };
 use reqwest::{Method, RequestBuilder, Response, StatusCode, Url};
 use serde::de::DeserializeOwned;
+use std::path::Path;
 use std::time::Duration;
 
 /// Longest wait for a connection to the server.
@@ -36,6 +43,11 @@ pub enum SetupError {
     Url { url: String, reason: String },
     #[error("cannot set up the HTTP client: {0}")]
     Http(#[source] reqwest::Error),
+    #[error("--ca-cert {}: {reason}", path.display())]
+    CaCert {
+        path: std::path::PathBuf,
+        reason: String,
+    },
 }
 
 /// Checks a server URL: http or https, a host, no query or fragment. Returns it without the
@@ -73,6 +85,16 @@ pub enum ClientError {
     /// The request did not get an answer (connection refused, reset, timeout).
     #[error("cannot reach the server: {0}")]
     Transport(#[source] reqwest::Error),
+    /// The TLS handshake with the server failed: `reason` is rustls' (e.g. an unknown issuer).
+    #[error(
+        "TLS with the server failed: {reason} (a server with its own or a self-signed certificate \
+         needs --ca-cert FILE with its CA certificate; a plain HTTP server needs an http:// URL)"
+    )]
+    Tls {
+        reason: String,
+        #[source]
+        source: reqwest::Error,
+    },
     #[error("unexpected answer from the server: {0}")]
     Protocol(String),
 }
@@ -90,9 +112,62 @@ impl ClientError {
         match self {
             ClientError::Transport(e) => !e.is_builder(),
             ClientError::Api { status, .. } => status.is_server_error(),
-            ClientError::Protocol(_) => false,
+            ClientError::Protocol(_) | ClientError::Tls { .. } => false,
         }
     }
+}
+
+/// A request's failure to get an answer: [`ClientError::Tls`] when rustls refused the handshake
+/// (found in the error's chain), else [`ClientError::Transport`].
+fn transport(e: reqwest::Error) -> ClientError {
+    match rustls_error(&e) {
+        Some(tls) => ClientError::Tls {
+            reason: tls.to_string(),
+            source: e,
+        },
+        None => ClientError::Transport(e),
+    }
+}
+
+/// The rustls error in `err`'s chain. hyper-rustls leaves it inside `io::Error`s (two of them,
+/// nested), whose `source()` skips the error they wrap, so those are opened with `get_ref`.
+fn rustls_error<'a>(err: &'a (dyn std::error::Error + 'static)) -> Option<&'a rustls::Error> {
+    if let Some(tls) = err.downcast_ref::<rustls::Error>() {
+        return Some(tls);
+    }
+    if let Some(inner) = err
+        .downcast_ref::<std::io::Error>()
+        .and_then(|io| io.get_ref())
+    {
+        if let Some(tls) = rustls_error(inner) {
+            return Some(tls);
+        }
+    }
+    err.source().and_then(rustls_error)
+}
+
+/// Installs ring as the process's rustls crypto provider, which reqwest's `rustls-no-provider`
+/// feature needs before any `reqwest::Client` is built (it panics without one). ring is the
+/// workspace's one provider: sqlx and the server's TLS use it too; reqwest's own default,
+/// aws-lc-rs, would add a long C build. [`ApiClient`] calls it; code that builds a reqwest client
+/// of its own calls it first. Harmless when a provider is installed already.
+pub fn install_crypto_provider() {
+    let _ = rustls::crypto::ring::default_provider().install_default();
+}
+
+/// The certificates of a PEM file, for [`ApiClient::with_ca_cert`].
+fn read_ca_certs(path: &Path) -> Result<Vec<reqwest::Certificate>, SetupError> {
+    let bad = |reason: String| SetupError::CaCert {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let pem = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let certs = reqwest::Certificate::from_pem_bundle(&pem)
+        .map_err(|e| bad(format!("not a PEM certificate file: {e}")))?;
+    if certs.is_empty() {
+        return Err(bad("no PEM certificate (BEGIN CERTIFICATE) in it".into()));
+    }
+    Ok(certs)
 }
 
 /// See the module's documentation for the timeouts.
@@ -109,16 +184,34 @@ pub struct ApiClient {
 impl ApiClient {
     /// Fails at once on a URL that cannot work (see [`check_server_url`]).
     pub fn new(base: &str, token: Option<String>) -> Result<ApiClient, SetupError> {
+        Self::with_ca_cert(base, token, None)
+    }
+
+    /// [`ApiClient::new`] that also trusts the CA certificates of the PEM file `ca_cert` for
+    /// `https://` servers (`--ca-cert`); fails at once, naming the file, when it has none.
+    pub fn with_ca_cert(
+        base: &str,
+        token: Option<String>,
+        ca_cert: Option<&Path>,
+    ) -> Result<ApiClient, SetupError> {
         let base = check_server_url(base)?;
-        let http = reqwest::Client::builder()
-            .connect_timeout(CONNECT_TIMEOUT)
-            .pool_idle_timeout(Duration::from_secs(30))
-            .build()
-            .map_err(SetupError::Http)?;
-        let bulk = reqwest::Client::builder()
-            .connect_timeout(CONNECT_TIMEOUT)
+        install_crypto_provider();
+        let extra = match ca_cert {
+            Some(path) => read_ca_certs(path)?,
+            None => Vec::new(),
+        };
+        let builder = |extra: &[reqwest::Certificate]| {
+            let mut b = reqwest::Client::builder()
+                .connect_timeout(CONNECT_TIMEOUT)
+                .pool_idle_timeout(Duration::from_secs(30));
+            for cert in extra {
+                b = b.add_root_certificate(cert.clone());
+            }
+            b
+        };
+        let http = builder(&extra).build().map_err(SetupError::Http)?;
+        let bulk = builder(&extra)
             .read_timeout(STALL_TIMEOUT)
-            .pool_idle_timeout(Duration::from_secs(30))
             .build()
             .map_err(SetupError::Http)?;
         Ok(ApiClient {
@@ -165,12 +258,12 @@ impl ApiClient {
     }
 
     async fn send(rb: RequestBuilder) -> Result<Response, ClientError> {
-        let resp = rb.send().await.map_err(ClientError::Transport)?;
+        let resp = rb.send().await.map_err(transport)?;
         if resp.status().is_success() {
             return Ok(resp);
         }
         let status = resp.status();
-        let body = resp.bytes().await.map_err(ClientError::Transport)?;
+        let body = resp.bytes().await.map_err(transport)?;
         Err(match serde_json::from_slice::<ErrorBody>(&body) {
             Ok(e) => ClientError::Api {
                 status,
@@ -187,7 +280,7 @@ impl ApiClient {
 
     async fn json<T: DeserializeOwned>(rb: RequestBuilder) -> Result<T, ClientError> {
         let resp = Self::send(rb).await?;
-        let bytes = resp.bytes().await.map_err(ClientError::Transport)?;
+        let bytes = resp.bytes().await.map_err(transport)?;
         serde_json::from_slice(&bytes).map_err(|e| ClientError::Protocol(e.to_string()))
     }
 
@@ -213,7 +306,7 @@ impl ApiClient {
         if resp.status() == StatusCode::NO_CONTENT {
             return Ok(None);
         }
-        let bytes = resp.bytes().await.map_err(ClientError::Transport)?;
+        let bytes = resp.bytes().await.map_err(transport)?;
         serde_json::from_slice(&bytes)
             .map(Some)
             .map_err(|e| ClientError::Protocol(e.to_string()))
@@ -262,7 +355,7 @@ impl ApiClient {
 
     pub async fn scene(&self, hash: &str) -> Result<Vec<u8>, ClientError> {
         let resp = Self::send(self.download(&format!("/api/v1/scenes/{hash}"))).await?;
-        Ok(resp.bytes().await.map_err(ClientError::Transport)?.to_vec())
+        Ok(resp.bytes().await.map_err(transport)?.to_vec())
     }
 
     // Client calls.
@@ -294,13 +387,13 @@ impl ApiClient {
                 reqwest::multipart::Part::bytes(scene)
                     .file_name(file_name.to_string())
                     .mime_str("model/gltf-binary")
-                    .map_err(ClientError::Transport)?,
+                    .map_err(transport)?,
             )
             .part(
                 "settings",
                 reqwest::multipart::Part::bytes(settings)
                     .mime_str("application/json")
-                    .map_err(ClientError::Transport)?,
+                    .map_err(transport)?,
             );
         if let Some((bytes, name)) = environment {
             form = form.part(
@@ -308,7 +401,7 @@ impl ApiClient {
                 reqwest::multipart::Part::bytes(bytes)
                     .file_name(name)
                     .mime_str("application/octet-stream")
-                    .map_err(ClientError::Transport)?,
+                    .map_err(transport)?,
             );
         }
         Self::json(
@@ -369,13 +462,13 @@ impl ApiClient {
             if extra { "?extra=true" } else { "" }
         );
         let resp = Self::send(self.download(&path)).await?;
-        Ok(resp.bytes().await.map_err(ClientError::Transport)?.to_vec())
+        Ok(resp.bytes().await.map_err(transport)?.to_vec())
     }
 
     pub async fn preview_png(&self, id: &str, exposure: f32) -> Result<Vec<u8>, ClientError> {
         let path = format!("/api/v1/jobs/{id}/preview.png?exposure={exposure}");
         let resp = Self::send(self.download(&path)).await?;
-        Ok(resp.bytes().await.map_err(ClientError::Transport)?.to_vec())
+        Ok(resp.bytes().await.map_err(transport)?.to_vec())
     }
 
     /// A heat map (or the image) with the two ends of its colour scale, from the response headers.
@@ -389,7 +482,7 @@ impl ApiClient {
         let header =
             |name: &str| -> Option<f64> { resp.headers().get(name)?.to_str().ok()?.parse().ok() };
         let scale = header(SCALE_MIN_HEADER).zip(header(SCALE_MAX_HEADER));
-        let bytes = resp.bytes().await.map_err(ClientError::Transport)?.to_vec();
+        let bytes = resp.bytes().await.map_err(transport)?.to_vec();
         Ok((bytes, scale))
     }
 

@@ -35,6 +35,9 @@ use tokio::sync::watch;
 pub struct WorkerConfig {
     pub server: String,
     pub token: Option<String>,
+    /// A PEM file of CA certificates to trust besides the system's, for an `https://` server
+    /// with its own or a self-signed certificate (`--ca-cert`).
+    pub ca_cert: Option<PathBuf>,
     pub name: String,
     pub threads: usize,
     /// Where fetched scenes are kept (none: memory only).
@@ -52,6 +55,7 @@ impl WorkerConfig {
         WorkerConfig {
             server: server.into(),
             token: None,
+            ca_cert: None,
             name: default_name(),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             cache_dir: None,
@@ -157,7 +161,11 @@ pub async fn run(
             .build()
             .map_err(|e| WorkerError::Threads(e.to_string()))?,
     );
-    let client = ApiClient::new(&config.server, config.token.clone())?;
+    let client = ApiClient::with_ca_cert(
+        &config.server,
+        config.token.clone(),
+        config.ca_cert.as_deref(),
+    )?;
     let Some(session) = register(&client, &config, &mut stop).await? else {
         return Ok(WorkerReport::default());
     };

@@ -88,9 +88,16 @@ impl TestServer {
     }
 
     pub async fn start_on(addr: &str, config: ServerConfig) -> TestServer {
+        // Tests build reqwest clients of their own against the server's URL.
+        pathfarm_worker::client::install_crypto_provider();
+        let scheme = if config.tls.is_some() {
+            "https"
+        } else {
+            "http"
+        };
         let state = AppState::open(config).await.expect("open store");
         let listener = tokio::net::TcpListener::bind(addr).await.expect("bind");
-        let url = format!("http://{}", listener.local_addr().unwrap());
+        let url = format!("{scheme}://{}", listener.local_addr().unwrap());
         let (tx, rx) = tokio::sync::oneshot::channel::<()>();
         let handle = tokio::spawn(pathfarm_server::serve(
             state.clone(),
@@ -129,6 +136,11 @@ pub struct TestWorker {
 
 impl TestWorker {
     pub fn spawn(server: &str, token: Option<&str>, slice_samples: Option<u32>) -> TestWorker {
+        Self::spawn_with(Self::config(server, token, slice_samples))
+    }
+
+    /// The configuration [`TestWorker::spawn`] runs with, to change before [`TestWorker::spawn_with`].
+    pub fn config(server: &str, token: Option<&str>, slice_samples: Option<u32>) -> WorkerConfig {
         let mut c = WorkerConfig::new(server);
         c.token = token.map(str::to_string);
         c.threads = 1;
@@ -136,6 +148,10 @@ impl TestWorker {
         c.slice_seconds = 0.2;
         c.idle_poll = Duration::from_millis(50);
         c.name = format!("test-{}", uuid::Uuid::new_v4().simple());
+        c
+    }
+
+    pub fn spawn_with(c: WorkerConfig) -> TestWorker {
         let (stop, rx) = watch::channel(false);
         let handle = tokio::spawn(pathfarm_worker::run(c, rx));
         TestWorker { stop, handle }

@@ -304,6 +304,8 @@ pub async fn run(cfg: &SoakConfig, scene: &[u8]) -> Result<SoakReport, BenchErro
         leases_empty: AtomicU64::new(0),
         heartbeats_lease_invalid: AtomicU64::new(0),
     });
+    // reqwest's TLS needs the process's crypto provider before a client is built.
+    pathfarm_worker::client::install_crypto_provider();
     let http = reqwest::Client::builder()
         .connect_timeout(Duration::from_secs(5))
         .timeout(Duration::from_secs(60))

@@ -261,6 +261,7 @@ pub(super) fn status_key(e: &ClientError) -> String {
     match e {
         ClientError::Api { status, .. } => status.as_u16().to_string(),
         ClientError::Transport(_) => "transport".into(),
+        ClientError::Tls { .. } => "tls".into(),
         ClientError::Protocol(_) => "protocol".into(),
     }
 }
