@@ -445,7 +445,7 @@ impl Transport {
                             Poll::Ready(Ok(n)) => *sent += n,
                         }
                     }
-                    if let Poll::Pending = Pin::new(&mut *io).poll_shutdown(cx) {
+                    if Pin::new(&mut *io).poll_shutdown(cx).is_pending() {
                         return Poll::Pending;
                     }
                     *self = Transport::Closed;

@@ -176,9 +176,8 @@ async fn clients_that_cannot_speak_to_the_server_fail_at_once_and_clearly() {
 fn certificate_files_that_cannot_serve_are_refused_naming_the_file() {
     let (files, cert_pem) = Files::new("tls-bad-files");
     let (_, other_key) = self_signed();
-    let err = |cert: &Path, key: &Path| -> TlsError {
-        ServerCert::load(cert, key).err().expect("refused")
-    };
+    let err =
+        |cert: &Path, key: &Path| -> TlsError { ServerCert::load(cert, key).expect_err("refused") };
     let missing = files.dir.join("missing.pem");
     let e = err(&missing, &files.key);
     assert_eq!(e.flag, "--tls-cert");
@@ -267,8 +266,7 @@ async fn postgres_is_reached_over_tls_with_sslmode_require() {
     conn.close().await.unwrap();
     let e = sqlx::PgConnection::connect(&with("verify-full"))
         .await
-        .err()
-        .expect("verify-full refuses a certificate no CA vouches for");
+        .expect_err("verify-full refuses a certificate no CA vouches for");
     eprintln!("verify-full: {e}");
 
     // The farm's store itself, over TLS.
