@@ -41,6 +41,8 @@ pub const KEYS: &[(&str, &str, &str)] = &[
         "PATHFARM_BODY_MIN_KIB_PER_SECOND",
     ),
     ("serve", "max-connections", "PATHFARM_MAX_CONNECTIONS"),
+    ("serve", "tls-cert", "PATHFARM_TLS_CERT"),
+    ("serve", "tls-key", "PATHFARM_TLS_KEY"),
     ("up", "workers", "PATHFARM_WORKERS"),
     ("up", "threads-per-worker", "PATHFARM_THREADS_PER_WORKER"),
     ("up", "port", "PATHFARM_PORT"),
@@ -52,14 +54,18 @@ pub const KEYS: &[(&str, &str, &str)] = &[
     ("worker", "cache-dir", "PATHFARM_CACHE_DIR"),
     ("worker", "slice-seconds", "PATHFARM_SLICE_SECONDS"),
     ("worker", "slice-samples", "PATHFARM_SLICE_SAMPLES"),
+    ("worker", "ca-cert", "PATHFARM_CA_CERT"),
     ("client", "server", "PATHFARM_SERVER"),
     ("client", "token", "PATHFARM_TOKEN"),
+    ("client", "ca-cert", "PATHFARM_CA_CERT"),
 ];
 
 /// Whether `command` reads `key` of `[table]`.
 fn reads(command: &str, table: &str, key: &str) -> bool {
-    // `up` listens where its own `host` and `port` say.
-    tables_for(command).contains(&table) && !(command == "up" && key == "listen")
+    // `up` listens where its own `host` and `port` say, over plain HTTP (its workers are its own
+    // processes on the same machine).
+    tables_for(command).contains(&table)
+        && !(command == "up" && matches!(key, "listen" | "tls-cert" | "tls-key"))
 }
 
 /// Which tables a command reads: `up` runs a server too, so it reads `[serve]` as well (all but
@@ -243,6 +249,29 @@ server = "http://farm:9000"
             vec![("PATHFARM_SERVER", "http://farm:9000".to_string())]
         );
         assert!(vars("render").is_empty());
+    }
+
+    #[test]
+    fn tls_files_are_read_by_serve_and_the_ca_by_workers_and_clients_but_not_by_up() {
+        let file = "[serve]\ntls-cert = \"c.pem\"\ntls-key = \"k.pem\"\n\
+                    [worker]\nca-cert = \"ca.pem\"\n[client]\nca-cert = \"ca.pem\"\n";
+        let vars = |command| settings(file, Path::new("farm.toml"), command).unwrap();
+        assert_eq!(
+            vars("serve"),
+            vec![
+                ("PATHFARM_TLS_CERT", "c.pem".to_string()),
+                ("PATHFARM_TLS_KEY", "k.pem".to_string())
+            ]
+        );
+        assert!(vars("up").is_empty());
+        assert_eq!(
+            vars("worker"),
+            vec![("PATHFARM_CA_CERT", "ca.pem".to_string())]
+        );
+        assert_eq!(
+            vars("submit"),
+            vec![("PATHFARM_CA_CERT", "ca.pem".to_string())]
+        );
     }
 
     fn scanned(line: &str) -> (Option<String>, Option<String>) {

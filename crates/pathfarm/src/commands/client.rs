@@ -28,11 +28,19 @@ pub struct ClientArgs {
     /// Client token (when the server requires one).
     #[arg(long, env = "PATHFARM_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// PEM file of CA certificates to trust besides the system's, for an https:// server with its
+    /// own or a self-signed certificate.
+    #[arg(long, env = "PATHFARM_CA_CERT")]
+    pub ca_cert: Option<PathBuf>,
 }
 
 impl ClientArgs {
     fn client(&self) -> Result<ApiClient> {
-        Ok(ApiClient::new(&self.server, self.token.clone())?)
+        Ok(ApiClient::with_ca_cert(
+            &self.server,
+            self.token.clone(),
+            self.ca_cert.as_deref(),
+        )?)
     }
 }
 

@@ -4,6 +4,8 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use pathfarm_server::{AppState, ServerConfig};
 use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 /// Server settings shared by `serve` and `up`.
@@ -109,8 +111,52 @@ pub struct ServeArgs {
     /// Address to listen on.
     #[arg(long, env = "PATHFARM_LISTEN", default_value = "127.0.0.1:8080")]
     pub listen: SocketAddr,
+    /// PEM certificate chain (the server's certificate first) to serve HTTPS with, together with
+    /// --tls-key. The files are read again when they change, and on SIGHUP. Without them the
+    /// server speaks plain HTTP (as behind a reverse proxy that terminates TLS).
+    #[arg(long, env = "PATHFARM_TLS_CERT", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert's certificate (PKCS#8, PKCS#1 or SEC1).
+    #[arg(long, env = "PATHFARM_TLS_KEY", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
     #[command(flatten)]
     pub server: ServerArgs,
+}
+
+impl ServeArgs {
+    /// The server's configuration, with its certificate read (a file that cannot serve is an
+    /// error that names it).
+    pub fn config(&self) -> Result<ServerConfig> {
+        let mut c = self.server.config()?;
+        c.tls = match (&self.tls_cert, &self.tls_key) {
+            (Some(cert), Some(key)) => {
+                Some(Arc::new(pathfarm_server::tls::ServerCert::load(cert, key)?))
+            }
+            (None, None) => None,
+            _ => bail!("--tls-cert and --tls-key go together: give both or neither"),
+        };
+        Ok(c)
+    }
+}
+
+/// Reloads the certificate on each SIGHUP (besides the reload when its files change).
+fn reload_on_sighup(cert: Arc<pathfarm_server::tls::ServerCert>) -> Result<()> {
+    let mut hup = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup())
+        .context("cannot handle SIGHUP")?;
+    tokio::spawn(async move {
+        while hup.recv().await.is_some() {
+            let c = cert.clone();
+            match tokio::task::spawn_blocking(move || c.reload()).await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => tracing::error!(
+                    error = %e,
+                    "SIGHUP: TLS certificate not reloaded; keeping the one in use"
+                ),
+                Err(e) => tracing::error!(error = %e, "SIGHUP: TLS certificate reload failed"),
+            }
+        }
+    });
+    Ok(())
 }
 
 /// Refuses to expose an open API beyond this machine.
@@ -137,7 +183,12 @@ pub async fn start(
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .with_context(|| format!("cannot listen on {addr}"))?;
-    tracing::info!(addr = %listener.local_addr()?, store = state.store.dialect().name(), "serving");
+    tracing::info!(
+        addr = %listener.local_addr()?,
+        store = state.store.dialect().name(),
+        tls = state.config.tls.is_some(),
+        "serving"
+    );
     Ok((state, listener))
 }
 
@@ -158,8 +209,17 @@ pub async fn shutdown_signal() {
 }
 
 pub async fn run(args: ServeArgs) -> Result<()> {
-    let (state, listener) = start(args.listen, args.server.config()?).await?;
-    println!("pathfarm serving on http://{}", listener.local_addr()?);
+    let config = args.config()?;
+    let scheme = if config.tls.is_some() {
+        "https"
+    } else {
+        "http"
+    };
+    if let Some(cert) = &config.tls {
+        reload_on_sighup(cert.clone())?;
+    }
+    let (state, listener) = start(args.listen, config).await?;
+    println!("pathfarm serving on {scheme}://{}", listener.local_addr()?);
     pathfarm_server::serve(state, listener, shutdown_signal()).await?;
     tracing::info!("server stopped");
     Ok(())

@@ -15,6 +15,10 @@ pub struct WorkerArgs {
     /// Worker token (when the server requires one).
     #[arg(long, env = "PATHFARM_WORKER_TOKEN")]
     pub token: Option<String>,
+    /// PEM file of CA certificates to trust besides the system's, for an https:// server with its
+    /// own or a self-signed certificate.
+    #[arg(long, env = "PATHFARM_CA_CERT")]
+    pub ca_cert: Option<PathBuf>,
     /// Render threads (default: one per core).
     #[arg(long, env = "PATHFARM_THREADS")]
     pub threads: Option<usize>,
@@ -42,6 +46,7 @@ fn default_cache_dir() -> Option<PathBuf> {
 pub async fn run(args: WorkerArgs) -> Result<()> {
     let mut c = WorkerConfig::new(args.server);
     c.token = args.token;
+    c.ca_cert = args.ca_cert;
     if let Some(t) = args.threads {
         c.threads = t.max(1);
     }
