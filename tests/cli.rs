@@ -4,6 +4,7 @@
 mod support;
 
 use base64::Engine;
+use pathfarm_worker::client::ApiClient;
 use std::time::Duration;
 use support::*;
 
@@ -423,4 +424,138 @@ async fn invalid_samples_are_reported_once_with_a_count_not_once_each() {
         .find(|l| l.contains("worker stopped"))
         .unwrap_or_else(|| panic!("no `worker stopped` line:\n{log}"));
     assert!(!stopped.contains("invalid_samples=0"), "{stopped}");
+}
+
+/// A self-signed certificate for `localhost` and 127.0.0.1, as PEM: (certificate, key).
+fn self_signed() -> (String, String) {
+    let c = rcgen::generate_simple_self_signed(vec!["localhost".into(), "127.0.0.1".into()])
+        .expect("certificate");
+    (c.cert.pem(), c.signing_key.serialize_pem())
+}
+
+/// Writes `text` to `path` by a rename, as a deployment tool replaces a file.
+fn replace(path: &std::path::Path, text: &str) {
+    let tmp = path.with_extension("new");
+    std::fs::write(&tmp, text).expect("write");
+    std::fs::rename(&tmp, path).expect("rename");
+}
+
+/// `serve --tls-cert --tls-key` with the real binary: files that cannot serve are refused at
+/// start naming them; a worker and the client commands with `--ca-cert` render a job over
+/// `https://`; without it they stop at once with an error that names `--ca-cert`; SIGHUP serves
+/// replaced files.
+#[tokio::test]
+async fn serve_terminates_tls_for_workers_and_clients_and_reloads_on_sighup() {
+    let farm = Farm::new("tls");
+    let dir = &farm.dir;
+    let (cert_pem, key_pem) = self_signed();
+    let (cert, key, ca) = (dir.path("cert.pem"), dir.path("key.pem"), dir.arg("ca.pem"));
+    replace(&cert, &cert_pem);
+    replace(&key, &key_pem);
+    std::fs::write(&ca, &cert_pem).expect("write ca.pem");
+    let (cert_arg, key_arg) = (dir.arg("cert.pem"), dir.arg("key.pem"));
+    let listen = format!("127.0.0.1:{}", farm.port);
+    let serve = |tls: &[&str]| {
+        let mut args = vec!["serve", "--listen", &listen, "--db", &farm.db];
+        args.extend_from_slice(tls);
+        args.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let refused = |args: Vec<String>| async move {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let out = run_cli(dir, &args, Duration::from_secs(30)).await;
+        assert!(!out.status.success(), "{args:?} started");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let missing = dir.arg("missing.pem");
+    let e = refused(serve(&["--tls-cert", &missing, "--tls-key", &key_arg])).await;
+    assert!(e.contains("--tls-cert") && e.contains(&missing), "{e}");
+    let e = refused(serve(&["--tls-cert", &cert_arg, "--tls-key", &cert_arg])).await;
+    assert!(e.contains("--tls-key") && e.contains(&cert_arg), "{e}");
+    let e = refused(serve(&["--tls-cert", &cert_arg])).await;
+    assert!(e.contains("--tls-key"), "{e}");
+
+    let args = serve(&["--tls-cert", &cert_arg, "--tls-key", &key_arg]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let mut server = Proc::start("server", dir, &args);
+    let url = format!("https://127.0.0.1:{}", farm.port);
+    let api = ApiClient::with_ca_cert(&url, None, Some(std::path::Path::new(&ca))).expect("client");
+    let t0 = std::time::Instant::now();
+    while api.workers().await.is_err() {
+        assert!(server.is_running(), "serve exited:\n{}", server.log_text());
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the TLS server does not answer"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+
+    // Without the CA certificate: a clear error at once, from a client command and a worker.
+    let out = run_cli(dir, &["jobs", "--server", &url], Duration::from_secs(30)).await;
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("--ca-cert"), "{e}");
+    let mut lost = Proc::start("worker-without-ca", dir, &["worker", "--server", &url]);
+    assert!(!lost.wait_exit(Duration::from_secs(20)).await.success());
+    assert!(lost.log_text().contains("--ca-cert"), "{}", lost.log_text());
+
+    // With it: a job rendered over https://, bit-identical to a local render.
+    let settings = ["--width", "16", "--height", "12", "--spp", "2"];
+    let reference = render_reference(dir, "reference.exr", &settings);
+    let mut submitted = settings.to_vec();
+    submitted.extend(["--ca-cert", ca.as_str()]);
+    let id = submit(dir, &url, &submitted).await;
+    let cache = dir.arg("cache");
+    let _worker = Proc::start(
+        "worker",
+        dir,
+        &[
+            "worker",
+            "--server",
+            &url,
+            "--ca-cert",
+            &ca,
+            "--threads",
+            "1",
+            "--cache-dir",
+            &cache,
+        ],
+    );
+    wait_completed(&api, &id, Duration::from_secs(60)).await;
+    let out_path = dir.arg("farm.exr");
+    let out = run_cli(
+        dir,
+        &[
+            "job",
+            &id,
+            "--server",
+            &url,
+            "--ca-cert",
+            &ca,
+            "--out",
+            &out_path,
+        ],
+        Duration::from_secs(30),
+    )
+    .await;
+    assert_success(&out, "pathfarm job --out over https");
+    let farm_image = std::fs::read(&out_path).expect("read farm.exr");
+    assert_same_bytes(
+        &farm_image,
+        &reference.await.expect("reference"),
+        "the TLS farm's image",
+    );
+
+    // A new certificate, picked up on SIGHUP by new connections.
+    let (new_pem, new_key) = self_signed();
+    let new_ca = dir.arg("new-ca.pem");
+    std::fs::write(&new_ca, &new_pem).expect("write new-ca.pem");
+    replace(&key, &new_key);
+    replace(&cert, &new_pem);
+    server.signal(libc::SIGHUP);
+    poll("the new certificate", Duration::from_secs(10), || async {
+        let fresh = ApiClient::with_ca_cert(&url, None, Some(std::path::Path::new(&new_ca)))
+            .expect("client");
+        fresh.workers().await.ok()
+    })
+    .await;
+    assert!(server.is_running());
 }
