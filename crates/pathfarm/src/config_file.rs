@@ -41,6 +41,16 @@ pub const KEYS: &[(&str, &str, &str)] = &[
         "PATHFARM_BODY_MIN_KIB_PER_SECOND",
     ),
     ("serve", "max-connections", "PATHFARM_MAX_CONNECTIONS"),
+    (
+        "serve",
+        "max-leases-per-worker",
+        "PATHFARM_MAX_LEASES_PER_WORKER",
+    ),
+    (
+        "serve",
+        "worker-expiry-seconds",
+        "PATHFARM_WORKER_EXPIRY_SECONDS",
+    ),
     ("up", "workers", "PATHFARM_WORKERS"),
     ("up", "threads-per-worker", "PATHFARM_THREADS_PER_WORKER"),
     ("up", "port", "PATHFARM_PORT"),
