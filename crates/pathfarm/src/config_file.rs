@@ -43,6 +43,16 @@ pub const KEYS: &[(&str, &str, &str)] = &[
     ("serve", "max-connections", "PATHFARM_MAX_CONNECTIONS"),
     ("serve", "tls-cert", "PATHFARM_TLS_CERT"),
     ("serve", "tls-key", "PATHFARM_TLS_KEY"),
+    (
+        "serve",
+        "max-leases-per-worker",
+        "PATHFARM_MAX_LEASES_PER_WORKER",
+    ),
+    (
+        "serve",
+        "worker-expiry-seconds",
+        "PATHFARM_WORKER_EXPIRY_SECONDS",
+    ),
     ("up", "workers", "PATHFARM_WORKERS"),
     ("up", "threads-per-worker", "PATHFARM_THREADS_PER_WORKER"),
     ("up", "port", "PATHFARM_PORT"),

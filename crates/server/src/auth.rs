@@ -1,12 +1,17 @@
-//! Bearer tokens: client tokens manage jobs, worker tokens lease and upload. Reading (jobs, images,
-//! workers) takes either. With no token configured at all the API is open (loopback only: `serve`
-//! refuses to listen elsewhere without tokens).
+//! Bearer tokens: client tokens manage jobs, worker tokens register workers. Reading (jobs,
+//! images, workers) takes either. With no token configured at all the API is open (loopback only:
+//! `serve` refuses to listen elsewhere without tokens).
+//!
+//! A worker token does not name a worker: every call a worker makes for itself (lease, heartbeat,
+//! sign-off, upload, release, scene download) also carries the credential its registration
+//! answered ([`WorkerIdentity`]), and acts only for the worker that credential belongs to.
 
 use crate::error::ApiError;
 use crate::AppState;
 use axum::extract::FromRequestParts;
 use axum::http::request::Parts;
 use axum::http::StatusCode;
+use pathfarm_wire::api::WORKER_CREDENTIAL_HEADER;
 use sha2::{Digest, Sha256};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -94,6 +99,31 @@ pub struct ClientAuth;
 pub struct WorkerAuth;
 /// Extractor: the request carries any valid token (or auth is off).
 pub struct ReadAuth;
+/// Extractor: the request carries a worker token (or auth is off) and the credential of a
+/// registered worker ([`WORKER_CREDENTIAL_HEADER`]); `id` is that worker. The credential is
+/// required with auth off as well: it is what keeps one worker from acting for another, which a
+/// bug can do as well as an attacker.
+pub struct WorkerIdentity {
+    pub id: String,
+}
+
+impl WorkerIdentity {
+    /// Refuses (403 `not_your_worker`) a call for a worker other than the caller.
+    pub fn must_be(&self, id: &str) -> Result<(), ApiError> {
+        if self.id == id {
+            return Ok(());
+        }
+        Err(ApiError::new(
+            StatusCode::FORBIDDEN,
+            "not_your_worker",
+            format!(
+                "this credential belongs to worker {}, not to worker {id}: a worker acts only for \
+                 itself",
+                self.id
+            ),
+        ))
+    }
+}
 
 impl FromRequestParts<AppState> for ClientAuth {
     type Rejection = ApiError;
@@ -113,6 +143,40 @@ impl FromRequestParts<AppState> for ReadAuth {
     type Rejection = ApiError;
     async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, ApiError> {
         role_of(state, parts).map(|_| ReadAuth)
+    }
+}
+
+impl FromRequestParts<AppState> for WorkerIdentity {
+    type Rejection = ApiError;
+    async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, ApiError> {
+        require(state, parts, Role::Worker)?;
+        let Some(credential) = parts
+            .headers
+            .get(WORKER_CREDENTIAL_HEADER)
+            .and_then(|v| v.to_str().ok())
+            .map(str::trim)
+            .filter(|c| !c.is_empty())
+        else {
+            return Err(ApiError::new(
+                StatusCode::UNAUTHORIZED,
+                "missing_worker_credential",
+                format!(
+                    "this call needs the {WORKER_CREDENTIAL_HEADER} header: the credential \
+                     POST /api/v1/workers answered"
+                ),
+            ));
+        };
+        match state.store.worker_by_credential(credential).await? {
+            Some(id) => Ok(WorkerIdentity { id }),
+            // A registration that expired (and was collected) lands here too: the worker must
+            // register again, which the worker daemon does on this code.
+            None => Err(ApiError::new(
+                StatusCode::UNAUTHORIZED,
+                "unknown_worker_credential",
+                "no registered worker has this credential (its registration may have expired); \
+                 register again",
+            )),
+        }
     }
 }
 

@@ -13,6 +13,12 @@ pub const DEFAULT_IMAGE_CACHE_BYTES: usize = 1 << 30;
 /// the largest image (8192², which runs alone under the default budget) and then its own.
 pub const DEFAULT_IMAGE_WAIT: Duration = Duration::from_secs(30);
 
+/// The default of [`ServerConfig::max_leases_per_worker`].
+pub const DEFAULT_MAX_LEASES_PER_WORKER: u32 = 4;
+
+/// The default of [`ServerConfig::worker_expiry`]: ten minutes, twenty default leases.
+pub const DEFAULT_WORKER_EXPIRY: Duration = Duration::from_secs(600);
+
 /// Limits on requests, each enforced with a clear 4xx.
 #[derive(Clone, Debug)]
 pub struct Limits {
@@ -108,6 +114,14 @@ pub struct ServerConfig {
     pub lease_duration: Duration,
     /// How often each server expires leases, marks lost workers and updates error estimates.
     pub monitor_interval: Duration,
+    /// Most tasks one worker may hold leased at once. The worker daemon holds one; the cap keeps
+    /// a worker (or a stolen worker token) from taking the queue away from the others. Beyond it
+    /// a lease is answered 429 `too_many_leases`.
+    pub max_leases_per_worker: u32,
+    /// A registration not seen for this long (no heartbeat, lease or upload) expires: its leases
+    /// go back to the queue and its row is deleted, so abandoned or fake registrations do not pile
+    /// up. Its credential stops working; a worker that comes back registers again.
+    pub worker_expiry: Duration,
     /// Most samples per pixel in one task of the last passes, capped further so that a task stays
     /// a few seconds of work.
     pub max_task_samples: u64,
@@ -142,6 +156,8 @@ impl ServerConfig {
             worker_tokens: Vec::new(),
             lease_duration: Duration::from_secs(30),
             monitor_interval: Duration::from_millis(500),
+            max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
+            worker_expiry: DEFAULT_WORKER_EXPIRY,
             max_task_samples: 4 << 20,
             limits: Limits::default(),
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,

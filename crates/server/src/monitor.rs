@@ -1,4 +1,5 @@
-//! The background loop every server runs: expires leases, marks silent workers lost, keeps each
+//! The background loop every server runs: expires leases, marks silent workers lost, collects
+//! registrations idle past the worker expiry, keeps each
 //! job's error estimate current, and ends jobs at their noise target or time limit. Every step is
 //! a transaction on the shared store, so any number of servers can run it side by side.
 
@@ -32,6 +33,15 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
         .await?;
     if lost > 0 {
         tracing::warn!(workers = lost, "workers lost (no heartbeat)");
+    }
+    let collected = store
+        .collect_idle_workers(state.config.worker_expiry.as_millis() as u64)
+        .await?;
+    if collected > 0 {
+        tracing::info!(
+            workers = collected,
+            "idle worker registrations expired and collected"
+        );
     }
     for (id, _) in store.jobs_needing_estimate().await? {
         let job = match store.job(&id).await {

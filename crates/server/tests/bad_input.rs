@@ -8,7 +8,7 @@ use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use common::*;
 use pathfarm_server::{app, AppState};
-use pathfarm_wire::api::{ErrorBody, JobSettings};
+use pathfarm_wire::api::{ErrorBody, JobSettings, WorkerRegistration, WORKER_CREDENTIAL_HEADER};
 use tower::ServiceExt;
 
 fn req(method: &str, uri: &str, ct: Option<&str>, body: impl Into<Body>) -> Request<Body> {
@@ -26,6 +26,23 @@ async fn malformed_requests_get_documented_errors() {
         cfg.limits.max_scene_bytes = 64 << 10;
         cfg.limits.max_slice_bytes = 64 << 10;
         let state = AppState::open(cfg).await.unwrap();
+        // The worker calls below are made as a registered worker: without its credential they
+        // would all be the 401 of the last case.
+        let (_, cred) = state
+            .store
+            .register_worker(&WorkerRegistration {
+                name: "w".into(),
+                threads: 1,
+                version: "t".into(),
+                host: "h".into(),
+            })
+            .await
+            .unwrap();
+        let as_worker = |mut r: Request<Body>| {
+            r.headers_mut()
+                .insert(WORKER_CREDENTIAL_HEADER, cred.parse().unwrap());
+            r
+        };
         let ok_settings = r#"{"width":16,"height":16,"spp":2}"#;
         let cases: Vec<(Request<Body>, StatusCode, &str)> = vec![
             (
@@ -89,36 +106,59 @@ async fn malformed_requests_get_documented_errors() {
                 "bad_query",
             ),
             (
-                req(
+                as_worker(req(
                     "POST",
                     "/api/v1/tasks/1/slices",
                     Some("application/octet-stream"),
                     "x",
-                ),
+                )),
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
                 "unsupported_media_type",
             ),
             (
+                as_worker(req(
+                    "POST",
+                    "/api/v1/tasks/1/slices",
+                    Some("application/x-pathfarm-slice"),
+                    "x",
+                )),
+                StatusCode::BAD_REQUEST,
+                "missing_lease_token",
+            ),
+            (
+                as_worker(
+                    Request::builder()
+                        .method("POST")
+                        .uri("/api/v1/tasks/1/slices")
+                        .header("content-type", "application/x-pathfarm-slice")
+                        .header("pathfarm-lease-token", "t")
+                        .body(Body::from(&b"PFSL\x01\x00garbage"[..]))
+                        .unwrap(),
+                ),
+                // The lease is checked before the body is read: there is no task 1.
+                StatusCode::NOT_FOUND,
+                "not_found",
+            ),
+            (
+                // Without a worker's credential, before anything else of the call.
                 req(
                     "POST",
                     "/api/v1/tasks/1/slices",
                     Some("application/x-pathfarm-slice"),
                     "x",
                 ),
-                StatusCode::BAD_REQUEST,
-                "missing_lease_token",
+                StatusCode::UNAUTHORIZED,
+                "missing_worker_credential",
             ),
             (
                 Request::builder()
                     .method("POST")
-                    .uri("/api/v1/tasks/1/slices")
-                    .header("content-type", "application/x-pathfarm-slice")
-                    .header("pathfarm-lease-token", "t")
-                    .body(Body::from(&b"PFSL\x01\x00garbage"[..]))
+                    .uri("/api/v1/workers/x/lease")
+                    .header(WORKER_CREDENTIAL_HEADER, "0".repeat(64))
+                    .body(Body::empty())
                     .unwrap(),
-                // The lease is checked before the body is read: there is no task 1.
-                StatusCode::NOT_FOUND,
-                "not_found",
+                StatusCode::UNAUTHORIZED,
+                "unknown_worker_credential",
             ),
             (
                 // A declared length over the route's limit is refused before anything else.

@@ -41,7 +41,16 @@ async fn leases_expire_and_workers_are_lost_when_the_clock_says_so() {
     .await;
     assert_eq!(status, StatusCode::CREATED);
     let uri = format!("/api/v1/workers/{}/lease", reg.worker_id);
-    let (status, lease): (_, Lease) = call(&state, request("POST", &uri, &[], "")).await;
+    let (status, lease): (_, Lease) = call(
+        &state,
+        request(
+            "POST",
+            &uri,
+            &[("pathfarm-worker-credential", &reg.credential)],
+            "",
+        ),
+    )
+    .await;
     assert_eq!(status, StatusCode::OK);
     let workers = |state: AppState| async move {
         let (_, list): (_, WorkerList) =

@@ -319,8 +319,9 @@ async fn uploads_are_refused_before_their_body_is_read() {
     let slice = |token: &str, ct: &str, length: u64| {
         format!(
             "POST /api/v1/tasks/{}/slices HTTP/1.1\r\nHost: {host}\r\nAuthorization: Bearer worker\r\n\
+             Pathfarm-Worker-Credential: {}\r\n\
              Content-Type: {ct}\r\nPathfarm-Lease-Token: {token}\r\nContent-Length: {length}\r\n\r\n",
-            lease.task_id
+            lease.task_id, reg.credential
         )
     };
     let ok_ct = pathfarm_wire::api::SLICE_CONTENT_TYPE;

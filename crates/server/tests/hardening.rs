@@ -11,7 +11,7 @@ use http_body_util::BodyExt;
 use pathfarm_server::{app, AppState};
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::{render_tile, Tile};
-use pathfarm_wire::api::{JobSettings, Lease};
+use pathfarm_wire::api::{JobSettings, Lease, WORKER_CREDENTIAL_HEADER};
 use pathfarm_wire::{encode_slice, Slice};
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
@@ -46,15 +46,35 @@ async fn send(
 }
 
 async fn post_json(state: &AppState, uri: &str, body: Value) -> (StatusCode, Value) {
-    let (s, v, _) = send(
-        state,
-        "POST",
-        uri,
-        &[("content-type", "application/json")],
-        body.to_string(),
-    )
-    .await;
+    post_json_as(state, uri, body, None).await
+}
+
+/// [`post_json`] with a worker's credential.
+async fn post_json_as(
+    state: &AppState,
+    uri: &str,
+    body: Value,
+    worker: Option<&Worker>,
+) -> (StatusCode, Value) {
+    let mut headers = vec![("content-type", "application/json")];
+    if let Some(w) = worker {
+        headers.push((WORKER_CREDENTIAL_HEADER, w.cred.as_str()));
+    }
+    let (s, v, _) = send(state, "POST", uri, &headers, body.to_string()).await;
     (s, v)
+}
+
+/// A registered worker: its id (what it displays as, for paths) and its credential.
+#[derive(Clone)]
+struct Worker {
+    id: String,
+    cred: String,
+}
+
+impl std::fmt::Display for Worker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.id)
+    }
 }
 
 async fn submit(state: &AppState, scene: &[u8], settings: &str) -> (StatusCode, Value) {
@@ -70,7 +90,7 @@ async fn submit(state: &AppState, scene: &[u8], settings: &str) -> (StatusCode, 
     (s, v)
 }
 
-async fn register(state: &AppState) -> String {
+async fn register(state: &AppState) -> Worker {
     let (s, v) = post_json(
         state,
         "/api/v1/workers",
@@ -78,15 +98,18 @@ async fn register(state: &AppState) -> String {
     )
     .await;
     assert_eq!(s, StatusCode::CREATED, "{v}");
-    v["worker_id"].as_str().unwrap().to_string()
+    Worker {
+        id: v["worker_id"].as_str().unwrap().to_string(),
+        cred: v["credential"].as_str().unwrap().to_string(),
+    }
 }
 
-async fn lease(state: &AppState, worker: &str) -> (StatusCode, Option<Lease>) {
+async fn lease(state: &AppState, worker: &Worker) -> (StatusCode, Option<Lease>) {
     let (s, _, bytes) = send(
         state,
         "POST",
         &format!("/api/v1/workers/{worker}/lease"),
-        &[],
+        &[(WORKER_CREDENTIAL_HEADER, &worker.cred)],
         "",
     )
     .await;
@@ -94,7 +117,7 @@ async fn lease(state: &AppState, worker: &str) -> (StatusCode, Option<Lease>) {
     (s, lease)
 }
 
-async fn upload(state: &AppState, l: &Lease, slice: &Slice) -> (StatusCode, Value) {
+async fn upload(state: &AppState, w: &Worker, l: &Lease, slice: &Slice) -> (StatusCode, Value) {
     let (s, v, _) = send(
         state,
         "POST",
@@ -102,6 +125,7 @@ async fn upload(state: &AppState, l: &Lease, slice: &Slice) -> (StatusCode, Valu
         &[
             ("content-type", "application/x-pathfarm-slice"),
             ("pathfarm-lease-token", &l.lease_token),
+            (WORKER_CREDENTIAL_HEADER, &w.cred),
         ],
         encode_slice(slice),
     )
@@ -153,14 +177,14 @@ async fn crafted_sums_are_refused_and_the_tile_still_merges() {
             .find(|p| p.count == 1)
             .expect("a pixel with its one sample");
         p.sum[0] = u128::MAX;
-        let (status, err) = upload(&state, &l0, &crafted).await;
+        let (status, err) = upload(&state, &worker, &l0, &crafted).await;
         assert_eq!(
             (status, err["error"]["code"].as_str()),
             (StatusCode::UNPROCESSABLE_ENTITY, Some("slice_values")),
             "{store}: {err}"
         );
         // The lease and the tile are untouched: the honest slices merge.
-        let (status, ack) = upload(&state, &l0, &first).await;
+        let (status, ack) = upload(&state, &worker, &l0, &first).await;
         assert_eq!(status, StatusCode::OK, "{store}: {ack}");
         assert_eq!(ack["duplicate"], false, "{store}");
         let (_, l1) = lease(&state, &worker).await;
@@ -177,9 +201,9 @@ async fn crafted_sums_are_refused_and_the_tile_still_merges() {
             .find(|p| p.count == 2)
             .expect("a pixel with its two samples");
         p.sum[1] = 2 * max_channel + 1;
-        let (status, err) = upload(&state, &l1, &crafted).await;
+        let (status, err) = upload(&state, &worker, &l1, &crafted).await;
         assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{store}: {err}");
-        let (status, ack) = upload(&state, &l1, &second).await;
+        let (status, ack) = upload(&state, &worker, &l1, &second).await;
         assert_eq!(status, StatusCode::OK, "{store}: {ack}");
         assert_eq!(ack["task_complete"], true, "{store}");
 
@@ -259,7 +283,7 @@ async fn nul_characters_get_the_same_answer_on_every_store() {
             ),
         ];
         for (uri, body, code, field) in bodies {
-            let (status, err) = post_json(&state, &uri, body.clone()).await;
+            let (status, err) = post_json_as(&state, &uri, body.clone(), Some(&worker)).await;
             assert_eq!(
                 (status, err["error"]["code"].as_str()),
                 (StatusCode::UNPROCESSABLE_ENTITY, Some(code)),

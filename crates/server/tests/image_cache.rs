@@ -62,10 +62,19 @@ async fn render_jobs(
         "/api/v1/workers/{}/lease",
         worker["worker_id"].as_str().unwrap()
     );
+    let cred = worker["credential"].as_str().unwrap();
     let loaded = gltf::load(scene, &NoExternalResources, &LoadOptions::default()).unwrap();
     loop {
-        let (status, lease): (_, Option<Lease>) =
-            call(state, request("POST", &lease_uri, &[], "")).await;
+        let (status, lease): (_, Option<Lease>) = call(
+            state,
+            request(
+                "POST",
+                &lease_uri,
+                &[("pathfarm-worker-credential", cred)],
+                "",
+            ),
+        )
+        .await;
         let Some(l) = lease else {
             assert_eq!(status, StatusCode::NO_CONTENT);
             break;
@@ -90,6 +99,7 @@ async fn render_jobs(
                 &[
                     ("content-type", "application/x-pathfarm-slice"),
                     ("pathfarm-lease-token", &l.lease_token),
+                    ("pathfarm-worker-credential", cred),
                 ],
                 encode_slice(&slice),
             ),

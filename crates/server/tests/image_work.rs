@@ -27,7 +27,8 @@ async fn submit(state: &AppState, width: u32, height: u32, spp: u32, tile: u32) 
     job["id"].as_str().unwrap().to_string()
 }
 
-async fn register(state: &AppState) -> String {
+/// A registered worker: its id and its credential.
+async fn register(state: &AppState) -> (String, String) {
     let registration = json!({"name": "w", "threads": 1, "version": "t", "host": "h"});
     let (status, worker): (_, Value) = call(
         state,
@@ -40,14 +41,19 @@ async fn register(state: &AppState) -> String {
     )
     .await;
     assert_eq!(status, StatusCode::CREATED, "{worker}");
-    worker["worker_id"].as_str().unwrap().to_string()
+    (
+        worker["worker_id"].as_str().unwrap().to_string(),
+        worker["credential"].as_str().unwrap().to_string(),
+    )
 }
 
 /// Leases `tasks` tasks and uploads each whole, every sample of every pixel the same grey.
-async fn render_by_hand(state: &AppState, worker: &str, tasks: usize) {
+async fn render_by_hand(state: &AppState, (worker, cred): &(String, String), tasks: usize) {
     let uri = format!("/api/v1/workers/{worker}/lease");
+    let as_worker = ("pathfarm-worker-credential", cred.as_str());
     for _ in 0..tasks {
-        let (status, lease): (_, Option<Lease>) = call(state, request("POST", &uri, &[], "")).await;
+        let (status, lease): (_, Option<Lease>) =
+            call(state, request("POST", &uri, &[as_worker], "")).await;
         let l = lease.unwrap_or_else(|| panic!("no task to lease ({status})"));
         let mut acc = Accumulation::new(l.tile.x0, l.tile.y0, l.tile.width, l.tile.height);
         for (i, p) in acc.pixels.iter_mut().enumerate() {
@@ -68,6 +74,7 @@ async fn render_by_hand(state: &AppState, worker: &str, tasks: usize) {
                 &[
                     ("content-type", "application/x-pathfarm-slice"),
                     ("pathfarm-lease-token", &l.lease_token),
+                    as_worker,
                 ],
                 encode_slice(&slice),
             ),

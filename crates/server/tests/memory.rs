@@ -166,8 +166,13 @@ async fn slice_uploads_allocate_no_more_than_their_tile() {
     .await;
     assert_eq!(status, StatusCode::CREATED);
     let worker = reg["worker_id"].as_str().unwrap().to_string();
+    let cred = reg["credential"].as_str().unwrap().to_string();
     let uri = format!("/api/v1/workers/{worker}/lease");
-    let (status, lease): (_, Lease) = call(&state, request("POST", &uri, &[], "")).await;
+    let (status, lease): (_, Lease) = call(
+        &state,
+        request("POST", &uri, &[("pathfarm-worker-credential", &cred)], ""),
+    )
+    .await;
     assert_eq!(status, StatusCode::OK);
     let uri = format!("/api/v1/tasks/{}/slices", lease.task_id);
     let token = lease.lease_token.as_str();
@@ -177,7 +182,7 @@ async fn slice_uploads_allocate_no_more_than_their_tile() {
         &state,
         "POST",
         &uri,
-        &slice_headers(token),
+        &slice_headers(token, &cred),
         vec![0; (4 << 20) + 1],
     )
     .await;
@@ -222,7 +227,14 @@ async fn slice_uploads_allocate_no_more_than_their_tile() {
         ("not-the-lease", StatusCode::CONFLICT, "stale_lease"),
     ] {
         LARGEST.store(0, Ordering::Relaxed);
-        let (s, err) = send(&state, "POST", &uri, &slice_headers(token), body.clone()).await;
+        let (s, err) = send(
+            &state,
+            "POST",
+            &uri,
+            &slice_headers(token, &cred),
+            body.clone(),
+        )
+        .await;
         let largest = LARGEST.load(Ordering::Relaxed);
         assert_eq!(
             (s, err["error"]["code"].as_str()),
@@ -244,16 +256,17 @@ async fn slice_uploads_allocate_no_more_than_their_tile() {
     let sum = fnv1a64(&short);
     short.extend_from_slice(&sum.to_le_bytes());
     LARGEST.store(0, Ordering::Relaxed);
-    let (s, err) = send(&state, "POST", &uri, &slice_headers(token), short).await;
+    let (s, err) = send(&state, "POST", &uri, &slice_headers(token, &cred), short).await;
     assert_eq!(s, StatusCode::UNPROCESSABLE_ENTITY, "{err}");
     assert!(LARGEST.load(Ordering::Relaxed) < 1 << 20);
     state.store.close().await;
 }
 
-fn slice_headers(token: &str) -> [(&str, &str); 2] {
+fn slice_headers<'a>(token: &'a str, cred: &'a str) -> [(&'a str, &'a str); 3] {
     [
         ("content-type", "application/x-pathfarm-slice"),
         ("pathfarm-lease-token", token),
+        ("pathfarm-worker-credential", cred),
     ]
 }
 

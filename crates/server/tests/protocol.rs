@@ -397,13 +397,13 @@ async fn concurrent_uploads_merge_exactly_once() {
         for l in &leases {
             let body = slice_body(&scene, l, 0, 1);
             for copy in 0..3 {
-                let (c, l, body) = (server.client(None), l.clone(), body.clone());
+                let (c, l, body) = (client.clone(), l.clone(), body.clone());
                 uploads.spawn(async move {
                     (copy, c.upload_slice(l.task_id, &l.lease_token, body).await)
                 });
             }
             // A stale token for the same task, racing the real ones.
-            let (c, l, body) = (server.client(None), l.clone(), body.clone());
+            let (c, l, body) = (client.clone(), l.clone(), body.clone());
             uploads.spawn(async move { (9, c.upload_slice(l.task_id, "stale", body).await) });
         }
         let (mut merged, mut duplicates, mut fenced) = (0, 0, 0);

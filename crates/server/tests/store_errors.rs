@@ -45,7 +45,11 @@ async fn database_text_never_reaches_clients() {
         ("GET", "/api/v1/workers"),
         ("POST", "/api/v1/tasks/1/release"),
     ] {
-        let headers: &[(&str, &str)] = &[("content-type", "application/json")];
+        // The worker call's credential is looked up in the store, which fails first.
+        let headers: &[(&str, &str)] = &[
+            ("content-type", "application/json"),
+            ("pathfarm-worker-credential", "x"),
+        ];
         let (status, body) = call::<ErrorBody>(
             &state,
             request(method, uri, headers, r#"{"lease_token":"t"}"#),

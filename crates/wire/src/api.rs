@@ -10,6 +10,9 @@ pub const API_PREFIX: &str = "/api/v1";
 pub const SLICE_CONTENT_TYPE: &str = "application/x-pathfarm-slice";
 /// Header that carries a task's lease token on slice uploads.
 pub const LEASE_TOKEN_HEADER: &str = "pathfarm-lease-token";
+/// Header that carries a worker's own credential (from its registration) on every call it makes
+/// for itself: lease, heartbeat, sign-off, slice upload, release, scene download.
+pub const WORKER_CREDENTIAL_HEADER: &str = "pathfarm-worker-credential";
 
 /// Serializes a settings enum by its command-line name (`Display` / `FromStr`).
 mod by_name {
@@ -440,10 +443,14 @@ pub struct WorkerRegistration {
     pub host: String,
 }
 
-/// Answer to a registration: the worker's id and the timing it must keep.
+/// Answer to a registration: the worker's id, its credential and the timing it must keep.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WorkerRegistered {
     pub worker_id: String,
+    /// The worker's own secret, sent in [`WORKER_CREDENTIAL_HEADER`] on every call it makes for
+    /// itself. Only this answer holds it (the server keeps its digest); a worker that loses it,
+    /// or whose registration expired, registers again.
+    pub credential: String,
     pub lease_duration_ms: u64,
     pub heartbeat_interval_ms: u64,
 }
@@ -465,9 +472,14 @@ pub struct WorkerView {
     pub last_heartbeat_ms: i64,
 }
 
+/// A page of workers: active first, then newest.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WorkerList {
     pub workers: Vec<WorkerView>,
+    /// Every registered worker, on all pages.
+    pub total: u64,
+    pub page: u32,
+    pub per_page: u32,
 }
 
 /// A leased task: render samples `[sample_begin, sample_end)` of every pixel of `tile`.

@@ -18,11 +18,29 @@ use pathfarm_wire::api::{
     Convergence, ErrorBody, Heartbeat, HeartbeatReply, JobCreated, JobList, JobPatch, JobSettings,
     JobView, Lease, PreviewView, Release, SliceAck, WorkerList, WorkerRegistered,
     WorkerRegistration, LEASE_TOKEN_HEADER, SCALE_MAX_HEADER, SCALE_MIN_HEADER, SLICE_CONTENT_TYPE,
+    WORKER_CREDENTIAL_HEADER,
 };
 use reqwest::{Method, RequestBuilder, Response, StatusCode, Url};
 use serde::de::DeserializeOwned;
 use std::path::Path;
+use std::collections::{HashMap, VecDeque};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
+
+/// Most leases whose worker a client remembers (the daemon holds one at a time; a test a few).
+const REMEMBERED_LEASES: usize = 256;
+
+/// The worker credentials a client holds: those of the workers it registered (or was given), by
+/// worker id, and which worker each recent lease went to, so that the calls named by task (upload,
+/// release) carry the credential of the worker that holds the task.
+#[derive(Default)]
+struct Identities {
+    credentials: HashMap<String, String>,
+    /// `(task, worker)`, newest last.
+    leases: VecDeque<(i64, String)>,
+    /// The worker of the latest registration or lease: scene downloads go out as this one.
+    latest: Option<String>,
+}
 
 /// Longest wait for a connection to the server.
 pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
@@ -179,6 +197,8 @@ pub struct ApiClient {
     base: String,
     token: Option<String>,
     timeout: Duration,
+    /// Shared by the clones (the daemon's heartbeat task uses one).
+    identities: Arc<Mutex<Identities>>,
 }
 
 impl ApiClient {
@@ -220,6 +240,7 @@ impl ApiClient {
             base,
             token: token.filter(|t| !t.is_empty()),
             timeout: API_TIMEOUT,
+            identities: Arc::default(),
         })
     }
 
@@ -284,32 +305,97 @@ impl ApiClient {
         serde_json::from_slice(&bytes).map_err(|e| ClientError::Protocol(e.to_string()))
     }
 
+    fn identities(&self) -> std::sync::MutexGuard<'_, Identities> {
+        // The map stays consistent whatever panicked while holding it (each change is one step).
+        self.identities.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Uses `credential` for the calls of worker `worker_id` (as a registration by this client
+    /// does).
+    pub fn set_worker_credential(&self, worker_id: &str, credential: &str) {
+        let mut ids = self.identities();
+        ids.credentials
+            .insert(worker_id.to_string(), credential.to_string());
+        ids.latest = Some(worker_id.to_string());
+    }
+
+    /// The credential this client holds for `worker_id`.
+    pub fn worker_credential(&self, worker_id: &str) -> Option<String> {
+        self.identities().credentials.get(worker_id).cloned()
+    }
+
+    /// Adds worker `worker_id`'s credential, when this client holds it.
+    fn as_worker(&self, rb: RequestBuilder, worker_id: Option<&str>) -> RequestBuilder {
+        match worker_id.and_then(|w| self.worker_credential(w)) {
+            Some(c) => rb.header(WORKER_CREDENTIAL_HEADER, c),
+            None => rb,
+        }
+    }
+
+    /// The worker that holds `task_id` by this client's leases (else the latest one).
+    fn worker_of_task(&self, task_id: i64) -> Option<String> {
+        let ids = self.identities();
+        ids.leases
+            .iter()
+            .rev()
+            .find(|(t, _)| *t == task_id)
+            .map(|(_, w)| w.clone())
+            .or_else(|| ids.latest.clone())
+    }
+
+    fn forget_task(&self, task_id: i64) {
+        self.identities().leases.retain(|(t, _)| *t != task_id);
+    }
+
     // Worker calls.
 
+    /// Registers a worker; this client keeps its credential for the worker's later calls.
     pub async fn register(
         &self,
         reg: &WorkerRegistration,
     ) -> Result<WorkerRegistered, ClientError> {
-        Self::json(self.request(Method::POST, "/api/v1/workers").json(reg)).await
+        let r: WorkerRegistered =
+            Self::json(self.request(Method::POST, "/api/v1/workers").json(reg)).await?;
+        self.set_worker_credential(&r.worker_id, &r.credential);
+        Ok(r)
     }
 
     pub async fn deregister(&self, worker_id: &str) -> Result<(), ClientError> {
-        Self::send(self.request(Method::DELETE, &format!("/api/v1/workers/{worker_id}"))).await?;
+        Self::send(self.as_worker(
+            self.request(Method::DELETE, &format!("/api/v1/workers/{worker_id}")),
+            Some(worker_id),
+        ))
+        .await?;
+        let mut ids = self.identities();
+        ids.credentials.remove(worker_id);
+        ids.leases.retain(|(_, w)| w != worker_id);
+        if ids.latest.as_deref() == Some(worker_id) {
+            ids.latest = None;
+        }
         Ok(())
     }
 
     /// A lease, or `None` when the queue is empty.
     pub async fn lease(&self, worker_id: &str) -> Result<Option<Lease>, ClientError> {
-        let resp =
-            Self::send(self.request(Method::POST, &format!("/api/v1/workers/{worker_id}/lease")))
-                .await?;
+        let resp = Self::send(self.as_worker(
+            self.request(Method::POST, &format!("/api/v1/workers/{worker_id}/lease")),
+            Some(worker_id),
+        ))
+        .await?;
         if resp.status() == StatusCode::NO_CONTENT {
             return Ok(None);
         }
         let bytes = resp.bytes().await.map_err(transport)?;
-        serde_json::from_slice(&bytes)
-            .map(Some)
-            .map_err(|e| ClientError::Protocol(e.to_string()))
+        let lease: Lease =
+            serde_json::from_slice(&bytes).map_err(|e| ClientError::Protocol(e.to_string()))?;
+        let mut ids = self.identities();
+        ids.leases.retain(|(t, _)| *t != lease.task_id);
+        ids.leases.push_back((lease.task_id, worker_id.to_string()));
+        while ids.leases.len() > REMEMBERED_LEASES {
+            ids.leases.pop_front();
+        }
+        ids.latest = Some(worker_id.to_string());
+        Ok(Some(lease))
     }
 
     pub async fn heartbeat(
@@ -318,9 +404,12 @@ impl ApiClient {
         hb: &Heartbeat,
     ) -> Result<HeartbeatReply, ClientError> {
         Self::json(
-            self.request(
-                Method::POST,
-                &format!("/api/v1/workers/{worker_id}/heartbeat"),
+            self.as_worker(
+                self.request(
+                    Method::POST,
+                    &format!("/api/v1/workers/{worker_id}/heartbeat"),
+                ),
+                Some(worker_id),
             )
             .json(hb),
         )
@@ -333,28 +422,48 @@ impl ApiClient {
         token: &str,
         body: Vec<u8>,
     ) -> Result<SliceAck, ClientError> {
-        Self::json(
-            self.request(Method::POST, &format!("/api/v1/tasks/{task_id}/slices"))
-                .header(reqwest::header::CONTENT_TYPE, SLICE_CONTENT_TYPE)
-                .header(LEASE_TOKEN_HEADER, token)
-                .body(body),
+        let worker = self.worker_of_task(task_id);
+        let ack: SliceAck = Self::json(
+            self.as_worker(
+                self.request(Method::POST, &format!("/api/v1/tasks/{task_id}/slices")),
+                worker.as_deref(),
+            )
+            .header(reqwest::header::CONTENT_TYPE, SLICE_CONTENT_TYPE)
+            .header(LEASE_TOKEN_HEADER, token)
+            .body(body),
         )
-        .await
+        .await?;
+        if ack.task_complete {
+            self.forget_task(task_id);
+        }
+        Ok(ack)
     }
 
     pub async fn release(&self, task_id: i64, token: &str) -> Result<(), ClientError> {
+        let worker = self.worker_of_task(task_id);
         Self::send(
-            self.request(Method::POST, &format!("/api/v1/tasks/{task_id}/release"))
-                .json(&Release {
-                    lease_token: token.to_string(),
-                }),
+            self.as_worker(
+                self.request(Method::POST, &format!("/api/v1/tasks/{task_id}/release")),
+                worker.as_deref(),
+            )
+            .json(&Release {
+                lease_token: token.to_string(),
+            }),
         )
         .await?;
+        self.forget_task(task_id);
         Ok(())
     }
 
+    /// A scene (or environment image) by hash, downloaded as the worker of this client's latest
+    /// lease: the server serves a worker only the blobs of the jobs it holds leases on.
     pub async fn scene(&self, hash: &str) -> Result<Vec<u8>, ClientError> {
-        let resp = Self::send(self.download(&format!("/api/v1/scenes/{hash}"))).await?;
+        let latest = self.identities().latest.clone();
+        let resp = Self::send(self.as_worker(
+            self.download(&format!("/api/v1/scenes/{hash}")),
+            latest.as_deref(),
+        ))
+        .await?;
         Ok(resp.bytes().await.map_err(transport)?.to_vec())
     }
 
@@ -451,8 +560,41 @@ impl ApiClient {
         Ok(())
     }
 
+    /// One page of the workers (`page` from 1; at most 1000 a page).
+    pub async fn workers_page(&self, page: u32, per_page: u32) -> Result<WorkerList, ClientError> {
+        Self::json(self.request(Method::GET, "/api/v1/workers").query(&[
+            ("page", page.to_string()),
+            ("per_page", per_page.to_string()),
+        ]))
+        .await
+    }
+
+    /// Every worker, page after page, as one list. Workers that register or are collected while
+    /// the pages are read may be missed or listed twice; the list is deduplicated by id.
     pub async fn workers(&self) -> Result<WorkerList, ClientError> {
-        Self::json(self.request(Method::GET, "/api/v1/workers")).await
+        const PER_PAGE: u32 = 1000;
+        let mut all = Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        let mut page = 1;
+        loop {
+            let list = self.workers_page(page, PER_PAGE).await?;
+            let n = list.workers.len();
+            all.extend(
+                list.workers
+                    .into_iter()
+                    .filter(|w| seen.insert(w.id.clone())),
+            );
+            if n < PER_PAGE as usize || u64::from(page) * u64::from(PER_PAGE) >= list.total {
+                break;
+            }
+            page += 1;
+        }
+        Ok(WorkerList {
+            total: all.len() as u64,
+            per_page: all.len().max(1).try_into().unwrap_or(u32::MAX),
+            workers: all,
+            page: 1,
+        })
     }
 
     /// The current image: EXR (`extra` adds variance and sample-count channels).

@@ -166,18 +166,21 @@ pub async fn run(
         config.token.clone(),
         config.ca_cert.as_deref(),
     )?;
-    let Some(session) = register(&client, &config, &mut stop).await? else {
+    let Some(mut session) = register(&client, &config, &mut stop).await? else {
         return Ok(WorkerReport::default());
     };
     let current: CurrentLease = Arc::new(Mutex::new(None));
     let lease_lost = Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let heartbeat = tokio::spawn(heartbeat_loop(
-        session.client.clone(),
-        session.worker_id.clone(),
-        session.heartbeat_interval,
-        current.clone(),
-        lease_lost.clone(),
-    ));
+    let beat = |session: &Session| {
+        tokio::spawn(heartbeat_loop(
+            session.client.clone(),
+            session.worker_id.clone(),
+            session.heartbeat_interval,
+            current.clone(),
+            lease_lost.clone(),
+        ))
+    };
+    let mut heartbeat = beat(&session);
     let mut cache = SceneCache::new(config.cache_dir.clone());
     let mut report = WorkerReport::default();
     let mut rate = Rate::default();
@@ -189,6 +192,29 @@ pub async fn run(
             Err(e) if e.is_transient() => {
                 tracing::warn!(error = %e, "lease failed; retrying");
                 wait(&mut stop, Duration::from_secs(1)).await;
+                continue;
+            }
+            Err(e) if needs_registration(&e) => {
+                // The server forgot this worker (its registration expired while the worker was
+                // cut off, say): register again, as a new worker, and go on.
+                tracing::warn!(error = %e, "registration lost; registering again");
+                heartbeat.abort();
+                let Some(again) = register(&client, &config, &mut stop).await? else {
+                    break;
+                };
+                session = again;
+                heartbeat = beat(&session);
+                continue;
+            }
+            Err(e) if e.status() == Some(reqwest::StatusCode::TOO_MANY_REQUESTS) => {
+                // Leases this worker lost track of still count against its cap until they
+                // expire: wait for that rather than give up.
+                tracing::warn!(error = %e, "lease refused; retrying");
+                wait(
+                    &mut stop,
+                    session.lease_duration.max(Duration::from_millis(100)) / 4,
+                )
+                .await;
                 continue;
             }
             Err(e) => {
@@ -252,6 +278,18 @@ pub async fn run(
         "worker stopped"
     );
     Ok(report)
+}
+
+/// The server does not know this worker any more: no registration has its credential, or none has
+/// its id.
+fn needs_registration(e: &ClientError) -> bool {
+    match e {
+        ClientError::Api { status, code, .. } => {
+            (*status == reqwest::StatusCode::UNAUTHORIZED && code == "unknown_worker_credential")
+                || (*status == reqwest::StatusCode::NOT_FOUND && code == "not_found")
+        }
+        _ => false,
+    }
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -377,9 +415,10 @@ impl TaskError {
     fn is_farm_decision(&self) -> bool {
         match self {
             TaskError::LeaseLost => true,
-            TaskError::Client(ClientError::Api { status, .. }) => {
+            TaskError::Client(e @ ClientError::Api { status, .. }) => {
                 *status == reqwest::StatusCode::CONFLICT
                     || *status == reqwest::StatusCode::NOT_FOUND
+                    || needs_registration(e)
             }
             _ => false,
         }
@@ -608,7 +647,7 @@ mod tests {
                 let (status, body) = match route {
                     "register" => (
                         "200 OK",
-                        r#"{"worker_id":"w1","lease_duration_ms":30000,"heartbeat_interval_ms":60000}"#
+                        r#"{"worker_id":"w1","credential":"c1","lease_duration_ms":30000,"heartbeat_interval_ms":60000}"#
                             .to_string(),
                     ),
                     "lease" => {

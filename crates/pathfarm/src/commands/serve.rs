@@ -61,6 +61,14 @@ pub struct ServerArgs {
     /// Most connections open at once; further ones wait to be accepted until one closes.
     #[arg(long, env = "PATHFARM_MAX_CONNECTIONS", default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..))]
     pub max_connections: u32,
+    /// Most tasks one worker may hold leased at once (the worker daemon holds one); beyond it a
+    /// lease is refused with 429.
+    #[arg(long, env = "PATHFARM_MAX_LEASES_PER_WORKER", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_leases_per_worker: u32,
+    /// Seconds after which a worker registration that was not seen (no heartbeat, lease or
+    /// upload) expires: its leases are queued again, its row deleted, its credential void.
+    #[arg(long, env = "PATHFARM_WORKER_EXPIRY_SECONDS", default_value_t = 600.0)]
+    pub worker_expiry_seconds: f64,
 }
 
 impl ServerArgs {
@@ -102,6 +110,15 @@ impl ServerArgs {
         c.connections.body_timeout = seconds("body-timeout-seconds", self.body_timeout_seconds)?;
         c.connections.body_min_rate = self.body_min_kib_per_second.saturating_mul(1024);
         c.connections.max_connections = self.max_connections as usize;
+        c.max_leases_per_worker = self.max_leases_per_worker;
+        // Shorter than a lease would collect workers that are only between heartbeats.
+        if !(self.worker_expiry_seconds.is_finite()
+            && self.worker_expiry_seconds >= self.lease_seconds
+            && self.worker_expiry_seconds <= 1e9)
+        {
+            bail!("--worker-expiry-seconds must be at least --lease-seconds (and at most 1e9)");
+        }
+        c.worker_expiry = Duration::from_secs_f64(self.worker_expiry_seconds);
         Ok(c)
     }
 }

@@ -115,7 +115,10 @@ export const api = {
   },
   job: (id, signal) => getJson(`/jobs/${encodeURIComponent(id)}`, { signal }),
   convergence: (id, signal) => getJson(`/jobs/${encodeURIComponent(id)}/convergence`, { signal }),
-  workers: (signal) => getJson('/workers', { signal }),
+  workers: (page = 1, perPage = 100, signal) => {
+    const q = new URLSearchParams({ page: String(page), per_page: String(perPage) });
+    return getJson(`/workers?${q}`, { signal });
+  },
   cancel: (id) => sendJson('POST', `/jobs/${encodeURIComponent(id)}/cancel`).then((r) => r.json()),
   pause: (id) => sendJson('POST', `/jobs/${encodeURIComponent(id)}/pause`).then((r) => r.json()),
   resume: (id) => sendJson('POST', `/jobs/${encodeURIComponent(id)}/resume`).then((r) => r.json()),

@@ -1,10 +1,18 @@
 // The workers page: every worker with its state (lost ones flagged), host, threads, current task,
-// speed and last heartbeat. Polled every two seconds; rows updated in place by worker id.
+// speed and last heartbeat, a page of 100 at a time (active first, then newest), with a pager so
+// that every worker can be reached however many there are. Polled every two seconds; rows updated
+// in place by worker id.
 
 import { api } from './api.js';
 import { el, setText, poll, fmtInt, fmtRate, fmtAgo, fmtTime } from './util.js';
 
-export function mount(root, signal) {
+const PER_PAGE = 100;
+
+export function mount(root, signal, query) {
+  const page = Math.max(1, Number(query && query.get('page')) || 1);
+  const go = (p) => {
+    location.hash = p > 1 ? `#/workers?page=${p}` : '#/workers';
+  };
   const tbody = el('tbody');
   const table = el('table', { class: 'workers responsive', hidden: true, dataset: { testid: 'workers-table' } },
     el('caption', { class: 'visually-hidden' }, 'Workers: active first, then newest'),
@@ -15,16 +23,28 @@ export function mount(root, signal) {
   const summary = el('p', { class: 'muted', dataset: { testid: 'workers-summary' } });
   const empty = el('p', { class: 'empty', hidden: true },
     'No worker has registered yet. Start one with ', el('code', {}, 'pathfarm worker --server URL'), '.');
+  const prev = el('button', { type: 'button', onclick: () => go(page - 1) }, '← Previous');
+  const next = el('button', { type: 'button', onclick: () => go(page + 1) }, 'Next →');
+  const pageInfo = el('span', { dataset: { testid: 'workers-page' } });
+  const pager = el('nav', { class: 'pager', 'aria-label': 'Pages of workers', hidden: true, dataset: { testid: 'workers-pager' } },
+    prev, pageInfo, next);
   root.replaceChildren(el('section', { 'aria-labelledby': 'workers-title' },
     el('div', { class: 'page-head' }, el('h1', { id: 'workers-title' }, 'Workers')),
-    summary, el('div', { class: 'table-wrap' }, table), empty));
+    summary, el('div', { class: 'table-wrap' }, table), empty, pager));
 
   const rows = new Map();
   poll(async () => {
-    const { workers } = await api.workers(signal);
+    const list = await api.workers(page, PER_PAGE, signal);
+    const { workers, total } = list;
     const by = (s) => workers.filter((w) => w.state === s).length;
-    setText(summary, `${workers.length} worker${workers.length === 1 ? '' : 's'}: ${by('busy')} busy, ${by('idle')} idle, ${by('lost')} lost, ${by('offline')} offline`);
-    empty.hidden = workers.length > 0;
+    const pages = Math.max(1, Math.ceil(total / PER_PAGE));
+    // The states are counted on the page shown: with more than one page, say so.
+    setText(summary, `${total} worker${total === 1 ? '' : 's'}${pages > 1 ? '; on this page' : ''}: ${by('busy')} busy, ${by('idle')} idle, ${by('lost')} lost, ${by('offline')} offline`);
+    pager.hidden = pages <= 1;
+    prev.disabled = page <= 1;
+    next.disabled = page >= pages;
+    setText(pageInfo, `Page ${page} of ${pages}`);
+    empty.hidden = total > 0;
     table.hidden = workers.length === 0;
     const seen = new Set();
     let before = null;

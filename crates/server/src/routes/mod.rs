@@ -99,6 +99,10 @@ impl From<crate::store::Error> for ApiError {
         match e {
             E::NotFound { .. } => ApiError::new(StatusCode::NOT_FOUND, "not_found", message),
             E::StaleLease { .. } => ApiError::conflict("stale_lease", message),
+            E::NotLessee { .. } => ApiError::new(StatusCode::FORBIDDEN, "not_your_lease", message),
+            E::TooManyLeases { .. } => {
+                ApiError::new(StatusCode::TOO_MANY_REQUESTS, "too_many_leases", message)
+            }
             E::TaskNotLeased { .. } => ApiError::conflict("task_not_leased", message),
             E::SliceOutOfOrder { .. } => ApiError::conflict("slice_out_of_order", message),
             E::InvalidState(_) => ApiError::conflict("invalid_state", message),

@@ -1,7 +1,7 @@
 //! What workers call while rendering: fetch a scene, upload slices, give a lease back.
 
 use super::{json_body, json_bytes, no_nul, parse_id};
-use crate::auth::WorkerAuth;
+use crate::auth::WorkerIdentity;
 use crate::connections::content_length;
 use crate::error::{ApiError, ApiResult};
 use crate::store::MergeOutcome;
@@ -19,12 +19,26 @@ use pathfarm_wire::{
 };
 use std::sync::atomic::Ordering;
 
-/// The scene bytes by content hash (immutable, so cacheable forever).
+/// The scene bytes by content hash (immutable, so cacheable forever), for a worker that holds a
+/// lease on a job of this scene (or environment image): 403 `not_your_scene` otherwise, so that a
+/// worker token does not read every scene of the farm. The lease must be held at the time of the
+/// download; the worker daemon downloads right after its lease and caches the scene.
 pub async fn scene(
-    _: WorkerAuth,
+    me: WorkerIdentity,
     State(state): State<AppState>,
     Path(hash): Path<String>,
 ) -> ApiResult<impl IntoResponse> {
+    if !state.store.worker_needs_blob(&me.id, &hash).await? {
+        return Err(ApiError::new(
+            StatusCode::FORBIDDEN,
+            "not_your_scene",
+            format!(
+                "worker {} holds no lease on a job of scene {hash}: a worker downloads only the \
+                 scenes of its leases",
+                me.id
+            ),
+        ));
+    }
     let bytes = state.store.scene(&hash).await?;
     Ok((
         [
@@ -45,7 +59,7 @@ pub async fn scene(
 /// once its header names the task's tile, so an upload makes the server allocate no more than
 /// the tile it may write to.
 pub async fn upload_slice(
-    _: WorkerAuth,
+    me: WorkerIdentity,
     State(state): State<AppState>,
     Path(id): Path<String>,
     headers: HeaderMap,
@@ -73,7 +87,7 @@ pub async fn upload_slice(
             )
         })?
         .to_string();
-    match merge_upload(&state, task_id, &token, &headers, body).await {
+    match merge_upload(&state, &me.id, task_id, &token, &headers, body).await {
         Ok(out) => {
             if out.ack.duplicate {
                 state
@@ -117,12 +131,16 @@ fn slice_error(e: SliceError) -> ApiError {
 /// merge (which checks the lease again, in its transaction).
 async fn merge_upload(
     state: &AppState,
+    worker_id: &str,
     task_id: i64,
     token: &str,
     headers: &HeaderMap,
     body: Body,
 ) -> ApiResult<MergeOutcome> {
-    let tile = state.store.leased_tile(task_id, token).await?;
+    let tile = state
+        .store
+        .leased_tile_for(task_id, token, worker_id)
+        .await?;
     // A task never spans more than `u32::MAX` samples (a job's spp is a `u32`).
     let honest = max_slice_body_bytes(tile.pixel_count(), u64::from(u32::MAX));
     let limit = usize::try_from(honest)
@@ -197,7 +215,7 @@ async fn read_body(
 }
 
 pub async fn release(
-    _: WorkerAuth,
+    me: WorkerIdentity,
     State(state): State<AppState>,
     Path(id): Path<String>,
     headers: HeaderMap,
@@ -206,6 +224,9 @@ pub async fn release(
     let task_id = parse_id(&id, "task")?;
     let r: Release = json_body(&headers, &json_bytes(body)?)?;
     no_nul("invalid_release", &[("lease_token", &r.lease_token)])?;
-    state.store.release(task_id, &r.lease_token).await?;
+    state
+        .store
+        .release_by(task_id, &r.lease_token, &me.id)
+        .await?;
     Ok(StatusCode::NO_CONTENT)
 }

@@ -1,12 +1,12 @@
 //! Worker registration, heartbeats and leases.
 
 use super::{json_body, json_bytes, no_control, no_nul};
-use crate::auth::{ReadAuth, WorkerAuth};
+use crate::auth::{ReadAuth, WorkerAuth, WorkerIdentity};
 use crate::error::{ApiError, ApiResult};
 use crate::AppState;
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{Path, State};
+use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
@@ -41,42 +41,70 @@ pub async fn register(
             ("version", &reg.version),
         ],
     )?;
-    let id = state.store.register_worker(&reg).await?;
+    let (id, credential) = state.store.register_worker(&reg).await?;
     tracing::info!(worker = %id, name = %reg.name, host = %reg.host, threads = reg.threads, "worker registered");
     let lease_ms = state.config.lease_duration.as_millis() as u64;
     Ok((
         StatusCode::CREATED,
         Json(WorkerRegistered {
             worker_id: id,
+            credential,
             lease_duration_ms: lease_ms,
             heartbeat_interval_ms: (lease_ms / 4).max(50),
         }),
     ))
 }
 
-pub async fn list(_: ReadAuth, State(state): State<AppState>) -> ApiResult<Json<WorkerList>> {
+#[derive(serde::Deserialize)]
+pub struct ListQuery {
+    page: Option<u32>,
+    per_page: Option<u32>,
+}
+
+/// A page of workers (as the jobs are paged): every worker is on some page, however many there
+/// are.
+pub async fn list(
+    _: ReadAuth,
+    State(state): State<AppState>,
+    query: Result<Query<ListQuery>, axum::extract::rejection::QueryRejection>,
+) -> ApiResult<Json<WorkerList>> {
+    let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
+    let page = q.page.unwrap_or(1).max(1);
+    let per_page = q.per_page.unwrap_or(100).clamp(1, 1000);
+    let (workers, total) = state
+        .store
+        .workers(
+            (u64::from(page) - 1) * u64::from(per_page),
+            u64::from(per_page),
+        )
+        .await?;
     Ok(Json(WorkerList {
-        workers: state.store.workers().await?,
+        workers,
+        total,
+        page,
+        per_page,
     }))
 }
 
 pub async fn deregister(
-    _: WorkerAuth,
+    me: WorkerIdentity,
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> ApiResult<StatusCode> {
+    me.must_be(&id)?;
     state.store.deregister_worker(&id).await?;
     tracing::info!(worker = %id, "worker signed off");
     Ok(StatusCode::NO_CONTENT)
 }
 
 pub async fn heartbeat(
-    _: WorkerAuth,
+    me: WorkerIdentity,
     State(state): State<AppState>,
     Path(id): Path<String>,
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<Json<HeartbeatReply>> {
+    me.must_be(&id)?;
     let body = json_bytes(body)?;
     let hb: Heartbeat = if body.is_empty() {
         Heartbeat::default()
@@ -104,15 +132,20 @@ pub async fn heartbeat(
     }))
 }
 
-/// `200` with a lease, or `204` when there is no work.
+/// `200` with a lease, or `204` when there is no work; `429 too_many_leases` when the worker
+/// already holds [`crate::ServerConfig::max_leases_per_worker`].
 pub async fn lease(
-    _: WorkerAuth,
+    me: WorkerIdentity,
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> ApiResult<Response> {
+    me.must_be(&id)?;
     let lease_ms = state.config.lease_duration.as_millis() as u64;
     let started = std::time::Instant::now();
-    let lease = state.store.lease(&id, lease_ms).await?;
+    let lease = state
+        .store
+        .lease(&id, lease_ms, state.config.max_leases_per_worker)
+        .await?;
     state.metrics.observe_lease(started.elapsed());
     Ok(match lease {
         Some(l) => Json(l).into_response(),

@@ -16,6 +16,17 @@ pub enum Error {
     /// The task is no longer leased (done or cancelled) and the slice is not a duplicate.
     #[error("task {task_id} is {state}")]
     TaskNotLeased { task_id: i64, state: &'static str },
+    /// The lease token holds the task, but the task is leased to another worker than the one
+    /// asking (its token leaked): a worker acts only for itself.
+    #[error("task {task_id} is leased to another worker")]
+    NotLessee { task_id: i64 },
+    /// The worker already holds as many leases as a worker may
+    /// (`ServerConfig::max_leases_per_worker`).
+    #[error(
+        "worker {worker_id} already holds {held} leases, the most a worker may hold; finish or \
+         release one first"
+    )]
+    TooManyLeases { worker_id: String, held: u64 },
     /// A slice does not start where the task's merged samples end.
     #[error(
         "task {task_id} has samples up to {done_end} merged; a slice starting at {begin} does \

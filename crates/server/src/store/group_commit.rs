@@ -106,8 +106,9 @@ impl Store {
                 Op::Lease {
                     worker_id,
                     lease_ms,
+                    max_leases,
                 } => self
-                    .lease_in(&mut w.tx, &worker_id, lease_ms)
+                    .lease_in(&mut w.tx, &worker_id, lease_ms, max_leases)
                     .await
                     .map(|l| Done::Leased(l.map(Box::new))),
             };

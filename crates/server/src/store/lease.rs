@@ -34,13 +34,20 @@ struct Picked {
 }
 
 impl Store {
-    /// Leases the next task for `worker_id`, or `None` when there is no work.
+    /// Leases the next task for `worker_id`, or `None` when there is no work; refused
+    /// ([`Error::TooManyLeases`]) when the worker already holds `max_leases`.
     /// On SQLite leases share transactions with merges (group commit).
-    pub async fn lease(&self, worker_id: &str, lease_ms: u64) -> StoreResult<Option<Lease>> {
+    pub async fn lease(
+        &self,
+        worker_id: &str,
+        lease_ms: u64,
+        max_leases: u32,
+    ) -> StoreResult<Option<Lease>> {
         if self.write_queue.is_some() {
             let op = Op::Lease {
                 worker_id: worker_id.to_string(),
                 lease_ms,
+                max_leases,
             };
             return match self.grouped(op).await? {
                 Done::Leased(lease) => Ok(lease.map(|l| *l)),
@@ -48,7 +55,9 @@ impl Store {
             };
         }
         let mut w = self.write().await?;
-        let lease = self.lease_in(&mut w.tx, worker_id, lease_ms).await?;
+        let lease = self
+            .lease_in(&mut w.tx, worker_id, lease_ms, max_leases)
+            .await?;
         w.commit().await?;
         Ok(lease)
     }
@@ -59,7 +68,24 @@ impl Store {
         tx: &mut sqlx::Transaction<'static, sqlx::Any>,
         worker_id: &str,
         lease_ms: u64,
+        max_leases: u32,
     ) -> StoreResult<Option<Lease>> {
+        // The cap, before anything is picked or written (a refusal, so a batch goes on). On
+        // PostgreSQL two leases of one worker racing on two servers may both pass it; the worker
+        // daemon asks for one lease at a time, and a worker that races itself gains one lease.
+        let held: i64 = sqlx::query(
+            "SELECT COUNT(*) AS n FROM tasks WHERE worker_id = $1 AND state = 'leased'",
+        )
+        .bind(worker_id)
+        .fetch_one(&mut **tx)
+        .await?
+        .try_get("n")?;
+        if held >= i64::from(max_leases) {
+            return Err(Error::TooManyLeases {
+                worker_id: worker_id.to_string(),
+                held: held as u64,
+            });
+        }
         let picked = match self.dialect() {
             Dialect::Sqlite => pick_sqlite(tx, worker_id).await?,
             Dialect::Postgres => pick_postgres(tx, worker_id).await?,

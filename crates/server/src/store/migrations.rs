@@ -27,6 +27,7 @@ pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
         "sqlite": "0001_init.sql",
         "0002_convergence.sql",
         "0003_environment_and_warnings.sql",
+        "0004_worker_identity.sql",
     ))
 });
 
@@ -36,6 +37,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "postgres": "0001_init.sql",
         "0002_convergence.sql",
         "0003_environment_and_warnings.sql",
+        "0004_worker_identity.sql",
     ))
 });
 

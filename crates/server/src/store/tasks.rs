@@ -34,8 +34,29 @@ impl Store {
     /// makes the server allocate for a slice, and no more than its tile takes. The merge checks
     /// the lease again in its own transaction.
     pub async fn leased_tile(&self, task_id: i64, token: &str) -> StoreResult<Tile> {
+        self.leased_tile_checked(task_id, token, None).await
+    }
+
+    /// [`Store::leased_tile`] for an upload by `worker_id`: 403 `not_your_lease` when the token
+    /// holds the task but the task is leased to another worker (a leaked token).
+    pub async fn leased_tile_for(
+        &self,
+        task_id: i64,
+        token: &str,
+        worker_id: &str,
+    ) -> StoreResult<Tile> {
+        self.leased_tile_checked(task_id, token, Some(worker_id))
+            .await
+    }
+
+    async fn leased_tile_checked(
+        &self,
+        task_id: i64,
+        token: &str,
+        worker: Option<&str>,
+    ) -> StoreResult<Tile> {
         let row = sqlx::query(
-            "SELECT t.lease_token, ti.x0, ti.y0, ti.width, ti.height FROM tasks t JOIN tiles ti \
+            "SELECT t.lease_token, t.worker_id, ti.x0, ti.y0, ti.width, ti.height FROM tasks t JOIN tiles ti \
              ON ti.job_id = t.job_id AND ti.tile_index = t.tile_index WHERE t.id = $1",
         )
         .bind(task_id)
@@ -47,6 +68,14 @@ impl Store {
         let lease_token: Option<String> = row.try_get("lease_token")?;
         if lease_token.as_deref() != Some(token) {
             return Err(stale_lease(task_id));
+        }
+        // The token is checked first: a stale lease is a 409 the worker expects (the farm took
+        // the task back); a token that holds the task in another worker's hands is a 403. The
+        // merge checks only the token again: a task's holder changes only with its token.
+        if let Some(worker) = worker {
+            if row.try_get::<Option<String>, _>("worker_id")?.as_deref() != Some(worker) {
+                return Err(Error::NotLessee { task_id });
+            }
         }
         let g = |c: &str| row.try_get::<i64, _>(c).map(|v| v as u32);
         Ok(Tile {
@@ -359,6 +388,21 @@ impl Store {
 
     /// Gives a lease back: the task's unmerged samples are queued again.
     pub async fn release(&self, task_id: i64, token: &str) -> StoreResult<()> {
+        self.release_checked(task_id, token, None).await
+    }
+
+    /// [`Store::release`] by `worker_id`, which must be the task's holder (403 `not_your_lease`
+    /// otherwise, after the token check as for uploads).
+    pub async fn release_by(&self, task_id: i64, token: &str, worker_id: &str) -> StoreResult<()> {
+        self.release_checked(task_id, token, Some(worker_id)).await
+    }
+
+    async fn release_checked(
+        &self,
+        task_id: i64,
+        token: &str,
+        worker: Option<&str>,
+    ) -> StoreResult<()> {
         let mut w = self.write().await?;
         let task = sqlx::query(sql!(
             "SELECT state, lease_token, job_id, worker_id FROM tasks WHERE id = $1{}",
@@ -375,9 +419,12 @@ impl Store {
         if lease_token.as_deref() != Some(token) {
             return Err(stale_lease(task_id));
         }
+        let worker_id: Option<String> = task.try_get("worker_id")?;
+        if worker.is_some_and(|w| worker_id.as_deref() != Some(w)) {
+            return Err(Error::NotLessee { task_id });
+        }
         if state == TaskState::Leased {
             let job_id: String = task.try_get("job_id")?;
-            let worker_id: Option<String> = task.try_get("worker_id")?;
             self.requeue(&mut w, task_id, &job_id, worker_id.as_deref())
                 .await?;
         }
@@ -385,7 +432,7 @@ impl Store {
         Ok(())
     }
 
-    async fn requeue(
+    pub(super) async fn requeue(
         &self,
         w: &mut super::WriteTx<'_>,
         task_id: i64,

@@ -1,19 +1,43 @@
-//! Worker registration, liveness and listing.
+//! Worker registration, identity, liveness, expiry and listing.
+//!
+//! Every registration gets a credential of its own: 256 random bits, handed to the worker once and
+//! stored only as its SHA-256 digest. The routes find the worker a request acts for by that
+//! digest ([`Store::worker_by_credential`]), so a worker token alone no longer names a worker.
 
 use super::error::{Error, StoreResult};
 use super::Store;
 use crate::states::WorkerEvent;
 use pathfarm_wire::api::{WorkerRegistration, WorkerState, WorkerView};
+use sha2::{Digest, Sha256};
 use sqlx::Row;
 
+/// Most idle registrations one monitor step collects: a step stays one short transaction however
+/// many fake registrations piled up; the next steps take the rest.
+const COLLECT_BATCH: i64 = 500;
+
+/// The stored form of a worker credential: its SHA-256 digest, hex.
+pub fn credential_digest(credential: &str) -> String {
+    hex::encode(Sha256::digest(credential.as_bytes()))
+}
+
+/// A new credential: 256 bits from the operating system's random source, hex.
+fn new_credential() -> StoreResult<String> {
+    let mut bytes = [0u8; 32];
+    getrandom::fill(&mut bytes)
+        .map_err(|e| Error::internal(format!("no random bytes for a worker credential: {e}")))?;
+    Ok(hex::encode(bytes))
+}
+
 impl Store {
-    pub async fn register_worker(&self, reg: &WorkerRegistration) -> StoreResult<String> {
+    /// Registers a worker: its id and its credential (which only this answer ever holds).
+    pub async fn register_worker(&self, reg: &WorkerRegistration) -> StoreResult<(String, String)> {
         let id = uuid::Uuid::new_v4().simple().to_string();
+        let credential = new_credential()?;
         let now = self.now_ms();
         let mut w = self.write().await?;
         sqlx::query(
             "INSERT INTO workers (id, name, host, threads, version, state, registered_ms, \
-             last_seen_ms) VALUES ($1, $2, $3, $4, $5, $6, $7, $7)",
+             last_seen_ms, credential_digest) VALUES ($1, $2, $3, $4, $5, $6, $7, $7, $8)",
         )
         .bind(&id)
         .bind(&reg.name)
@@ -22,10 +46,77 @@ impl Store {
         .bind(&reg.version)
         .bind(WorkerState::Idle.as_str())
         .bind(now)
+        .bind(credential_digest(&credential))
         .execute(&mut *w.tx)
         .await?;
         w.commit().await?;
-        Ok(id)
+        Ok((id, credential))
+    }
+
+    /// The id of the registered worker whose credential this is, if any. The lookup is by digest
+    /// (an index), so the time it takes depends on the digest, never on the credential's bytes.
+    pub async fn worker_by_credential(&self, credential: &str) -> StoreResult<Option<String>> {
+        let row = sqlx::query("SELECT id FROM workers WHERE credential_digest = $1")
+            .bind(credential_digest(credential))
+            .fetch_optional(self.pool())
+            .await?;
+        Ok(match row {
+            Some(r) => Some(r.try_get("id")?),
+            None => None,
+        })
+    }
+
+    /// Whether `worker_id` holds a lease on a task of a job whose scene or environment image is
+    /// the blob `hash`: a worker downloads only what the work it holds needs.
+    pub async fn worker_needs_blob(&self, worker_id: &str, hash: &str) -> StoreResult<bool> {
+        let row = sqlx::query(
+            "SELECT 1 AS yes FROM tasks t JOIN jobs j ON j.id = t.job_id \
+             WHERE t.worker_id = $1 AND t.state = 'leased' \
+             AND (j.scene_hash = $2 OR j.environment_hash = $2) LIMIT 1",
+        )
+        .bind(worker_id)
+        .bind(hash)
+        .fetch_optional(self.pool())
+        .await?;
+        Ok(row.is_some())
+    }
+
+    /// Expires the registrations not seen for longer than `after_ms`: their leases go back to the
+    /// queue (as an expired lease does) and their rows are deleted, so their credentials stop
+    /// working. Returns how many were collected (at most a batch per call).
+    pub async fn collect_idle_workers(&self, after_ms: u64) -> StoreResult<u64> {
+        let cutoff = self.now_ms() - after_ms as i64;
+        let mut w = self.write().await?;
+        // Lock order: tasks before workers. An idle worker's leases have normally expired
+        // already (a lease is much shorter than the expiry); these are the ones that have not.
+        let leases = sqlx::query(sql!(
+            "SELECT t.id, t.job_id, t.worker_id FROM tasks t WHERE t.state = 'leased' \
+             AND t.worker_id IN (SELECT id FROM workers WHERE last_seen_ms < $1 \
+             ORDER BY last_seen_ms LIMIT {COLLECT_BATCH}) ORDER BY t.id{}",
+            self.dialect().skip_locked()
+        ))
+        .bind(cutoff)
+        .fetch_all(&mut *w.tx)
+        .await?;
+        for r in leases {
+            let task: i64 = r.try_get("id")?;
+            let job_id: String = r.try_get("job_id")?;
+            let worker: Option<String> = r.try_get("worker_id")?;
+            tracing::info!(task, job = %job_id, worker = ?worker, "worker registration expired; its lease is queued again");
+            self.requeue(&mut w, task, &job_id, worker.as_deref())
+                .await?;
+        }
+        // The cutoff is compared again by the delete itself: a worker seen meanwhile stays.
+        let n = sqlx::query(sql!(
+            "DELETE FROM workers WHERE id IN (SELECT id FROM workers WHERE last_seen_ms < $1 \
+             ORDER BY last_seen_ms LIMIT {COLLECT_BATCH}) AND last_seen_ms < $1"
+        ))
+        .bind(cutoff)
+        .execute(&mut *w.tx)
+        .await?
+        .rows_affected();
+        w.commit().await?;
+        Ok(n)
     }
 
     /// Signs a worker off; a lease it still holds is given back.
@@ -41,8 +132,8 @@ impl Store {
             let token: Option<String> = l.try_get("lease_token")?;
             if let Some(token) = token {
                 // A lease that changed hands meanwhile is not ours to give back.
-                match self.release(task, &token).await {
-                    Ok(()) | Err(Error::StaleLease { .. }) => {}
+                match self.release_by(task, &token, id).await {
+                    Ok(()) | Err(Error::StaleLease { .. } | Error::NotLessee { .. }) => {}
                     Err(e) => return Err(e),
                 }
             }
@@ -80,16 +171,26 @@ impl Store {
         Ok(n)
     }
 
-    pub async fn workers(&self) -> StoreResult<Vec<WorkerView>> {
+    /// A page of workers, `limit` from `offset` (active first, then newest, then by id, so that
+    /// the pages of an unchanging farm hold every worker exactly once); and how many there are.
+    pub async fn workers(&self, offset: u64, limit: u64) -> StoreResult<(Vec<WorkerView>, u64)> {
+        let total: i64 = sqlx::query("SELECT COUNT(*) AS n FROM workers")
+            .fetch_one(self.pool())
+            .await?
+            .try_get("n")?;
         let rows = sqlx::query(
             "SELECT id, name, host, threads, version, state, registered_ms, last_seen_ms, \
              current_task, current_job, samples_done FROM workers \
-             ORDER BY CASE WHEN state = 'offline' THEN 1 ELSE 0 END, registered_ms DESC LIMIT 1000",
+             ORDER BY CASE WHEN state = 'offline' THEN 1 ELSE 0 END, registered_ms DESC, id ASC \
+             LIMIT $1 OFFSET $2",
         )
+        .bind(i64::try_from(limit).unwrap_or(i64::MAX))
+        .bind(i64::try_from(offset).unwrap_or(i64::MAX))
         .fetch_all(self.pool())
         .await?;
         let now = self.now_ms();
-        rows.iter()
+        let workers = rows
+            .iter()
             .map(|r| {
                 let state: String = r.try_get("state")?;
                 let registered: i64 = r.try_get("registered_ms")?;
@@ -114,6 +215,7 @@ impl Store {
                 })
             })
             .collect::<Result<Vec<_>, sqlx::Error>>()
-            .map_err(Error::from)
+            .map_err(Error::from)?;
+        Ok((workers, total.max(0) as u64))
     }
 }

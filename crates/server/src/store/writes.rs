@@ -15,6 +15,7 @@ pub(super) enum Op {
     Lease {
         worker_id: String,
         lease_ms: u64,
+        max_leases: u32,
     },
 }
 
