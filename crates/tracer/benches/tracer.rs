@@ -245,8 +245,7 @@ fn flat_vs_tree(c: &mut Criterion) {
         ),
     ];
     for (scene, mut mesh) in meshes {
-        let (bvh, order) = Bvh::build(&mesh);
-        mesh.reorder(&order);
+        let bvh = Bvh::build(&mut mesh);
         eprintln!(
             "flat_vs_tree: {scene}, {} triangles, flat test {}",
             mesh.len(),

@@ -92,8 +92,7 @@ impl Prototype {
     /// Builds the prototype's BVH and reorders its triangles to it. The mesh must hold only
     /// renderable triangles (as [`crate::scene::Scene::build`] leaves them).
     pub fn new(mut mesh: Mesh) -> Prototype {
-        let (bvh, order) = Bvh::build(&mesh);
-        mesh.reorder(&order);
+        let bvh = Bvh::build(&mut mesh);
         let (lo, hi) = mesh.bounds();
         Prototype { mesh, bvh, lo, hi }
     }

@@ -46,13 +46,10 @@ impl World {
         }
         let dropped = drop_degenerate(&mut mesh);
         let started = std::time::Instant::now();
-        let (bvh, order) = Bvh::build(&mesh);
-        let bvh_seconds = started.elapsed().as_secs_f64();
-        mesh.reorder(&order);
+        let bvh = Bvh::build(&mut mesh);
         tracing::debug!(
             triangles = mesh.len(),
-            bvh_seconds,
-            reorder_seconds = started.elapsed().as_secs_f64() - bvh_seconds,
+            bvh_seconds = started.elapsed().as_secs_f64(),
             "built the BVH"
         );
         let started = std::time::Instant::now();

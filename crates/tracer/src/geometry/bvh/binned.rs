@@ -32,9 +32,18 @@ const MANY: usize = 256;
 /// with few primitives, centroids often share a bin, and sorting a handful is as cheap as binning.
 const SWEEP_MAX: usize = 16;
 
-/// Ranges of at least this many primitives are binned in parallel, in chunks of [`BIN_CHUNK`].
-const PAR_BIN_MIN: usize = 1 << 16;
-const BIN_CHUNK: usize = 1 << 14;
+/// Ranges of more than this many primitives choose their split from a sample of about this many
+/// (every k-th primitive of the range, k fixed by its length): for a range that large the sample's
+/// SAH estimate chooses about as well as the whole range's (the trees' SAH costs differ by a few
+/// tenths of a percent either way, docs/benchmarks.md), and the upper levels then cost one pass
+/// (the partition) instead of two. The partition works out both sides' exact bounds, so the
+/// tree's boxes never depend on the sample.
+const SAMPLE: usize = 1 << 12;
+
+/// Ranges of at least this many primitives have their info worked out in parallel, in chunks of
+/// [`INFO_CHUNK`].
+const PAR_INFO_MIN: usize = 1 << 16;
+const INFO_CHUNK: usize = 1 << 14;
 
 /// A node more this many binary levels below the root is split at the object median on its
 /// widest centroid axis instead of by SAH: SAH alone makes chains on inputs such as geometrically
@@ -201,9 +210,9 @@ impl Info {
             chunk.iter().for_each(|p| info.add(p));
             info
         };
-        if prims.len() >= PAR_BIN_MIN {
+        if prims.len() >= PAR_INFO_MIN {
             prims
-                .par_chunks(BIN_CHUNK)
+                .par_chunks(INFO_CHUNK)
                 .map(seq)
                 .reduce(|| Info::EMPTY, Info::union)
         } else {
@@ -255,70 +264,94 @@ impl Mapper {
     }
 }
 
-#[derive(Clone, Copy, Debug)]
-struct Bin {
-    bounds: Box3,
-    count: u32,
+/// Per axis (x, y, z and size), the boxes and counts of the primitives whose keys fall in each of
+/// `N` bins. Counts apart from the boxes, and sized to the bins in use: a range of a few dozen
+/// primitives clears and sweeps 2 KiB, not the 12 KiB of two full sets.
+#[derive(Clone, Copy)]
+struct Bins<const N: usize> {
+    bounds: [[Box3; N]; 4],
+    counts: [[u32; N]; 4],
 }
 
-/// Per axis (x, y, z and size), the boxes and counts of the primitives whose centroids fall in each bin.
-#[derive(Clone, Copy)]
-struct Bins([[Bin; BINS]; 4]);
-
-impl Bins {
-    const EMPTY: Bins = Bins(
-        [[Bin {
-            bounds: Box3::EMPTY,
-            count: 0,
-        }; BINS]; 4],
-    );
-
-    fn of(prims: &[Prim], map: &Mapper) -> Bins {
-        // Two sets of bins, for even and odd primitives: neighbours in a mesh mostly fall in the
-        // same bins, and with one set each update would wait for the previous one's store.
-        let (mut even, mut odd) = (Bins::EMPTY, Bins::EMPTY);
-        let mut pairs = prims.chunks_exact(2);
-        for pair in &mut pairs {
-            even.add(&pair[0], map);
-            odd.add(&pair[1], map);
-        }
-        if let [p] = pairs.remainder() {
-            even.add(p, map);
-        }
-        even.merge(odd)
-    }
+impl<const N: usize> Bins<N> {
+    const EMPTY: Self = Bins {
+        bounds: [[Box3::EMPTY; N]; 4],
+        counts: [[0; N]; 4],
+    };
 
     #[inline(always)]
     fn add(&mut self, p: &Prim, map: &Mapper) {
         let (lo, hi) = (p.lo(), p.hi());
         for (axis, k) in map.bins(p.key()).into_iter().enumerate() {
-            let bin = &mut self.0[axis][k as usize];
-            bin.bounds.grow(lo, hi);
-            bin.count += 1;
+            let k = (k as usize).min(N - 1);
+            self.bounds[axis][k].grow(lo, hi);
+            self.counts[axis][k] += 1;
         }
     }
 
-    fn merge(mut self, other: Bins) -> Bins {
-        for (a, b) in self.0.iter_mut().flatten().zip(other.0.iter().flatten()) {
-            a.bounds = a.bounds.union(b.bounds);
-            a.count += b.count;
+    fn merge(&mut self, other: &Self) {
+        for axis in 0..4 {
+            for k in 0..N {
+                self.bounds[axis][k] = self.bounds[axis][k].union(other.bounds[axis][k]);
+                self.counts[axis][k] += other.counts[axis][k];
+            }
         }
-        self
+    }
+
+    /// Adds every `stride`-th of `prims` (from the first) to `self` and `odd`, alternately: neighbours
+    /// in a mesh mostly fall in the same bins, and with one set each update would wait for the
+    /// previous one's store. The caller merges the two.
+    fn fill(&mut self, odd: &mut Self, prims: &[Prim], stride: usize, map: &Mapper) {
+        let mut it = prims.iter().step_by(stride);
+        while let Some(a) = it.next() {
+            self.add(a, map);
+            match it.next() {
+                Some(b) => odd.add(b, map),
+                None => break,
+            }
+        }
+    }
+
+    /// The cheapest split of these bins by SAH on any axis whose scale is positive: its cost (the
+    /// sides' half areas times their counts), axis and first right bin.
+    fn best(&self, map: &Mapper) -> Option<(f64, usize, u32)> {
+        let (mut best, mut best_axis, mut best_bin) = (f64::INFINITY, 0, 0);
+        for axis in 0..4 {
+            if map.scale[axis] <= 0.0 {
+                continue;
+            }
+            let (bounds, counts) = (&self.bounds[axis], &self.counts[axis]);
+            // The right sides' areas and counts, from the last bin down: index i covers bins i.. .
+            let mut right = [(0.0f64, 0u32); N];
+            let (mut acc, mut n) = (Box3::EMPTY, 0);
+            for i in (1..N).rev() {
+                acc = acc.union(bounds[i]);
+                n += counts[i];
+                right[i] = (acc.half_area(), n);
+            }
+            let (mut acc, mut n) = (Box3::EMPTY, 0);
+            for i in 1..N {
+                acc = acc.union(bounds[i - 1]);
+                n += counts[i - 1];
+                let (area, rn) = right[i];
+                if n == 0 || rn == 0 {
+                    continue;
+                }
+                let c = acc.half_area() * n as f64 + area * rn as f64;
+                if c < best {
+                    (best, best_axis, best_bin) = (c, axis, i as u32);
+                }
+            }
+        }
+        (best < f64::INFINITY).then_some((best, best_axis, best_bin))
     }
 }
 
 /// How to split a range.
 #[derive(Clone, Copy, Debug)]
 pub(super) enum Split {
-    /// Centroids in bins below `bin` on `axis` go left.
-    Binned {
-        map: Mapper,
-        axis: usize,
-        bin: u32,
-        left: Box3,
-        right: Box3,
-        count: usize,
-    },
+    /// Keys in bins below `bin` on `axis` go left.
+    Binned { map: Mapper, axis: usize, bin: u32 },
     /// Sorted on `axis`, the first `count` go left.
     Sorted { axis: usize, count: usize },
     /// The lower half on the widest centroid axis goes left.
@@ -332,89 +365,62 @@ pub(super) enum Plan {
     Split(Split),
 }
 
-/// The best binned split of `prims` and its cost, if any axis offers one with a finite cost.
+/// The best binned split of `prims` and its cost (estimated from a sample of a large range: see
+/// [`SAMPLE`]), if any axis offers one with a finite cost.
 fn best_binned(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
-    let count = if prims.len() >= MANY { BINS } else { FEW_BINS };
-    let map = Mapper::new(&info.keys, count);
-    if !map.scale.cmpgt(Vec4::ZERO).any() {
-        return None;
+    fn with<const N: usize>(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
+        let map = Mapper::new(&info.keys, N);
+        if !map.scale.cmpgt(Vec4::ZERO).any() {
+            return None;
+        }
+        // A sampled range's cost is the sample's, not comparable with the range's own leaf cost;
+        // but only ranges of a leaf's size, never sampled, compare the two.
+        let stride = prims.len().div_ceil(SAMPLE);
+        let (mut bins, mut odd) = (Bins::<N>::EMPTY, Bins::<N>::EMPTY);
+        bins.fill(&mut odd, prims, stride, &map);
+        bins.merge(&odd);
+        let (cost, axis, bin) = bins.best(&map)?;
+        Some((cost, Split::Binned { map, axis, bin }))
     }
-    let bins = if prims.len() >= PAR_BIN_MIN {
-        prims
-            .par_chunks(BIN_CHUNK)
-            .map(|chunk| Bins::of(chunk, &map))
-            .reduce(|| Bins::EMPTY, Bins::merge)
+    if prims.len() >= MANY {
+        with::<BINS>(prims, info)
     } else {
-        Bins::of(prims, &map)
-    };
-    let (mut best, mut best_axis, mut best_bin) = (f64::INFINITY, 0, 0);
-    for axis in 0..4 {
-        if map.scale[axis] <= 0.0 {
-            continue;
-        }
-        let bins = &bins.0[axis][..count];
-        // The right sides' areas and counts, from the last bin down: index i covers bins i.. .
-        let mut right = [(0.0f64, 0u32); BINS];
-        let (mut acc, mut n) = (Box3::EMPTY, 0);
-        for i in (1..count).rev() {
-            acc = acc.union(bins[i].bounds);
-            n += bins[i].count;
-            right[i] = (acc.half_area(), n);
-        }
-        let (mut acc, mut n) = (Box3::EMPTY, 0);
-        for i in 1..count {
-            acc = acc.union(bins[i - 1].bounds);
-            n += bins[i - 1].count;
-            let (area, rn) = right[i];
-            if n == 0 || rn == 0 {
-                continue;
-            }
-            let c = acc.half_area() * n as f64 + area * rn as f64;
-            if c < best {
-                (best, best_axis, best_bin) = (c, axis, i);
-            }
-        }
+        with::<FEW_BINS>(prims, info)
     }
-    if best == f64::INFINITY {
-        return None;
+}
+
+/// `v`'s bits mapped so that their unsigned order is [`f32::total_cmp`]'s.
+#[inline(always)]
+fn ordered(v: f32) -> u32 {
+    let b = v.to_bits();
+    if b >> 31 == 1 {
+        !b
+    } else {
+        b | 0x8000_0000
     }
-    let side = |range: std::ops::Range<usize>| {
-        bins.0[best_axis][range]
-            .iter()
-            .fold((Box3::EMPTY, 0), |(b, n), bin| {
-                (b.union(bin.bounds), n + bin.count as usize)
-            })
-    };
-    let ((left, nl), (right, _)) = (side(0..best_bin), side(best_bin..count));
-    let split = Split::Binned {
-        map,
-        axis: best_axis,
-        bin: best_bin as u32,
-        left,
-        right,
-        count: nl,
-    };
-    Some((best, split))
+}
+
+/// The order of a small range (at most [`SWEEP_MAX`]) on `axis` of its keys, ties in range order:
+/// each key's ordered bits above its position, sorted as integers (no comparison goes through a
+/// position to its key).
+#[inline(always)]
+fn sorted_on(prims: &[Prim], axis: usize) -> [u8; SWEEP_MAX] {
+    let n = prims.len();
+    debug_assert!(n <= SWEEP_MAX);
+    let mut keys = [0u64; SWEEP_MAX];
+    for (k, p) in prims.iter().enumerate() {
+        keys[k] = (u64::from(ordered(p.key()[axis])) << 8) | k as u64;
+    }
+    keys[..n].sort_unstable();
+    keys.map(|k| k as u8)
 }
 
 /// The best split of a small range by a full sweep over its keys sorted on each axis.
 fn best_sorted(prims: &[Prim]) -> Option<(f64, Split)> {
     let n = prims.len();
-    // keys[axis][k]: primitive k's key on that axis.
-    let mut keys = [[0.0f32; SWEEP_MAX]; 4];
-    for (k, p) in prims.iter().enumerate() {
-        for (axis, v) in p.key().to_array().into_iter().enumerate() {
-            keys[axis][k] = v;
-        }
-    }
     let (mut best, mut best_split) = (f64::INFINITY, None);
-    for (axis, key) in keys.iter().enumerate() {
-        // The order on this axis (stable: ties keep their order, as in `apply`'s sort).
-        let mut idx = [0u8; SWEEP_MAX];
-        for (k, i) in idx[..n].iter_mut().enumerate() {
-            *i = k as u8;
-        }
-        idx[..n].sort_by(|&a, &b| key[a as usize].total_cmp(&key[b as usize]));
+    for axis in 0..4 {
+        let idx = sorted_on(prims, axis);
         let mut right = [0.0f64; SWEEP_MAX];
         let mut acc = Box3::EMPTY;
         for i in (1..n).rev() {
@@ -496,35 +502,35 @@ pub(super) fn plan(
     }
 }
 
-/// Partitions `prims` in place by `left`, returning the left count and the centroid bounds of
-/// both sides.
-fn partition(prims: &mut [Prim], left: impl Fn(Vec4) -> bool) -> (usize, Keys, Keys) {
+/// Partitions `prims` in place by `left` (a test of the key), returning the left count and both
+/// sides' infos.
+fn partition(prims: &mut [Prim], left: impl Fn(Vec4) -> bool) -> (usize, Info, Info) {
     let (mut i, mut j) = (0, prims.len());
-    let (mut cl, mut cr) = (Keys::EMPTY, Keys::EMPTY);
+    let (mut l, mut r) = (Info::EMPTY, Info::EMPTY);
     loop {
         while i < j {
-            let c = prims[i].key();
-            if !left(c) {
+            let p = &prims[i];
+            if !left(p.key()) {
                 break;
             }
-            cl.grow(c);
+            l.add(p);
             i += 1;
         }
         while i < j {
-            let c = prims[j - 1].key();
-            if left(c) {
+            let p = &prims[j - 1];
+            if left(p.key()) {
                 break;
             }
-            cr.grow(c);
+            r.add(p);
             j -= 1;
         }
         if i >= j {
-            return (i, cl, cr);
+            return (i, l, r);
         }
         // prims[i] goes right and prims[j - 1] left: swap them and take both.
         prims.swap(i, j - 1);
-        cl.grow(prims[i].key());
-        cr.grow(prims[j - 1].key());
+        l.add(&prims[i]);
+        r.add(&prims[j - 1]);
         i += 1;
         j -= 1;
     }
@@ -533,29 +539,14 @@ fn partition(prims: &mut [Prim], left: impl Fn(Vec4) -> bool) -> (usize, Keys, K
 /// Applies `split` to `prims` (whose info is `info`): the left count and both sides' infos.
 pub(super) fn apply(prims: &mut [Prim], info: &Info, split: Split) -> (usize, Info, Info) {
     match split {
-        Split::Binned {
-            map,
-            axis,
-            bin,
-            left,
-            right,
-            count,
-        } => {
-            let (mid, cl, cr) = partition(prims, |c| map.bins(c)[axis] < bin);
-            debug_assert_eq!(mid, count);
-            let _ = count;
-            let l = Info {
-                bounds: left,
-                keys: cl,
-            };
-            let r = Info {
-                bounds: right,
-                keys: cr,
-            };
-            (mid, l, r)
-        }
+        Split::Binned { map, axis, bin } => partition(prims, |c| map.bins(c)[axis] < bin),
         Split::Sorted { axis, count } => {
-            prims.sort_by(|a, b| a.key()[axis].total_cmp(&b.key()[axis]));
+            let order = sorted_on(prims, axis);
+            let mut sorted = [prims[0]; SWEEP_MAX];
+            for (slot, &k) in sorted.iter_mut().zip(&order[..prims.len()]) {
+                *slot = prims[k as usize];
+            }
+            prims.copy_from_slice(&sorted[..prims.len()]);
             let (l, r) = prims.split_at(count);
             (count, Info::of(l), Info::of(r))
         }

@@ -28,7 +28,7 @@
 use super::binned::{apply, plan, Info, Plan, Prim, Split};
 use super::node::{Node4, NodeRef, TriPacket};
 use super::Mesh;
-use glam::{Vec3, Vec3A, Vec4};
+use glam::{Vec3A, Vec4};
 use rayon::prelude::*;
 
 /// The flattened result: nodes (root first), packets, and the triangle order
@@ -37,6 +37,8 @@ pub(super) struct Built {
     pub nodes: Vec<Node4>,
     pub packets: Vec<TriPacket>,
     pub root: NodeRef,
+    /// The order the mesh was put in: what the tests check the tree against.
+    #[cfg_attr(not(test), allow(dead_code))]
     pub order: Vec<u32>,
     pub depth: usize,
 }
@@ -85,7 +87,8 @@ fn corner_bounds(mesh: &Mesh) -> (Vec3A, Vec3A) {
         .reduce(empty, |(a, b), (c, d)| (a.min(c), b.max(d)))
 }
 
-pub(super) fn build(mesh: &Mesh) -> Built {
+/// Builds the tree over `mesh` and reorders the mesh to the tree's triangle order.
+pub(super) fn build(mesh: &mut Mesh) -> Built {
     let started = std::time::Instant::now();
     // Every triangle's box padded (`padded`), as a record the builder moves.
     let (lo, hi) = corner_bounds(mesh);
@@ -117,24 +120,26 @@ pub(super) fn build(mesh: &Mesh) -> Built {
     };
     let tree_seconds = started.elapsed().as_secs_f64() - records_seconds;
     let order: Vec<u32> = prims.par_iter().map(Prim::index).collect();
-    // The boxes are not needed any more: free them before the packets are made.
+    // The boxes are not needed any more: free them before the mesh is reordered.
     drop(prims);
+    // Reordered first, the packets read the mesh's positions in order instead of gathering them.
+    mesh.reorder(&order);
+    let reorder_seconds = started.elapsed().as_secs_f64() - records_seconds - tree_seconds;
     let leaves = number_leaves(&mut nodes, &mut root);
     let packets = leaves
         .par_iter()
         .map(|&(first, count)| {
-            let mut tris = [[Vec3::ZERO; 3]; 4];
-            for (k, tri) in tris[..count as usize].iter_mut().enumerate() {
-                *tri = mesh.positions[order[(first + k as u32) as usize] as usize];
-            }
-            TriPacket::new(&tris[..count as usize], first)
+            let tris = &mesh.positions[first as usize..(first + count) as usize];
+            TriPacket::new(tris, first)
         })
         .collect();
     tracing::debug!(
         triangles = mesh.len(),
         records_seconds,
         tree_seconds,
-        packets_seconds = started.elapsed().as_secs_f64() - records_seconds - tree_seconds,
+        reorder_seconds,
+        packets_seconds =
+            started.elapsed().as_secs_f64() - records_seconds - tree_seconds - reorder_seconds,
         "built the 4-wide tree"
     );
     Built {
@@ -358,6 +363,7 @@ const _: () = assert!(MAX_PRIMS_PER_LEAF as usize <= 4);
 mod tests {
     use super::*;
     use crate::testing::{triangle_soup, uniform_stream};
+    use glam::Vec3;
     use std::time::Instant;
 
     /// A displaced sphere of about `n` triangles (as `pathfarm bench scale` makes), then `soup`
@@ -471,7 +477,7 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| build(&mesh))
+                .install(|| build(&mut mesh.clone()))
         };
         let (one, four) = (on(1), on(4));
         check(&mesh, &one);
@@ -524,7 +530,7 @@ mod tests {
         m.material = vec![0; m.positions.len()];
         cases.push(m);
         for mesh in &cases {
-            let built = build(mesh);
+            let built = build(&mut mesh.clone());
             check(mesh, &built);
             if mesh.len() <= MAX_PRIMS_PER_LEAF as usize {
                 assert!(built.root.is_leaf(), "{} triangles: one leaf", mesh.len());
@@ -578,18 +584,58 @@ mod tests {
             .ok()
             .and_then(|s| s.parse().ok())
             .unwrap_or(1_000_000);
-        let mesh = mesh(n, 0);
+        // Random triangles through the sphere, as large as a room's walls are to an object.
+        let soup = std::env::var("BVH_BUILD_SOUP")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
+        let mesh = mesh(n, soup);
         for _ in 0..2 {
+            let mut copy = mesh.clone();
             let t = Instant::now();
-            let built = build(&mesh);
+            let built = build(&mut copy);
             println!(
-                "{} triangles: {:.3} s, {} nodes, {} packets, depth {}",
+                "{} triangles: {:.3} s, {} nodes, {} packets, depth {}, SAH cost {:.3}",
                 mesh.len(),
                 t.elapsed().as_secs_f64(),
                 built.nodes.len(),
                 built.packets.len(),
-                built.depth
+                built.depth,
+                sah_cost(&built)
             );
         }
+    }
+
+    /// The tree's SAH cost in node and packet tests per ray that enters the root box: each child
+    /// box's half area over the root's, summed over the inner nodes (a node test each) and the
+    /// leaves (a packet test each).
+    fn sah_cost(b: &Built) -> f64 {
+        let half_area = |lo: Vec3A, hi: Vec3A| {
+            let d = (hi - lo).as_dvec3();
+            d.x * d.y + d.y * d.z + d.z * d.x
+        };
+        let Some(root) = b.nodes.first() else {
+            return 1.0;
+        };
+        let corner = |n: &Node4, side: usize, k: usize| {
+            Vec3A::new(
+                n.bounds[side][0][k],
+                n.bounds[side][1][k],
+                n.bounds[side][2][k],
+            )
+        };
+        let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+        for k in (0..4).filter(|k| root.valid & (1 << k) != 0) {
+            lo = lo.min(corner(root, 0, k));
+            hi = hi.max(corner(root, 1, k));
+        }
+        let whole = half_area(lo, hi);
+        let mut cost = 1.0;
+        for n in &b.nodes {
+            for k in (0..4).filter(|k| n.valid & (1 << k) != 0) {
+                cost += half_area(corner(n, 0, k), corner(n, 1, k)) / whole;
+            }
+        }
+        cost
     }
 }

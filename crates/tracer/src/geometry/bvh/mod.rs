@@ -36,8 +36,8 @@ const STACK: usize = 32;
 /// 1 + 2γ₃ covers the rounding of the subtraction and the product).
 const FAR_WIDEN: f32 = 1.0 + 4.0 * f32::EPSILON;
 
-/// A BVH over a [`Mesh`]. After [`Bvh::build`] the mesh must be reordered with the returned order, so
-/// that BVH triangle `i` is mesh triangle `i` (no indirection on the hot path).
+/// A BVH over a [`Mesh`], which [`Bvh::build`] reorders so that BVH triangle `i` is mesh triangle
+/// `i` (no indirection on the hot path).
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
     nodes: Vec<Node4>,
@@ -101,30 +101,25 @@ impl BoxRay {
 }
 
 impl Bvh {
-    /// Builds the BVH; returns it and the triangle order (`order[k]` = old index of new triangle k).
-    pub fn build(mesh: &Mesh) -> (Bvh, Vec<u32>) {
+    /// Builds the BVH over `mesh` and reorders the mesh's triangles to the tree's order (BVH
+    /// triangle `i` is then mesh triangle `i`: no indirection on the hot path).
+    pub fn build(mesh: &mut Mesh) -> Bvh {
         if mesh.is_empty() {
-            return (Bvh::default(), Vec::new());
+            return Bvh::default();
         }
         let built = build::build(mesh);
         let flat = if mesh.len() <= flat::MAX_TRIANGLES {
-            let reordered: Vec<[Vec3; 3]> = built
-                .order
-                .iter()
-                .map(|&old| mesh.positions[old as usize])
-                .collect();
-            Flat::new(&reordered)
+            Flat::new(&mesh.positions)
         } else {
             None
         };
-        let bvh = Bvh {
+        Bvh {
             nodes: built.nodes,
             packets: built.packets,
             root: Some(built.root),
             depth: built.depth,
             flat,
-        };
-        (bvh, built.order)
+        }
     }
 
     /// This BVH with its queries answered by the tree even where the mesh is small enough for the
@@ -490,8 +485,7 @@ mod tests {
                 mesh.positions.push([a, b, c]);
                 mesh.material.push(0);
             }
-            let (built, order) = Bvh::build(&mesh);
-            mesh.reorder(&order);
+            let built = Bvh::build(&mut mesh);
             // Both ways of answering: the flat test where the processor has it, and the tree.
             for bvh in [built.clone(), built.tree_only()] {
                 for (o, d, t) in [
@@ -544,8 +538,7 @@ mod tests {
                 mesh.material.push(0);
             }
         }
-        let (bvh, order) = Bvh::build(&mesh);
-        mesh.reorder(&order);
+        let bvh = Bvh::build(&mut mesh);
         assert!(
             bvh.depth() * 3 > STACK,
             "depth {}: not deeper than the stack",
@@ -592,8 +585,7 @@ mod tests {
             let i = |r: f32| ((r * verts.len() as f32) as usize).min(verts.len() - 1);
             verts[i(rng())]
         });
-        let (bvh, order) = Bvh::build(&mesh);
-        mesh.reorder(&order);
+        let bvh = Bvh::build(&mut mesh);
         assert!(bvh.depth() >= 3, "depth {}", bvh.depth());
         let mut hits = 0;
         for _ in 0..4000 {
