@@ -1,6 +1,6 @@
 //! Managing jobs: list, view, change, cancel, pause, resume, delete.
 
-use super::{json_body, json_bytes};
+use super::{json_body, json_bytes, Page};
 use crate::auth::{ClientAuth, ReadAuth};
 use crate::error::{ApiError, ApiResult};
 use crate::states::JobEvent;
@@ -72,12 +72,12 @@ pub async fn list(
             )
         })?),
     };
-    let page = q.page.unwrap_or(1).max(1);
-    let per_page = q.per_page.unwrap_or(50).clamp(1, 500);
+    let window = Page::new(q.page, q.per_page, 50, 500);
     let (jobs, total) = state
         .store
-        .jobs(filter, (page as u64 - 1) * per_page as u64, per_page as u64)
+        .jobs(filter, window.offset(), window.limit())
         .await?;
+    let Page { page, per_page } = window;
     let now = state.store.now_ms();
     Ok(Json(JobList {
         jobs: jobs.into_iter().map(|j| view(j, None, now)).collect(),

@@ -150,6 +150,30 @@ pub(crate) fn json_body<T: DeserializeOwned>(
 }
 
 /// A task id from the path.
+/// A list's page as its query asked for it: pages counted from 1, `per_page` held to 1..=`max`.
+pub(crate) struct Page {
+    pub page: u32,
+    pub per_page: u32,
+}
+
+impl Page {
+    pub(crate) fn new(page: Option<u32>, per_page: Option<u32>, default: u32, max: u32) -> Page {
+        Page {
+            page: page.unwrap_or(1).max(1),
+            per_page: per_page.unwrap_or(default).clamp(1, max),
+        }
+    }
+
+    /// Rows before this page.
+    pub(crate) fn offset(&self) -> u64 {
+        (u64::from(self.page) - 1) * u64::from(self.per_page)
+    }
+
+    pub(crate) fn limit(&self) -> u64 {
+        u64::from(self.per_page)
+    }
+}
+
 pub(crate) fn parse_id(s: &str, what: &str) -> Result<i64, ApiError> {
     s.parse().map_err(|_| ApiError::not_found(what, s))
 }

@@ -1,6 +1,6 @@
 //! Worker registration, heartbeats and leases.
 
-use super::{json_body, json_bytes, no_control, no_nul};
+use super::{json_body, json_bytes, no_control, no_nul, Page};
 use crate::auth::{ReadAuth, WorkerAuth, WorkerIdentity};
 use crate::error::{ApiError, ApiResult};
 use crate::AppState;
@@ -69,15 +69,9 @@ pub async fn list(
     query: Result<Query<ListQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Json<WorkerList>> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
-    let page = q.page.unwrap_or(1).max(1);
-    let per_page = q.per_page.unwrap_or(100).clamp(1, 1000);
-    let (workers, total) = state
-        .store
-        .workers(
-            (u64::from(page) - 1) * u64::from(per_page),
-            u64::from(per_page),
-        )
-        .await?;
+    let window = Page::new(q.page, q.per_page, 100, 1000);
+    let (workers, total) = state.store.workers(window.offset(), window.limit()).await?;
+    let Page { page, per_page } = window;
     Ok(Json(WorkerList {
         workers,
         total,
