@@ -12,11 +12,12 @@
 //! Determinism: the result depends only on the boxes. Bins are merged with min, max and integer
 //! counts, which give the same answer in any order, so the parallel binning of large ranges
 //! (rayon, chunks of a fixed size) and the sequential one agree bit for bit; every SAH cost is a
-//! sequential sum in one task. Areas are multiplied out in `f64`, so that boxes far beyond any
-//! sensible scene (scenes built by hand skip the loader's coordinate bound) still compare; a range
-//! with no finite split cost, or identical keys, falls back to a median split.
+//! sequential sum in one task. The sweeps' areas are worked out in `f32` from extents scaled by
+//! the range's largest, so that boxes far beyond any sensible scene (scenes built by hand skip the
+//! loader's coordinate bound) still compare; a range with no finite split cost (an infinite box),
+//! or identical keys, falls back to a median split.
 
-use glam::{BVec4A, DVec3, Vec3A, Vec4};
+use glam::{BVec4A, DVec3, Mat4, UVec4, Vec3A, Vec4};
 use rayon::prelude::*;
 
 /// Bins per axis for a large range: 32 keeps the tree within about a percent of a full sweep's SAH
@@ -221,6 +222,9 @@ impl Info {
     }
 }
 
+/// 2²³: added to a float in [0, 2²³), it leaves the integer nearest to it in the low bits.
+const MAGIC: f32 = 8_388_608.0;
+
 /// Maps a key to its bin on each axis (x, y, z and size).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Mapper {
@@ -254,7 +258,6 @@ impl Mapper {
     /// partitioning, which both call this.
     #[inline(always)]
     fn bins(&self, c: Vec4) -> [u32; 4] {
-        const MAGIC: f32 = 8_388_608.0;
         let last = Vec4::splat((self.count - 1) as f32);
         let v = ((c - self.origin) * self.scale - 0.5)
             .max(Vec4::ZERO)
@@ -262,21 +265,85 @@ impl Mapper {
             + MAGIC;
         v.to_array().map(|x| x.to_bits() - MAGIC.to_bits())
     }
+
+    /// Whether `c` falls in a bin below `bin` on `axis`: `self.bins(c)[axis] < bin`, from the same
+    /// rounded positions, compared as floats (integers below 2²⁴ are exact), with no lane taken out
+    /// of the vector.
+    #[inline(always)]
+    fn below(&self, c: Vec4, axis: usize, bin: u32) -> bool {
+        let last = Vec4::splat((self.count - 1) as f32);
+        let v = ((c - self.origin) * self.scale - 0.5)
+            .max(Vec4::ZERO)
+            .min(last)
+            + MAGIC;
+        v.cmplt(Vec4::splat(MAGIC + bin as f32)).bitmask() & (1 << axis) != 0
+    }
 }
 
 /// Per axis (x, y, z and size), the boxes and counts of the primitives whose keys fall in each of
-/// `N` bins. Counts apart from the boxes, and sized to the bins in use: a range of a few dozen
-/// primitives clears and sweeps 2 KiB, not the 12 KiB of two full sets.
+/// `N` bins. Counts apart from the boxes, bin by bin (the sweep reads a bin's four counts as one
+/// vector), and sized to the bins in use: a range of a few dozen primitives clears and sweeps
+/// 2 KiB, not the 12 KiB of two full sets.
 #[derive(Clone, Copy)]
 struct Bins<const N: usize> {
     bounds: [[Box3; N]; 4],
-    counts: [[u32; N]; 4],
+    counts: [[u32; 4]; N],
+}
+
+/// Four boxes, one per lane (lane k of `lo[c]` is box k's lower corner in coordinate c): the
+/// binned sweep works on the four axes' bins at once.
+#[derive(Clone, Copy)]
+struct Boxes4 {
+    lo: [Vec4; 3],
+    hi: [Vec4; 3],
+}
+
+impl Boxes4 {
+    const EMPTY: Boxes4 = Boxes4 {
+        lo: [Vec4::INFINITY; 3],
+        hi: [Vec4::NEG_INFINITY; 3],
+    };
+
+    /// Lane k: `boxes[k]`.
+    #[inline(always)]
+    fn gather(boxes: [Box3; 4]) -> Boxes4 {
+        let t = |v: [Vec3A; 4]| {
+            let m = Mat4::from_cols(
+                v[0].extend(0.0),
+                v[1].extend(0.0),
+                v[2].extend(0.0),
+                v[3].extend(0.0),
+            )
+            .transpose();
+            [m.x_axis, m.y_axis, m.z_axis]
+        };
+        Boxes4 {
+            lo: t(boxes.map(|b| b.lo)),
+            hi: t(boxes.map(|b| b.hi)),
+        }
+    }
+
+    #[inline(always)]
+    fn union(self, o: Boxes4) -> Boxes4 {
+        Boxes4 {
+            lo: [0, 1, 2].map(|c| self.lo[c].min(o.lo[c])),
+            hi: [0, 1, 2].map(|c| self.hi[c].max(o.hi[c])),
+        }
+    }
+
+    /// The half areas of the four boxes, their extents multiplied by `scale` first (see
+    /// [`Bins::best`]).
+    #[inline(always)]
+    fn half_areas(&self, scale: f32) -> Vec4 {
+        let [x, y, z] = [0, 1, 2].map(|c| (self.hi[c] - self.lo[c]) * scale);
+        x * y + y * z + z * x
+    }
 }
 
 impl<const N: usize> Bins<N> {
     const EMPTY: Self = Bins {
         bounds: [[Box3::EMPTY; N]; 4],
-        counts: [[0; N]; 4],
+        counts: [[0; 4]; N],
     };
 
     #[inline(always)]
@@ -285,7 +352,7 @@ impl<const N: usize> Bins<N> {
         for (axis, k) in map.bins(p.key()).into_iter().enumerate() {
             let k = (k as usize).min(N - 1);
             self.bounds[axis][k].grow(lo, hi);
-            self.counts[axis][k] += 1;
+            self.counts[k][axis] += 1;
         }
     }
 
@@ -293,7 +360,7 @@ impl<const N: usize> Bins<N> {
         for axis in 0..4 {
             for k in 0..N {
                 self.bounds[axis][k] = self.bounds[axis][k].union(other.bounds[axis][k]);
-                self.counts[axis][k] += other.counts[axis][k];
+                self.counts[k][axis] += other.counts[k][axis];
             }
         }
     }
@@ -313,37 +380,51 @@ impl<const N: usize> Bins<N> {
     }
 
     /// The cheapest split of these bins by SAH on any axis whose scale is positive: its cost (the
-    /// sides' half areas times their counts), axis and first right bin.
-    fn best(&self, map: &Mapper) -> Option<(f64, usize, u32)> {
-        let (mut best, mut best_axis, mut best_bin) = (f64::INFINITY, 0, 0);
-        for axis in 0..4 {
-            if map.scale[axis] <= 0.0 {
-                continue;
-            }
-            let (bounds, counts) = (&self.bounds[axis], &self.counts[axis]);
-            // The right sides' areas and counts, from the last bin down: index i covers bins i.. .
-            let mut right = [(0.0f64, 0u32); N];
-            let (mut acc, mut n) = (Box3::EMPTY, 0);
-            for i in (1..N).rev() {
-                acc = acc.union(bounds[i]);
-                n += counts[i];
-                right[i] = (acc.half_area(), n);
-            }
-            let (mut acc, mut n) = (Box3::EMPTY, 0);
-            for i in 1..N {
-                acc = acc.union(bounds[i - 1]);
-                n += counts[i - 1];
-                let (area, rn) = right[i];
-                if n == 0 || rn == 0 {
-                    continue;
-                }
-                let c = acc.half_area() * n as f64 + area * rn as f64;
-                if c < best {
-                    (best, best_axis, best_bin) = (c, axis, i as u32);
-                }
+    /// sides' half areas times their counts), axis and first right bin; the first of equal costs
+    /// in the order of axes, then bins.
+    ///
+    /// The four axes are swept at once, one per lane, in `f32`, with every extent multiplied by
+    /// the inverse of the largest extent of `bounds` (which holds every bin): areas are then at
+    /// most 3 and never overflow, and the ratios between costs, all the choice depends on, are
+    /// those of the unscaled areas to `f32`'s precision. The cost returned is unscaled (`f64`).
+    fn best(&self, map: &Mapper, bounds: &Box3) -> Option<(f64, usize, u32)> {
+        let scale = 1.0 / (bounds.hi - bounds.lo).max_element();
+        if !(scale.is_finite() && scale > 0.0) {
+            return None;
+        }
+        let boxes: [Boxes4; N] =
+            std::array::from_fn(|i| Boxes4::gather([0, 1, 2, 3].map(|a| self.bounds[a][i])));
+        let counts: [Vec4; N] =
+            std::array::from_fn(|i| UVec4::from_array(self.counts[i]).as_vec4());
+        // The right sides' areas and counts, from the last bin down: index i covers bins i.. .
+        let mut right = [(Vec4::ZERO, Vec4::ZERO); N];
+        let (mut acc, mut n) = (Boxes4::EMPTY, Vec4::ZERO);
+        for i in (1..N).rev() {
+            acc = acc.union(boxes[i]);
+            n += counts[i];
+            right[i] = (acc.half_areas(scale), n);
+        }
+        let usable = map.scale.cmpgt(Vec4::ZERO);
+        let (mut best, mut best_bin) = (Vec4::INFINITY, Vec4::ZERO);
+        let (mut acc, mut n) = (Boxes4::EMPTY, Vec4::ZERO);
+        for i in 1..N {
+            acc = acc.union(boxes[i - 1]);
+            n += counts[i - 1];
+            let (area, rn) = right[i];
+            let c = acc.half_areas(scale) * n + area * rn;
+            // Strictly lower, on an axis that offers splits, with primitives on both sides.
+            let better = c.cmplt(best) & usable & n.cmpgt(Vec4::ZERO) & rn.cmpgt(Vec4::ZERO);
+            best = Vec4::select(better, c, best);
+            best_bin = Vec4::select(better, Vec4::splat(i as f32), best_bin);
+        }
+        let (mut cost, mut axis) = (f32::INFINITY, 0);
+        for a in 0..4 {
+            if best[a] < cost {
+                (cost, axis) = (best[a], a);
             }
         }
-        (best < f64::INFINITY).then_some((best, best_axis, best_bin))
+        let unscale = f64::from(scale) * f64::from(scale);
+        (cost < f32::INFINITY).then(|| (f64::from(cost) / unscale, axis, best_bin[axis] as u32))
     }
 }
 
@@ -376,10 +457,17 @@ fn best_binned(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
         // A sampled range's cost is the sample's, not comparable with the range's own leaf cost;
         // but only ranges of a leaf's size, never sampled, compare the two.
         let stride = prims.len().div_ceil(SAMPLE);
-        let (mut bins, mut odd) = (Bins::<N>::EMPTY, Bins::<N>::EMPTY);
-        bins.fill(&mut odd, prims, stride, &map);
-        bins.merge(&odd);
-        let (cost, axis, bin) = bins.best(&map)?;
+        let mut bins = Bins::<N>::EMPTY;
+        if prims.len() >= MANY {
+            let mut odd = Bins::<N>::EMPTY;
+            bins.fill(&mut odd, prims, stride, &map);
+            bins.merge(&odd);
+        } else {
+            // A few dozen primitives: a second set would cost more to clear and merge than the
+            // waits on the stores it saves.
+            prims.iter().for_each(|p| bins.add(p, &map));
+        }
+        let (cost, axis, bin) = bins.best(&map, &info.bounds)?;
         Some((cost, Split::Binned { map, axis, bin }))
     }
     if prims.len() >= MANY {
@@ -415,37 +503,47 @@ fn sorted_on(prims: &[Prim], axis: usize) -> [u8; SWEEP_MAX] {
     keys.map(|k| k as u8)
 }
 
-/// The best split of a small range by a full sweep over its keys sorted on each axis.
-fn best_sorted(prims: &[Prim]) -> Option<(f64, Split)> {
+/// The best split of a small range by a full sweep over its keys sorted on each axis. Areas in
+/// `f32` with the extents scaled as in [`Bins::best`]; the cost returned is unscaled.
+fn best_sorted(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
     let n = prims.len();
-    let (mut best, mut best_split) = (f64::INFINITY, None);
+    let scale = 1.0 / (info.bounds.hi - info.bounds.lo).max_element();
+    if !(scale.is_finite() && scale > 0.0) {
+        return None;
+    }
+    let area = |b: &Box3| {
+        let d = (b.hi - b.lo) * scale;
+        d.x * d.y + d.y * d.z + d.z * d.x
+    };
+    let (mut best, mut best_split) = (f32::INFINITY, None);
     for axis in 0..4 {
         let idx = sorted_on(prims, axis);
-        let mut right = [0.0f64; SWEEP_MAX];
+        let mut right = [0.0f32; SWEEP_MAX];
         let mut acc = Box3::EMPTY;
         for i in (1..n).rev() {
             let p = &prims[idx[i] as usize];
             acc.grow(p.lo(), p.hi());
-            right[i] = acc.half_area();
+            right[i] = area(&acc);
         }
         let mut left = Box3::EMPTY;
         for i in 1..n {
             let p = &prims[idx[i - 1] as usize];
             left.grow(p.lo(), p.hi());
-            let c = left.half_area() * i as f64 + right[i] * (n - i) as f64;
+            let c = area(&left) * i as f32 + right[i] * (n - i) as f32;
             if c < best {
                 best = c;
                 best_split = Some(Split::Sorted { axis, count: i });
             }
         }
     }
-    best_split.map(|split| (best, split))
+    let unscale = f64::from(scale) * f64::from(scale);
+    best_split.map(|split| (f64::from(best) / unscale, split))
 }
 
 /// The best SAH split of a range of at least two primitives, with its cost.
 fn best_split(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
     if prims.len() <= SWEEP_MAX {
-        best_sorted(prims)
+        best_sorted(prims, info)
     } else {
         best_binned(prims, info)
     }
@@ -539,7 +637,7 @@ fn partition(prims: &mut [Prim], left: impl Fn(Vec4) -> bool) -> (usize, Info, I
 /// Applies `split` to `prims` (whose info is `info`): the left count and both sides' infos.
 pub(super) fn apply(prims: &mut [Prim], info: &Info, split: Split) -> (usize, Info, Info) {
     match split {
-        Split::Binned { map, axis, bin } => partition(prims, |c| map.bins(c)[axis] < bin),
+        Split::Binned { map, axis, bin } => partition(prims, |c| map.below(c, axis, bin)),
         Split::Sorted { axis, count } => {
             let order = sorted_on(prims, axis);
             let mut sorted = [prims[0]; SWEEP_MAX];
@@ -632,4 +730,53 @@ pub(crate) fn binary_tree(
     }
     let order = prims.iter().map(Prim::index).collect();
     (nodes, order)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The partition's test agrees with the binning, for keys inside, outside and on the edges of
+    /// the bins, infinite and NaN.
+    #[test]
+    fn the_partitions_test_agrees_with_the_binning() {
+        let keys = Keys {
+            lo: Vec4::new(-1.0, 0.0, 1e-30, 3.0),
+            hi: Vec4::new(1.0, 0.0, 1e30, 3.5),
+        };
+        let mut rng = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            f32::from_bits(rng as u32)
+        };
+        let special = [
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            3.25,
+        ];
+        for count in [FEW_BINS, BINS] {
+            let map = Mapper::new(&keys, count);
+            for k in 0..20_000 {
+                let c = if k < special.len() {
+                    Vec4::splat(special[k])
+                } else {
+                    Vec4::new(next(), next() * 1e-30, next(), next())
+                };
+                let all = map.bins(c);
+                for (axis, &b) in all.iter().enumerate() {
+                    assert!(b < count as u32);
+                    for bin in 0..=count as u32 {
+                        assert_eq!(map.below(c, axis, bin), b < bin, "{c:?} on axis {axis}");
+                    }
+                }
+            }
+        }
+    }
 }
