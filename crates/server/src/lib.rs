@@ -6,6 +6,7 @@
 //! several servers can share one PostgreSQL database and serve one farm.
 
 pub mod auth;
+mod compression;
 pub mod config;
 pub mod connections;
 pub mod dashboard;
@@ -17,6 +18,7 @@ pub mod job_image;
 pub mod metrics;
 pub mod monitor;
 pub mod origin;
+mod process_metrics;
 pub mod routes;
 pub mod scheduler;
 pub mod single_flight;
@@ -129,6 +131,7 @@ fn router(state: AppState, listen: Option<std::net::SocketAddr>) -> Router {
     };
     router
         .layer(axum::middleware::map_response(error::json_errors))
+        .layer(compression::layer())
         .layer(DefaultBodyLimit::max(config::MAX_JSON_BODY_BYTES))
         .layer(tower_http::trace::TraceLayer::new_for_http())
         .layer(axum::middleware::from_fn_with_state(

@@ -33,8 +33,8 @@ pub struct Metrics {
     pub keep_alive_timeouts: AtomicU64,
     /// Request bodies cut off (408 `body_timeout`).
     pub body_timeouts: AtomicU64,
-    /// Request latency per (method, route template).
-    requests: Mutex<BTreeMap<(String, String), Histogram>>,
+    /// Request latency per (method, route template, status code).
+    requests: Mutex<BTreeMap<(String, String, u16), Histogram>>,
 }
 
 #[derive(Clone, Default)]
@@ -72,17 +72,18 @@ impl Metrics {
             .fetch_add(d.as_micros() as u64, Ordering::Relaxed);
     }
 
-    /// Records one request's latency; `route` is the matched route template, never the raw path
-    /// (ids would make the label set grow without bound).
-    pub fn observe_request(&self, method: &str, route: &str, d: Duration) {
+    /// Records one request's latency and status; `route` is the matched route template, never the
+    /// raw path (ids would make the label set grow without bound).
+    pub fn observe_request(&self, method: &str, route: &str, status: u16, d: Duration) {
         if let Ok(mut map) = self.requests.lock() {
-            map.entry((method.to_string(), route.to_string()))
+            map.entry((method.to_string(), route.to_string(), status))
                 .or_default()
                 .observe(d.as_secs_f64());
         }
     }
 
-    /// The Prometheus text exposition of the counters, the histograms and `gauges`.
+    /// The Prometheus text exposition of the counters, the histograms, `gauges`, the build and the
+    /// process ([`crate::process_metrics`]).
     pub fn render(&self, gauges: &Gauges) -> String {
         let mut out = String::with_capacity(4096);
         let counter = |out: &mut String, name: &str, help: &str, v: u64| {
@@ -121,6 +122,13 @@ impl Metrics {
             "pathfarm_leases_total",
             "Lease requests answered (with a task or with no work).",
             get(&self.leases),
+        );
+        let _ = writeln!(
+            out,
+            "# HELP pathfarm_lease_seconds_total Time spent answering lease requests, in seconds \
+             (over pathfarm_leases_total: the mean).\n\
+             # TYPE pathfarm_lease_seconds_total counter\npathfarm_lease_seconds_total {}",
+            get(&self.lease_micros_total) as f64 / 1e6
         );
         counter(
             &mut out,
@@ -170,11 +178,15 @@ impl Metrics {
         let name = "pathfarm_http_request_duration_seconds";
         let _ = writeln!(
             out,
-            "# HELP {name} HTTP request latency by method and route.\n# TYPE {name} histogram"
+            "# HELP {name} HTTP request latency by method, route and status code.\n\
+             # TYPE {name} histogram"
         );
         let requests = self.requests.lock().map(|m| m.clone()).unwrap_or_default();
-        for ((method, route), h) in &requests {
-            let labels = format!("method=\"{method}\",route=\"{}\"", escape(route));
+        for ((method, route, status), h) in &requests {
+            let labels = format!(
+                "method=\"{method}\",route=\"{}\",status=\"{status}\"",
+                escape(route)
+            );
             let mut cumulative = 0;
             for (i, le) in LATENCY_BUCKETS.iter().enumerate() {
                 cumulative += h.buckets[i];
@@ -184,6 +196,16 @@ impl Metrics {
             let _ = writeln!(out, "{name}_sum{{{labels}}} {}", h.sum);
             let _ = writeln!(out, "{name}_count{{{labels}}} {}", h.count);
         }
+        let _ = writeln!(
+            out,
+            "# HELP pathfarm_build_info The server's version and platform (always 1).\n\
+             # TYPE pathfarm_build_info gauge\n\
+             pathfarm_build_info{{version=\"{}\",os=\"{}\",arch=\"{}\"}} 1",
+            env!("CARGO_PKG_VERSION"),
+            std::env::consts::OS,
+            std::env::consts::ARCH
+        );
+        crate::process_metrics::render(&mut out);
         out
     }
 }
@@ -203,7 +225,12 @@ mod tests {
     fn histogram_buckets_are_cumulative_in_the_exposition() {
         let m = Metrics::default();
         for ms in [0.2, 3.0, 3.0, 40.0, 20_000.0] {
-            m.observe_request("GET", "/api/v1/jobs", Duration::from_secs_f64(ms / 1000.0));
+            m.observe_request(
+                "GET",
+                "/api/v1/jobs",
+                200,
+                Duration::from_secs_f64(ms / 1000.0),
+            );
         }
         let text = m.render(&Gauges::default());
         let line = |le: &str| {
@@ -221,7 +248,8 @@ mod tests {
         assert_eq!(line("10"), "4");
         assert_eq!(line("+Inf"), "5");
         assert!(text.contains(
-            "pathfarm_http_request_duration_seconds_count{method=\"GET\",route=\"/api/v1/jobs\"} 5"
+            "pathfarm_http_request_duration_seconds_count{method=\"GET\",route=\"/api/v1/jobs\",\
+             status=\"200\"} 5"
         ));
     }
 

@@ -16,13 +16,23 @@ fn parse(text: &str) -> HashMap<String, f64> {
         }
         if let Some(rest) = line.strip_prefix("# ") {
             assert!(
-                rest.starts_with("HELP pathfarm_") || rest.starts_with("TYPE pathfarm_"),
+                [
+                    "HELP pathfarm_",
+                    "TYPE pathfarm_",
+                    "HELP process_",
+                    "TYPE process_"
+                ]
+                .iter()
+                .any(|p| rest.starts_with(p)),
                 "bad comment line {line:?}"
             );
             continue;
         }
         let (series, value) = line.rsplit_once(' ').expect("series and value");
-        assert!(series.starts_with("pathfarm_"), "{line:?}");
+        assert!(
+            series.starts_with("pathfarm_") || series.starts_with("process_"),
+            "{line:?}"
+        );
         if let Some(open) = series.find('{') {
             assert!(series.ends_with('}'), "{line:?}");
             for label in series[open + 1..series.len() - 1].split("\",") {
@@ -94,14 +104,62 @@ async fn metrics_agree_with_what_the_farm_did() {
         assert_eq!(get("pathfarm_workers{state=\"offline\"}"), 1.0, "{store}");
         assert!(get("pathfarm_leases_total") >= job.tasks as f64, "{store}");
 
-        // Every slice upload went through one route template, whatever the task id.
+        // Every slice upload went through one route template, whatever the task id, and every
+        // one was answered with a success (the status is a label).
         let uploads = "pathfarm_http_request_duration_seconds_count\
-                       {method=\"POST\",route=\"/api/v1/tasks/{id}/slices\"}";
-        let counted = get(uploads);
+                       {method=\"POST\",route=\"/api/v1/tasks/{id}/slices\",status=\"";
+        let by_status: Vec<(&String, f64)> = m
+            .iter()
+            .filter(|(k, _)| k.starts_with(uploads))
+            .map(|(k, v)| (k, *v))
+            .collect();
+        assert!(
+            by_status
+                .iter()
+                .all(|(k, _)| k[uploads.len()..].starts_with('2')),
+            "{store}: {by_status:?}"
+        );
+        let counted: f64 = by_status.iter().map(|(_, v)| v).sum();
         assert!(counted >= report.slices as f64, "{store}: {counted}");
-        let inf = "pathfarm_http_request_duration_seconds_bucket\
-                   {method=\"POST\",route=\"/api/v1/tasks/{id}/slices\",le=\"+Inf\"}";
-        assert_eq!(get(inf), counted);
+        for (k, v) in &by_status {
+            let inf = k
+                .replace("_count{", "_bucket{")
+                .replace("\"}", "\",le=\"+Inf\"}");
+            assert_eq!(get(&inf), *v, "{store}: {inf}");
+        }
+        // A refused request is counted under its own status: 404 for a job that does not exist.
+        let missing = reqwest::get(format!(
+            "{}/api/v1/jobs/00000000-0000-4000-8000-000000000000",
+            server.url
+        ))
+        .await
+        .unwrap();
+        assert_eq!(missing.status().as_u16(), 404);
+        let text = reqwest::get(format!("{}/metrics", server.url))
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        let after = parse(&text);
+        assert_eq!(
+            after.get(
+                "pathfarm_http_request_duration_seconds_count\
+                 {method=\"GET\",route=\"/api/v1/jobs/{id}\",status=\"404\"}"
+            ),
+            Some(&1.0),
+            "{store}"
+        );
+        // The lease time is exported, the build and the process are described.
+        assert!(get("pathfarm_lease_seconds_total") > 0.0, "{store}");
+        assert!(
+            m.keys()
+                .any(|k| k.starts_with("pathfarm_build_info{version=\"")),
+            "{store}"
+        );
+        assert!(get("process_resident_memory_bytes") > 1e6, "{store}");
+        assert!(get("process_cpu_seconds_total") > 0.0, "{store}");
+        assert!(get("process_open_fds") >= 3.0, "{store}");
         assert!(
             !m.keys().any(|k| k.contains(&job.id)),
             "{store}: a job id became a label"

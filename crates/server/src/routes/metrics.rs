@@ -21,7 +21,8 @@ pub async fn metrics(_: ReadAuth, State(state): State<AppState>) -> ApiResult<Re
         .into_response())
 }
 
-/// Middleware on the matched routes: records each request's latency under its route template.
+/// Middleware on the matched routes: records each request's latency under its route template and
+/// status code.
 pub async fn track_latency(
     State(state): State<AppState>,
     request: Request,
@@ -35,8 +36,11 @@ pub async fn track_latency(
     let method = request.method().as_str().to_string();
     let started = Instant::now();
     let response = next.run(request).await;
-    state
-        .metrics
-        .observe_request(&method, &route, started.elapsed());
+    state.metrics.observe_request(
+        &method,
+        &route,
+        response.status().as_u16(),
+        started.elapsed(),
+    );
     response
 }
