@@ -186,7 +186,7 @@ async fn event(state: &AppState, id: &str, e: JobEvent) -> ApiResult<Json<JobVie
     let job = state.store.job_event(id, e, None).await?;
     tracing::info!(job = %id, state = job.state.as_str(), "job state changed");
     let v = view(job, None, state.store.now_ms());
-    Ok(Json(with_frames(&state, v, false).await?))
+    Ok(Json(with_frames(state, v, false).await?))
 }
 
 pub async fn cancel(
