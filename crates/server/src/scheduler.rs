@@ -5,14 +5,31 @@
 //! once. A task's samples are capped so that it stays a few seconds of single-thread work: long
 //! tasks would leave workers idle at the end of a job.
 
+//!
+//! A frame job (an animation) plans each frame's tiles apart: tile `slot × tiles_per_frame + i`
+//! is tile `i` of the frame in slot `slot` of the job's frame list. Its tasks are frame × tile ×
+//! sample range, ordered by a rank the lease follows (`tasks.pass`): interleaved, the rank is the
+//! pass, so every frame gets each pass before any frame gets the next; sequential, it is
+//! `slot × passes + pass`, so each frame is finished before the next starts.
+
 use pathfarm_tracer::Tile;
+use pathfarm_wire::api::FrameOrder;
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct PlannedTask {
+    /// The tile's index in the job (for a frame job, counting every frame's tiles).
     pub tile_index: u32,
+    /// The lease order's rank (the pass, for a still or an interleaved frame job).
     pub pass: u32,
     pub sample_begin: u32,
     pub sample_end: u32,
+}
+
+/// A tile of a job's plan: its rectangle, and for a frame job the frame it belongs to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PlannedTile {
+    pub tile: Tile,
+    pub frame: Option<i64>,
 }
 
 /// The sample ranges of the passes: [0,1), [1,3), [3,7), … each at most `max_per_pixel` long.
@@ -64,6 +81,62 @@ pub fn plan_size(
     let tiles = width.div_ceil(ts) as u64 * height.div_ceil(ts) as u64;
     let passes = pass_count(spp, max_per_pixel(ts, max_task_samples));
     (tiles, tiles.saturating_mul(passes))
+}
+
+/// The plan of a frame job over `frames` (in their order), or of a still job (`frames` `None`):
+/// [`plan`]'s tiles once per frame and its tasks in the order of `order` (see the module's
+/// documentation). The caller checks [`plan_size`] times the frames against its limits first.
+pub fn plan_frames(
+    (width, height, tile_size, spp): (u32, u32, u32, u32),
+    max_task_samples: u64,
+    frames: Option<&[i64]>,
+    order: FrameOrder,
+) -> (Vec<PlannedTile>, Vec<PlannedTask>) {
+    let (tiles, tasks) = plan(width, height, tile_size, spp, max_task_samples);
+    let Some(frames) = frames else {
+        let tiles = tiles
+            .into_iter()
+            .map(|tile| PlannedTile { tile, frame: None })
+            .collect();
+        return (tiles, tasks);
+    };
+    let per_frame = tiles.len() as u32;
+    let passes = tasks.last().map_or(0, |t| t.pass + 1);
+    let all_tiles = frames
+        .iter()
+        .flat_map(|&f| {
+            tiles.iter().map(move |&tile| PlannedTile {
+                tile,
+                frame: Some(f),
+            })
+        })
+        .collect();
+    let frame_task = |slot: u32, t: &PlannedTask| PlannedTask {
+        tile_index: slot * per_frame + t.tile_index,
+        pass: match order {
+            FrameOrder::Interleaved => t.pass,
+            FrameOrder::Sequential => slot * passes + t.pass,
+        },
+        ..t.clone()
+    };
+    let slots = 0..frames.len() as u32;
+    let all_tasks = match order {
+        // Pass by pass, each pass frame by frame.
+        FrameOrder::Interleaved => (0..passes)
+            .flat_map(|p| {
+                let pass: Vec<&PlannedTask> = tasks.iter().filter(|t| t.pass == p).collect();
+                slots
+                    .clone()
+                    .flat_map(move |slot| pass.clone().into_iter().map(move |t| (slot, t)))
+            })
+            .map(|(slot, t)| frame_task(slot, t))
+            .collect(),
+        FrameOrder::Sequential => slots
+            .flat_map(|slot| tasks.iter().map(move |t| (slot, t)))
+            .map(|(slot, t)| frame_task(slot, t))
+            .collect(),
+    };
+    (all_tiles, all_tasks)
 }
 
 /// Tiles in row-major order and the tasks of every pass, pass by pass. The caller checks
@@ -125,6 +198,48 @@ mod tests {
         assert_eq!(covered, 100 * 50 * 8);
         // The first pass holds every tile before any tile gets a second sample.
         assert!(tasks[..tiles.len()].iter().all(|t| t.pass == 0));
+    }
+
+    #[test]
+    fn frame_plans_keep_each_frames_tiles_and_order_their_tasks() {
+        let frames = [5, 1, 9];
+        let one = plan(64, 32, 16, 4, 1 << 20); // 8 tiles, passes [0,1) [1,3) [3,4)
+        let (still_tiles, still_tasks) =
+            plan_frames((64, 32, 16, 4), 1 << 20, None, FrameOrder::Interleaved);
+        assert_eq!(still_tasks, one.1);
+        assert!(still_tiles.iter().all(|t| t.frame.is_none()));
+        for order in [FrameOrder::Interleaved, FrameOrder::Sequential] {
+            let (tiles, tasks) = plan_frames((64, 32, 16, 4), 1 << 20, Some(&frames), order);
+            assert_eq!(tiles.len(), 3 * 8);
+            assert_eq!(tasks.len(), 3 * one.1.len());
+            for (i, t) in tiles.iter().enumerate() {
+                assert_eq!(t.frame, Some(frames[i / 8]));
+                assert_eq!(t.tile, one.0[i % 8]);
+            }
+            // Every (tile, sample) of every frame once.
+            let mut covered = vec![0u32; tiles.len()];
+            for t in &tasks {
+                covered[t.tile_index as usize] += t.sample_end - t.sample_begin;
+            }
+            assert!(covered.iter().all(|&c| c == 4), "{order:?}");
+            // The lease takes tasks by (rank, insertion): ranks never fall in insertion order.
+            assert!(
+                tasks.windows(2).all(|w| w[0].pass <= w[1].pass),
+                "{order:?}"
+            );
+            let slot = |t: &PlannedTask| t.tile_index / 8;
+            match order {
+                FrameOrder::Interleaved => {
+                    // Every frame's first pass before any second pass.
+                    assert!(tasks[..24].iter().all(|t| t.sample_begin == 0));
+                    assert_eq!(tasks[..24].iter().map(slot).max(), Some(2));
+                }
+                FrameOrder::Sequential => {
+                    assert!(tasks[..one.1.len()].iter().all(|t| slot(t) == 0));
+                    assert!(tasks.windows(2).all(|w| slot(&w[0]) <= slot(&w[1])));
+                }
+            }
+        }
     }
 
     #[test]

@@ -187,6 +187,28 @@ pub struct JobSettings {
     /// The environment light; absent: none (rays that escape see black).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub environment: Option<EnvironmentSettings>,
+    /// Frames of the scene's animation to render, one image each (`1-240`, `1-240x2`,
+    /// `1,5,10-12`: [`crate::frames::parse_frames`]); absent: one still image, as before.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<String>,
+    /// Frames per second of `frames`: frame f is rendered at time f / fps (what
+    /// `pathfarm render --frame f --fps fps` renders); absent: 24.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fps: Option<f64>,
+    /// The order in which a frame job's frames are rendered; absent: interleaved.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_order: Option<FrameOrder>,
+}
+
+/// How a frame job's tasks are ordered.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameOrder {
+    /// Every frame gets each pass before any frame gets the next: all frames sharpen together.
+    #[default]
+    Interleaved,
+    /// Frame by frame, in the order written: each frame is finished before the next starts.
+    Sequential,
 }
 
 impl JobSettings {
@@ -208,7 +230,24 @@ impl JobSettings {
             noise_target: None,
             time_limit_s: None,
             environment: None,
+            frames: None,
+            fps: None,
+            frame_order: None,
         }
+    }
+
+    /// The frames of a frame job (`None` for a still job), as [`crate::frames::parse_frames`]
+    /// reads `frames`.
+    pub fn frame_list(&self) -> Result<Option<Vec<i64>>, crate::frames::FrameSpecError> {
+        self.frames
+            .as_deref()
+            .map(crate::frames::parse_frames)
+            .transpose()
+    }
+
+    /// Frames per second of a frame job: `fps`, or 24.
+    pub fn frames_per_second(&self) -> f64 {
+        self.fps.unwrap_or(pathfarm_tracer::gltf::DEFAULT_FPS)
     }
 
     /// The tracer's settings (what determines the bits of the image).
@@ -323,6 +362,9 @@ pub struct TileProgress {
     #[serde(flatten)]
     pub rect: TileRect,
     pub samples_per_pixel: u64,
+    /// The frame the tile belongs to (a frame job's tiles only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<i64>,
 }
 
 /// `201` answer to a submission.
@@ -361,9 +403,30 @@ pub struct JobView {
     /// server found them when the job was submitted.
     #[serde(default)]
     pub warnings: Vec<String>,
-    /// Per-tile progress (only in the single-job view).
+    /// Per-tile progress (only in the single-job view; of a frame job, every frame's tiles).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tiles: Option<Vec<TileProgress>>,
+    /// A frame job's frames (absent for a still job).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames_total: Option<u64>,
+    /// Of them, the frames whose every sample is merged.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames_done: Option<u64>,
+    /// Per-frame progress of a frame job, in the job's frame order (only in the single-job view).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<Vec<FrameProgress>>,
+}
+
+/// One frame of a frame job.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameProgress {
+    pub frame: i64,
+    /// Samples (camera paths, over all pixels) merged into this frame.
+    pub samples_done: u64,
+    /// The fewest samples per pixel of any of its tiles.
+    pub samples_per_pixel: u64,
+    /// Every planned sample of the frame is merged.
+    pub complete: bool,
 }
 
 /// A page of jobs, newest first.
@@ -496,6 +559,9 @@ pub struct Lease {
     pub tile: TileRect,
     pub sample_begin: u32,
     pub sample_end: u32,
+    /// The frame to render the scene at (time = frame / `settings.fps`); absent for a still job.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<i64>,
 }
 
 /// `POST /api/v1/workers/{id}/heartbeat`: the worker is alive, and extends its current lease.

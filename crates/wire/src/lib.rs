@@ -7,6 +7,7 @@
 
 pub mod api;
 pub mod environment;
+pub mod frames;
 #[doc(hidden)]
 pub mod fuzzing; // the checks of the fuzz targets (fuzz/), shared with tests/fuzz_corpus.rs
 pub mod slice;

@@ -607,6 +607,25 @@ impl ApiClient {
         Ok(resp.bytes().await.map_err(transport)?.to_vec())
     }
 
+    /// The image of frame `frame` of a frame job (float32 EXR).
+    pub async fn frame_exr(&self, id: &str, frame: i64) -> Result<Vec<u8>, ClientError> {
+        let path = format!("/api/v1/jobs/{id}/image.exr?frame={frame}");
+        let resp = Self::send(self.download(&path)).await?;
+        Ok(resp.bytes().await.map_err(transport)?.to_vec())
+    }
+
+    /// The tone-mapped PNG of frame `frame` of a frame job.
+    pub async fn frame_png(
+        &self,
+        id: &str,
+        frame: i64,
+        exposure: f32,
+    ) -> Result<Vec<u8>, ClientError> {
+        let path = format!("/api/v1/jobs/{id}/preview.png?frame={frame}&exposure={exposure}");
+        let resp = Self::send(self.download(&path)).await?;
+        Ok(resp.bytes().await.map_err(transport)?.to_vec())
+    }
+
     pub async fn preview_png(&self, id: &str, exposure: f32) -> Result<Vec<u8>, ClientError> {
         let path = format!("/api/v1/jobs/{id}/preview.png?exposure={exposure}");
         let resp = Self::send(self.download(&path)).await?;

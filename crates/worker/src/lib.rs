@@ -444,6 +444,7 @@ async fn work_on(
             &lease.scene_hash,
             lease.settings.camera.clone(),
             lease.settings.environment.as_ref(),
+            lease.frame.map(|f| (f, lease.settings.frames_per_second())),
         )
         .await
     {
@@ -666,6 +667,7 @@ mod tests {
                             },
                             sample_begin: 0,
                             sample_end: 4,
+                            frame: None,
                         };
                         ("200 OK", serde_json::to_string(&lease).unwrap())
                     }

@@ -2,9 +2,15 @@
 //! fetches each scene once and loads it once however many of its tasks it renders. A job's
 //! environment image is fetched and cached the same way (by its hash, from the same route), and a
 //! loaded scene is kept per (scene hash, camera, environment settings), lit by its environment.
+//!
+//! A frame job's scene is loaded once as a [`SceneSource`] (parsed once, what does not move built
+//! once) and kept per the same key; the scene at a frame is built from it (`scene_at`, which
+//! rebuilds only what moves) and the last few frames' scenes are kept too, so a worker neither
+//! reparses the file per frame nor rebuilds a frame per task.
 
 use crate::client::{ApiClient, ClientError};
-use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
+use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources, SceneSource};
+use pathfarm_tracer::light::Environment;
 use pathfarm_tracer::Scene;
 use pathfarm_wire::api::EnvironmentSettings;
 use sha2::{Digest, Sha256};
@@ -33,6 +39,9 @@ pub enum SceneError {
 
 /// Scenes kept loaded in memory.
 const LOADED: usize = 2;
+/// Animated scenes (their sources) kept loaded, and scenes at a frame kept built.
+const SOURCES: usize = 2;
+const FRAMES: usize = 4;
 /// After a scene (with a camera) failed to fetch or load, it is not tried again for this long,
 /// doubling with each further failure up to [`COOLDOWN_MAX`]; a success forgets the failures.
 /// The worker gives such a scene's tasks back at once instead of downloading and parsing it again,
@@ -48,9 +57,20 @@ struct Failure {
     until: Instant,
 }
 
+/// A frame job's scene file, loaded, with the environment its frames are lit by.
+struct Source {
+    source: SceneSource,
+    environment: Option<Environment>,
+}
+
+/// A frame: its number and the bits of its frame rate.
+type Frame = (i64, u64);
+
 pub struct SceneCache {
     dir: Option<PathBuf>,
     loaded: Vec<(Key, Arc<Scene>)>,
+    sources: Vec<(Key, Arc<Source>)>,
+    frames: Vec<((Key, Frame), Arc<Scene>)>,
     failed: HashMap<Key, Failure>,
 }
 
@@ -64,19 +84,24 @@ impl SceneCache {
         SceneCache {
             dir,
             loaded: Vec::new(),
+            sources: Vec::new(),
+            frames: Vec::new(),
             failed: HashMap::new(),
         }
     }
 
     /// The loaded scene `hash` with `camera`, lit by `environment`, fetched from the server (the
     /// scene and the environment image) when it is not cached. Fails at once, with
-    /// [`SceneError::CoolingDown`], while an earlier failure's cooldown lasts.
+    /// [`SceneError::CoolingDown`], while an earlier failure's cooldown lasts. With `frame`
+    /// (frame number and frames per second), the scene at that frame of its animation, as
+    /// `pathfarm render --frame --fps` builds it.
     pub async fn get(
         &mut self,
         client: &ApiClient,
         hash: &str,
         camera: Option<String>,
         environment: Option<&EnvironmentSettings>,
+        frame: Option<(i64, f64)>,
     ) -> Result<Arc<Scene>, SceneError> {
         // The settings' JSON: equal settings (to the bit: the numbers are written exactly) give
         // equal keys.
@@ -92,7 +117,13 @@ impl SceneCache {
                 });
             }
         }
-        let result = self.fetch_and_load(client, &key, environment).await;
+        let result = match frame {
+            None => self.fetch_and_load(client, &key, environment).await,
+            Some((frame, fps)) => {
+                self.frame_scene(client, &key, environment, (frame, fps))
+                    .await
+            }
+        };
         match &result {
             Ok(_) => {
                 self.failed.remove(&key);
@@ -127,19 +158,7 @@ impl SceneCache {
             return Ok(s.clone());
         }
         let (hash, camera) = (key.0.as_str(), key.1.clone());
-        let bytes = self.bytes(client, hash, "scene").await?;
-        let image = match environment.and_then(|e| e.image.as_deref()) {
-            Some(image) => Some(self.bytes(client, image, "environment").await.map_err(
-                |e| match e {
-                    SceneError::Load { message, .. } => SceneError::Environment {
-                        hash: hash.into(),
-                        message: format!("image {image}: {message}"),
-                    },
-                    e => e,
-                },
-            )?),
-            None => None,
-        };
+        let (bytes, image) = self.fetch(client, key, environment).await?;
         let environment = environment.cloned();
         let scene = tokio::task::spawn_blocking(move || {
             let scene = gltf::load(
@@ -174,6 +193,104 @@ impl SceneCache {
         }
         self.loaded.push((key.clone(), scene.clone()));
         Ok(scene)
+    }
+
+    /// The scene at `frame` of the animated scene `key`: kept, or built from its kept (else
+    /// fetched and loaded) source on a blocking thread.
+    async fn frame_scene(
+        &mut self,
+        client: &ApiClient,
+        key: &Key,
+        environment: Option<&EnvironmentSettings>,
+        (frame, fps): (i64, f64),
+    ) -> Result<Arc<Scene>, SceneError> {
+        let frame_key = (key.clone(), (frame, fps.to_bits()));
+        if let Some((_, s)) = self.frames.iter().find(|(k, _)| *k == frame_key) {
+            return Ok(s.clone());
+        }
+        let hash = key.0.clone();
+        let load_error = |message: String| SceneError::Load {
+            hash: hash.clone(),
+            message,
+        };
+        let source = match self.sources.iter().find(|(k, _)| k == key) {
+            Some((_, s)) => s.clone(),
+            None => {
+                let (bytes, image) = self.fetch(client, key, environment).await?;
+                let (camera, environment) = (key.1.clone(), environment.cloned());
+                let source = tokio::task::spawn_blocking(move || {
+                    let source = SceneSource::load(
+                        &bytes,
+                        &NoExternalResources,
+                        &LoadOptions {
+                            camera,
+                            ..LoadOptions::default()
+                        },
+                    )
+                    .map_err(|e| e.to_string())?;
+                    let environment = environment
+                        .map(|e| e.build(image.as_deref()))
+                        .transpose()
+                        .map_err(|e| e.to_string())?;
+                    Ok::<_, String>(Source {
+                        source,
+                        environment,
+                    })
+                })
+                .await
+                .map_err(|e| load_error(e.to_string()))?
+                .map_err(load_error)?;
+                let source = Arc::new(source);
+                if self.sources.len() >= SOURCES {
+                    self.sources.remove(0);
+                }
+                self.sources.push((key.clone(), source.clone()));
+                source
+            }
+        };
+        let scene = tokio::task::spawn_blocking(move || {
+            // `pathfarm render --frame` builds the same scene: the time by the one function, the
+            // environment attached after.
+            let time = gltf::frame_time(frame, fps);
+            source
+                .source
+                .scene_at(time)
+                .map(|s| s.into_owned().with_environment(source.environment.clone()))
+                .map_err(|e| format!("at frame {frame}: {e}"))
+        })
+        .await
+        .map_err(|e| load_error(e.to_string()))?
+        .map_err(load_error)?;
+        let scene = Arc::new(scene);
+        if self.frames.len() >= FRAMES {
+            self.frames.remove(0);
+        }
+        self.frames.push((frame_key, scene.clone()));
+        Ok(scene)
+    }
+
+    /// The scene's bytes and its environment image's, fetched or from the disk cache.
+    async fn fetch(
+        &self,
+        client: &ApiClient,
+        key: &Key,
+        environment: Option<&EnvironmentSettings>,
+    ) -> Result<(Vec<u8>, Option<Vec<u8>>), SceneError> {
+        let hash = key.0.as_str();
+        let bytes = self.bytes(client, hash, "scene").await?;
+        let image = match environment.and_then(|e| e.image.as_deref()) {
+            Some(image) => Some(self.bytes(client, image, "environment").await.map_err(
+                |e| match e {
+                    SceneError::Load { message, .. } => SceneError::Environment {
+                        hash: hash.into(),
+                        message: format!("image {image}: {message}"),
+                    },
+                    e => e,
+                },
+            )?),
+            None => None,
+        };
+        Ok((bytes, image))
     }
 
     /// The bytes of the blob `hash` (a scene or an environment image), from the disk cache or

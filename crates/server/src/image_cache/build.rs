@@ -37,7 +37,7 @@ impl ImageCache {
     pub(super) async fn build(
         &self,
         reader: &ImageReader,
-        job_id: &str,
+        (job_id, key, tiles): (&str, &str, Option<(i64, i64)>),
         (width, height): (u32, u32),
         tile_size: u32,
         mark: &AtomicI64,
@@ -59,15 +59,15 @@ impl ImageCache {
                 deadline,
             )
             .await?;
-        let mut snapshot = reader.snapshot(job_id).await?;
+        let mut snapshot = reader.snapshot(job_id, tiles).await?;
         let version = snapshot.version;
         mark.store(version, Ordering::Release);
-        if let Some(img) = self.kept(job_id, version) {
+        if let Some(img) = self.kept(key, version) {
             return Ok(img);
         }
         if version == 0 {
             let img = Arc::new(JobImage::empty(0, width, height));
-            self.keep(job_id, &img);
+            self.keep(key, &img);
             return Ok(img);
         }
         self.shared.builds.fetch_add(1, Ordering::Relaxed);
@@ -108,13 +108,14 @@ impl ImageCache {
         drop(room);
         tracing::debug!(
             job = job_id,
+            image = key,
             version,
             pixels,
             ms = started.elapsed().as_millis() as u64,
             "job image built"
         );
         let img = Arc::new(img);
-        self.keep(job_id, &img);
+        self.keep(key, &img);
         Ok(img)
     }
 }

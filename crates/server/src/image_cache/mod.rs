@@ -43,6 +43,15 @@ const BUILDS_AT_ONCE: usize = 2;
 /// The `Retry-After` of a refusal for want of room, in seconds.
 pub const RETRY_AFTER_SECONDS: u32 = 2;
 
+/// What an image is kept under: the job's id for a still job (and a frame job's default image),
+/// `{id}/frame{slot}` for a frame of a frame job. [`ImageCache::encoded`] takes the same key.
+pub fn image_key(job_id: &str, slot: Option<u32>) -> String {
+    match slot {
+        None => job_id.to_string(),
+        Some(slot) => format!("{job_id}/frame{slot}"),
+    }
+}
+
 /// Locks, taking the data over from a thread that panicked with the lock held: no code of this
 /// module panics between its changes to a guarded value, so the value is whole.
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -269,7 +278,8 @@ impl ImageCache {
     }
 
     /// The job's current image: the kept one when it shows the job's version (as `job` read it)
-    /// or a later one, else one build shared with every request waiting for it.
+    /// or a later one, else one build shared with every request waiting for it. A frame job's
+    /// image is its first frame's.
     pub async fn get(&self, store: &Store, job: &JobRow) -> ApiResult<Arc<JobImage>> {
         self.get_at_least(store, job, job.version).await
     }
@@ -282,26 +292,56 @@ impl ImageCache {
         job: &JobRow,
         wanted: i64,
     ) -> ApiResult<Arc<JobImage>> {
+        let slot = job.settings.frames.as_ref().map(|_| 0);
+        self.get_view(store, job, slot, wanted).await
+    }
+
+    /// The image of the frame in slot `slot` of a frame job's frame list (`None`: a still job's
+    /// image), kept under [`image_key`] like a job's.
+    pub async fn get_frame(
+        &self,
+        store: &Store,
+        job: &JobRow,
+        slot: Option<u32>,
+    ) -> ApiResult<Arc<JobImage>> {
+        self.get_view(store, job, slot, job.version).await
+    }
+
+    async fn get_view(
+        &self,
+        store: &Store,
+        job: &JobRow,
+        slot: Option<u32>,
+        wanted: i64,
+    ) -> ApiResult<Arc<JobImage>> {
         let (width, height) = (job.settings.width, job.settings.height);
-        if let Some(img) = self.kept(&job.id, wanted) {
+        let key = image_key(&job.id, slot);
+        if let Some(img) = self.kept(&key, wanted) {
             return Ok(img);
         }
         if job.version == 0 {
             let img = Arc::new(JobImage::empty(0, width, height));
-            self.keep(&job.id, &img);
+            self.keep(&key, &img);
             return Ok(img);
         }
-        let (cache, reader, id) = (self.clone(), store.image_reader(), job.id.clone());
         let tile = job.settings.tile_size;
+        // A frame's tiles are a run of the job's: `slot × tiles per frame` on.
+        let tiles = slot.map(|slot| {
+            let ts = tile.max(1);
+            let per_frame = i64::from(width.div_ceil(ts)) * i64::from(height.div_ceil(ts));
+            let first = i64::from(slot) * per_frame;
+            (first, first + per_frame - 1)
+        });
+        let (cache, reader, id, k) = (self.clone(), store.image_reader(), job.id.clone(), key);
         self.shared
             .images
             .run(
-                job.id.clone(),
+                k.clone(),
                 // A build that has not read its snapshot yet will read this version or a later.
                 move |read| read == UNMARKED || read >= wanted,
                 move |mark| async move {
                     cache
-                        .build(&reader, &id, (width, height), tile, &mark)
+                        .build(&reader, (&id, &k, tiles), (width, height), tile, &mark)
                         .await
                 },
             )
@@ -501,9 +541,18 @@ impl ImageCache {
         drop(dropped);
     }
 
-    /// Lets the job's image go (the job was deleted).
+    /// Lets the job's images go (the job was deleted): its own and its frames'.
     pub fn forget(&self, job_id: &str) {
-        let gone = lock(&self.shared.resident).remove(job_id);
+        let mut resident = lock(&self.shared.resident);
+        let frames = format!("{job_id}/");
+        let keys: Vec<String> = resident
+            .jobs
+            .keys()
+            .filter(|k| k.as_str() == job_id || k.starts_with(&frames))
+            .cloned()
+            .collect();
+        let gone: Vec<_> = keys.iter().filter_map(|k| resident.remove(k)).collect();
+        drop(resident);
         drop(gone);
     }
 }

@@ -6,7 +6,8 @@
 use crate::auth::ReadAuth;
 use crate::error::{ApiError, ApiResult};
 use crate::heatmap;
-use crate::job_image::cost;
+use crate::image_cache::image_key;
+use crate::job_image::{cost, JobImage};
 use crate::AppState;
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -14,12 +15,16 @@ use axum::response::{IntoResponse, Response};
 use pathfarm_tracer::output::ExrChannels;
 use pathfarm_wire::api::{PreviewView, SCALE_MAX_HEADER, SCALE_MIN_HEADER};
 use serde::Deserialize;
+use std::sync::Arc;
 
 #[derive(Deserialize)]
 pub struct ExrQuery {
     /// Add the `variance` (of the mean) and `samples` channels.
     #[serde(default)]
     extra: bool,
+    /// A frame job's frame (default: its first).
+    #[serde(default)]
+    frame: Option<i64>,
 }
 
 #[derive(Deserialize)]
@@ -28,6 +33,45 @@ pub struct PngQuery {
     exposure: f32,
     #[serde(default)]
     view: PreviewView,
+    /// A frame job's frame (default: its first).
+    #[serde(default)]
+    frame: Option<i64>,
+}
+
+/// The image a request names: a still job's, or the frame `frame` of a frame job (its first when
+/// `frame` is absent), with the key it is kept under.
+async fn job_image(
+    state: &AppState,
+    id: &str,
+    frame: Option<i64>,
+) -> ApiResult<(Arc<JobImage>, String)> {
+    let job = state.store.job(id).await?;
+    let frames = job
+        .settings
+        .frame_list()
+        .map_err(|e| ApiError::internal(format!("stored settings: {e}")))?;
+    let slot = match (frames, frame) {
+        (None, None) => None,
+        (None, Some(_)) => {
+            return Err(ApiError::bad_request(
+                "bad_query",
+                "frame: this job is a still image, not a frame job",
+            ))
+        }
+        (Some(_), None) => Some(0),
+        (Some(frames), Some(f)) => match frames.iter().position(|&x| x == f) {
+            Some(slot) => Some(slot as u32),
+            None => {
+                return Err(ApiError::new(
+                    StatusCode::NOT_FOUND,
+                    "not_found",
+                    format!("frame {f} is not one of job {id}'s frames"),
+                ))
+            }
+        },
+    };
+    let img = state.images.get_frame(&state.store, &job, slot).await?;
+    Ok((img, image_key(id, slot)))
 }
 
 fn etag(version: i64) -> String {
@@ -74,8 +118,7 @@ pub async fn image_exr(
     query: Result<Query<ExrQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
-    let job = state.store.job(&id).await?;
-    let img = state.images.get(&state.store, &job).await?;
+    let (img, image) = job_image(&state, &id, q.frame).await?;
     if let Some(r) = not_modified(&request, img.version) {
         return Ok(r);
     }
@@ -87,7 +130,7 @@ pub async fn image_exr(
     let need = cost::exr(img.width, img.height, if q.extra { 5 } else { 3 });
     let bytes = state
         .images
-        .encoded(&id, &img, key, need, move |img| {
+        .encoded(&image, &img, key, need, move |img| {
             img.exr(channels)
                 .map_err(|e| ApiError::internal(format!("EXR encoding: {e}")))
         })
@@ -109,8 +152,7 @@ pub async fn preview_png(
             "exposure must be a number of stops in [-64, 64]",
         ));
     }
-    let job = state.store.job(&id).await?;
-    let img = state.images.get(&state.store, &job).await?;
+    let (img, image) = job_image(&state, &id, q.frame).await?;
     if let Some(r) = not_modified(&request, img.version) {
         return Ok(r);
     }
@@ -126,7 +168,7 @@ pub async fn preview_png(
     let need = cost::png(img.width, img.height);
     let bytes = state
         .images
-        .encoded(&id, &img, &key, need, move |img| {
+        .encoded(&image, &img, &key, need, move |img| {
             match view {
                 PreviewView::Image => img.png(exposure),
                 PreviewView::Samples => img.samples_png(),

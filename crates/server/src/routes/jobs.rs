@@ -45,7 +45,30 @@ pub(crate) fn view(job: JobRow, tiles: Option<Vec<TileProgress>>, now: i64) -> J
         leased_tasks: job.leased_tasks,
         warnings: job.warnings,
         tiles,
+        frames_total: None,
+        frames_done: None,
+        frames: None,
     }
+}
+
+/// Adds a frame job's frame counts to its view (and, with `detail`, every frame's progress).
+/// A still job's view is left as it is.
+pub(crate) async fn with_frames(
+    state: &AppState,
+    mut view: JobView,
+    detail: bool,
+) -> ApiResult<JobView> {
+    if view.settings.frames.is_none() {
+        return Ok(view);
+    }
+    let frames = state
+        .store
+        .frame_progress(&view.id, u64::from(view.settings.spp))
+        .await?;
+    view.frames_total = Some(frames.len() as u64);
+    view.frames_done = Some(frames.iter().filter(|f| f.complete).count() as u64);
+    view.frames = detail.then_some(frames);
+    Ok(view)
 }
 
 #[derive(Deserialize)]
@@ -79,8 +102,12 @@ pub async fn list(
         .await?;
     let Page { page, per_page } = window;
     let now = state.store.now_ms();
+    let mut views = Vec::with_capacity(jobs.len());
+    for j in jobs {
+        views.push(with_frames(&state, view(j, None, now), false).await?);
+    }
     Ok(Json(JobList {
-        jobs: jobs.into_iter().map(|j| view(j, None, now)).collect(),
+        jobs: views,
         total,
         page,
         per_page,
@@ -124,9 +151,11 @@ pub async fn show(
                 height: t.tile.height,
             },
             samples_per_pixel: t.samples,
+            frame: t.frame,
         })
         .collect();
-    Ok(Json(view(job, Some(tiles), state.store.now_ms())))
+    let v = view(job, Some(tiles), state.store.now_ms());
+    Ok(Json(with_frames(&state, v, true).await?))
 }
 
 pub async fn patch_job(
@@ -138,7 +167,8 @@ pub async fn patch_job(
 ) -> ApiResult<Json<JobView>> {
     let patch: JobPatch = json_body(&headers, &json_bytes(body)?)?;
     let job = state.store.set_priority(&id, patch.priority).await?;
-    Ok(Json(view(job, None, state.store.now_ms())))
+    let v = view(job, None, state.store.now_ms());
+    Ok(Json(with_frames(&state, v, false).await?))
 }
 
 pub async fn delete_job(
@@ -155,7 +185,8 @@ pub async fn delete_job(
 async fn event(state: &AppState, id: &str, e: JobEvent) -> ApiResult<Json<JobView>> {
     let job = state.store.job_event(id, e, None).await?;
     tracing::info!(job = %id, state = job.state.as_str(), "job state changed");
-    Ok(Json(view(job, None, state.store.now_ms())))
+    let v = view(job, None, state.store.now_ms());
+    Ok(Json(with_frames(state, v, false).await?))
 }
 
 pub async fn cancel(

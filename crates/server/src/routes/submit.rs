@@ -178,17 +178,26 @@ pub async fn submit(
     // `scene_checks` of them are in memory at once.
     let environment = environment_image(&state, &settings, uploaded).await?;
     let image_for_load = environment.as_ref().map(|(_, b)| b.clone());
+    // A frame job's scene is loaded as its workers load it, and built at its first frame.
+    let first_frame = settings
+        .frame_list()
+        .ok()
+        .flatten()
+        .and_then(|f| f.first().copied())
+        .map(|f| gltf::frame_time(f, settings.frames_per_second()));
     let checked = tokio::task::spawn_blocking(move || {
-        let warnings = gltf::load(
-            &scene_for_load,
-            &NoExternalResources,
-            &LoadOptions {
-                camera,
-                max_triangles,
-            },
-        )
-        .map(|s| s.info.warnings)
-        .map_err(|e| CheckError::Scene(e.to_string()))?;
+        let options = LoadOptions {
+            camera,
+            max_triangles,
+        };
+        let loaded = match first_frame {
+            None => gltf::load(&scene_for_load, &NoExternalResources, &options),
+            Some(time) => gltf::SceneSource::load(&scene_for_load, &NoExternalResources, &options)
+                .and_then(|source| source.into_scene_at(time)),
+        };
+        let warnings = loaded
+            .map(|s| s.info.warnings)
+            .map_err(|e| CheckError::Scene(e.to_string()))?;
         if let Some(env) = environment_settings {
             env.build(image_for_load.as_deref())
                 .map_err(|e| CheckError::Environment(e.to_string()))?;
@@ -215,15 +224,19 @@ pub async fn submit(
     let hash = hex::encode(Sha256::digest(&scene));
     // `validate` checked the plan's size against the limits; a large plan still takes a while to
     // build, so it is built off the async workers.
-    let (width, height, tile_size, spp) = (
+    let size = (
         settings.width,
         settings.height,
         settings.tile_size,
         settings.spp,
     );
     let max_task_samples = state.config.max_task_samples;
+    // `validate` parsed them.
+    let frames = settings.frame_list().ok().flatten();
+    let frame_count = frames.as_ref().map_or(1, |f| f.len() as u64);
+    let order = settings.frame_order.unwrap_or_default();
     let (tiles, tasks) = tokio::task::spawn_blocking(move || {
-        scheduler::plan(width, height, tile_size, spp, max_task_samples)
+        scheduler::plan_frames(size, max_task_samples, frames.as_deref(), order)
     })
     .await
     .map_err(|e| ApiError::internal(format!("job planning: {e}")))?;
@@ -233,7 +246,8 @@ pub async fn submit(
         .clone()
         .or(file_name.and_then(|n| name_from_file(&n)))
         .unwrap_or_else(|| format!("job {}", &id[..8]));
-    let samples_planned = settings.width as u64 * settings.height as u64 * settings.spp as u64;
+    let samples_planned =
+        settings.width as u64 * settings.height as u64 * settings.spp as u64 * frame_count;
     let task_count = tasks.len() as u64;
     state
         .store
@@ -426,8 +440,29 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
             return bad(format!("{field} contains a NUL character"));
         }
     }
+    let frames = match s.frame_list() {
+        Ok(f) => f.map_or(1, |f| f.len() as u64),
+        Err(e) => return bad(e.to_string()),
+    };
+    if s.frames.is_none() && (s.fps.is_some() || s.frame_order.is_some()) {
+        return bad("fps and frame_order are settings of a frame job: give frames too".into());
+    }
+    if let Some(fps) = s.fps {
+        if !(fps.is_finite() && fps > 0.0 && fps <= 1e6) {
+            return bad(format!(
+                "fps must be a positive number up to 1000000 (got {fps})"
+            ));
+        }
+    }
+    if s.frames.is_some() && s.noise_target.is_some() {
+        return bad(
+            "noise_target is not supported with frames yet: a frame job renders every frame to \
+             its spp (or time_limit_s)"
+                .into(),
+        );
+    }
     // The plan's size, computed before anything is planned: a submission cannot make the server
-    // allocate more than the limits allow.
+    // allocate more than the limits allow. A frame job plans every frame's tiles and tasks.
     let (tiles, tasks) = scheduler::plan_size(
         s.width,
         s.height,
@@ -435,12 +470,13 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
         s.spp,
         state.config.max_task_samples,
     );
+    let (tiles, tasks) = (tiles.saturating_mul(frames), tasks.saturating_mul(frames));
     if tiles > l.max_tiles {
         return Err(ApiError::unprocessable(
             "limit",
             format!(
                 "{tiles} tiles exceed the limit of {} tiles per job (max_tiles); use a larger \
-                 tile_size",
+                 tile_size or fewer frames",
                 l.max_tiles
             ),
         ));
@@ -449,8 +485,8 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
         return Err(ApiError::unprocessable(
             "limit",
             format!(
-                "{tasks} tasks exceed the limit of {} tasks per job (max_tasks); use fewer spp \
-                 or a smaller image",
+                "{tasks} tasks exceed the limit of {} tasks per job (max_tasks); use fewer spp, \
+                 a smaller image or fewer frames",
                 l.max_tasks
             ),
         ));

@@ -42,8 +42,13 @@ impl Store {
 }
 
 impl ImageReader {
-    /// The job's version and tiles; 404 when the job is gone.
-    pub async fn snapshot(&self, job_id: &str) -> StoreResult<ImageSnapshot> {
+    /// The job's version and tiles (those of `tiles`, an index range with both ends included:
+    /// a frame's; `None`: all); 404 when the job is gone.
+    pub async fn snapshot(
+        &self,
+        job_id: &str,
+        tiles: Option<(i64, i64)>,
+    ) -> StoreResult<ImageSnapshot> {
         let mut tx = self.pool.begin().await?;
         if self.dialect == Dialect::Postgres {
             sqlx::query("SET TRANSACTION ISOLATION LEVEL REPEATABLE READ, READ ONLY")
@@ -60,9 +65,12 @@ impl ImageReader {
         };
         let rows = sqlx::query(
             "SELECT tile_index, samples, CAST(COALESCE(length(accum), 0) AS BIGINT) AS stored \
-             FROM tiles WHERE job_id = $1 ORDER BY tile_index",
+             FROM tiles WHERE job_id = $1 AND tile_index >= $2 AND tile_index <= $3 \
+             ORDER BY tile_index",
         )
         .bind(job_id)
+        .bind(tiles.map_or(0, |t| t.0))
+        .bind(tiles.map_or(i64::MAX, |t| t.1))
         .fetch_all(&mut *tx)
         .await?;
         let tiles = rows

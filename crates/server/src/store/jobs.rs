@@ -2,7 +2,7 @@
 
 use super::error::{Error, StoreResult};
 use super::{Dialect, Store};
-use crate::scheduler::PlannedTask;
+use crate::scheduler::{PlannedTask, PlannedTile};
 use crate::states::{job_transition, JobEvent, TaskState, WorkerEvent};
 use pathfarm_tracer::Tile;
 use pathfarm_wire::api::{JobSettings, JobState};
@@ -93,6 +93,8 @@ pub struct TileRow {
     pub tile_index: u32,
     pub tile: Tile,
     pub samples: u64,
+    /// The frame it belongs to (a frame job's tiles only).
+    pub frame: Option<i64>,
 }
 
 impl TileRow {
@@ -107,6 +109,7 @@ impl TileRow {
                 height: g("height")? as u32,
             },
             samples: g("samples")? as u64,
+            frame: row.try_get("frame")?,
         })
     }
 }
@@ -122,7 +125,7 @@ pub struct NewJob {
     pub environment: Option<(String, Vec<u8>)>,
     /// The scene loader's warnings, already cleaned and capped ([`crate::routes`]).
     pub warnings: Vec<String>,
-    pub tiles: Vec<Tile>,
+    pub tiles: Vec<PlannedTile>,
     pub tasks: Vec<PlannedTask>,
     pub samples_planned: u64,
 }
@@ -174,18 +177,19 @@ impl Store {
         .await?;
         for (chunk_index, chunk) in job.tiles.chunks(INSERT_BATCH).enumerate() {
             let mut sql = String::from(
-                "INSERT INTO tiles (job_id, tile_index, x0, y0, width, height) VALUES ",
+                "INSERT INTO tiles (job_id, tile_index, x0, y0, width, height, frame) VALUES ",
             );
-            push_placeholders(&mut sql, chunk.len(), 6, self.dialect());
+            push_placeholders(&mut sql, chunk.len(), 7, self.dialect());
             let mut q = sqlx::query(sqlx::AssertSqlSafe(sql));
-            for (i, t) in chunk.iter().enumerate() {
+            for (i, PlannedTile { tile: t, frame }) in chunk.iter().enumerate() {
                 q = q
                     .bind(&job.id)
                     .bind((chunk_index * INSERT_BATCH + i) as i64)
                     .bind(t.x0 as i64)
                     .bind(t.y0 as i64)
                     .bind(t.width as i64)
-                    .bind(t.height as i64);
+                    .bind(t.height as i64)
+                    .bind(*frame);
             }
             q.execute(&mut *w.tx).await?;
         }
@@ -285,8 +289,8 @@ impl Store {
 
     pub async fn tiles(&self, job_id: &str) -> StoreResult<Vec<TileRow>> {
         let rows = sqlx::query(
-            "SELECT tile_index, x0, y0, width, height, samples FROM tiles WHERE job_id = $1 \
-             ORDER BY tile_index",
+            "SELECT tile_index, x0, y0, width, height, samples, frame FROM tiles \
+             WHERE job_id = $1 ORDER BY tile_index",
         )
         .bind(job_id)
         .fetch_all(self.pool())

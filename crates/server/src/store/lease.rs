@@ -25,7 +25,8 @@ macro_rules! candidate_jobs {
 }
 
 /// The chosen task: its row (`id`, `tile_index`, `done_end`, `sample_end`, `state`) and its
-/// tile's rectangle with its job's row (`x0`…`height`, `job_state`, `settings`, `scene_hash`),
+/// tile's rectangle and frame with its job's row (`x0`…`height`, `frame`, `job_state`,
+/// `settings`, `scene_hash`),
 /// a second row where the dialect read them apart (`None`: the task's row holds them too).
 struct Picked {
     job_id: String,
@@ -169,6 +170,7 @@ impl Store {
             tile,
             sample_begin: begin as u32,
             sample_end: end as u32,
+            frame: job.try_get("frame")?,
         }))
     }
 }
@@ -183,7 +185,7 @@ async fn pick_sqlite(
     let row = sqlx::query(concat!(
         "SELECT w.id AS worker, c.* FROM workers w LEFT JOIN (\
          SELECT t.id, t.tile_index, t.done_end, t.sample_end, t.state, \
-         ti.x0, ti.y0, ti.width, ti.height, j.id AS job_id, j.state AS job_state, j.settings, \
+         ti.x0, ti.y0, ti.width, ti.height, ti.frame, j.id AS job_id, j.state AS job_state, j.settings, \
          j.scene_hash, j.priority, j.leased_tasks, j.created_ms FROM (",
         candidate_jobs!(),
         ") j JOIN tasks t ON t.id = (SELECT id FROM tasks \
@@ -242,7 +244,7 @@ async fn pick_postgres(
         .await?;
         let Some(task) = task else { continue };
         let job = sqlx::query(
-            "SELECT ti.x0, ti.y0, ti.width, ti.height, j.state AS job_state, j.settings, \
+            "SELECT ti.x0, ti.y0, ti.width, ti.height, ti.frame, j.state AS job_state, j.settings, \
              j.scene_hash FROM tiles ti JOIN jobs j ON j.id = ti.job_id \
              WHERE ti.job_id = $1 AND ti.tile_index = $2 FOR UPDATE OF j",
         )

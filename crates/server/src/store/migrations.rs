@@ -28,6 +28,7 @@ pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
         "0002_convergence.sql",
         "0003_environment_and_warnings.sql",
         "0004_worker_identity.sql",
+        "0005_frames.sql",
     ))
 });
 
@@ -38,6 +39,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0002_convergence.sql",
         "0003_environment_and_warnings.sql",
         "0004_worker_identity.sql",
+        "0005_frames.sql",
     ))
 });
 

@@ -20,6 +20,7 @@ const SQLITE_BEGIN_WRITE: &str = "BEGIN IMMEDIATE";
 mod clock;
 mod convergence;
 mod error;
+mod frames;
 mod gauges;
 mod group_commit;
 mod images;

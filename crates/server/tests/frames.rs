@@ -1,0 +1,345 @@
+//! Frame jobs (animations) on the farm, on both stores: every frame's image is bit-identical to a
+//! local render of the scene at that frame (`pathfarm render --frame N --fps F`), whatever the
+//! workers, tiles and slices; the lease order is interleaved (every frame's first pass before any
+//! second pass) or sequential (frame after frame); bad specifications are 4xx with JSON.
+
+mod common;
+
+use axum::http::StatusCode;
+use common::*;
+use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources, SceneSource};
+use pathfarm_tracer::render_image;
+use pathfarm_wire::api::{ErrorBody, FrameOrder, JobSettings, JobState, WorkerRegistration};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Blender's animated export: a cube that slides and turns, a camera on an arc, a lamp that
+/// rises, a bending skinned bar, a bulging morphed sphere (frames 1–48 at 24 fps).
+fn animated() -> Vec<u8> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes/suite/animated.glb");
+    std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// `pathfarm render --frame frame --fps fps` of the job's settings, as EXR bytes.
+fn local_frame(scene: &[u8], s: &JobSettings, frame: i64) -> Vec<u8> {
+    let source = SceneSource::load(scene, &NoExternalResources, &LoadOptions::default()).unwrap();
+    let time = gltf::frame_time(frame, s.frames_per_second());
+    let scene = source.into_scene_at(time).unwrap().with_environment(None);
+    exr(&render_image(
+        &scene,
+        &s.render_settings(),
+        32,
+        0..s.spp,
+        &|_| {},
+    ))
+}
+
+fn frame_settings(frames: &str, order: Option<FrameOrder>, tile: u32) -> JobSettings {
+    let mut s = settings(24, 16, 3, tile);
+    s.frames = Some(frames.into());
+    s.fps = Some(24.0);
+    s.frame_order = order;
+    s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn every_frame_is_bit_identical_to_a_local_render_at_that_frame() {
+    let scene = animated();
+    let frames = [30, 1, 12];
+    let s = frame_settings("30,1,12", None, 8);
+    let expected: Vec<Vec<u8>> = frames.iter().map(|&f| local_frame(&scene, &s, f)).collect();
+    assert_ne!(
+        expected[0], expected[1],
+        "the frames differ: the scene moves"
+    );
+    for (store, url) in stores("frames-exact").await {
+        let server = TestServer::start(config(&url)).await;
+        let client = server.client(None);
+        // (workers, tile size, fixed slice size: None = timed, order)
+        for (workers, tile, slice, order) in [
+            (2, 8, Some(1), None),
+            (3, 12, None, Some(FrameOrder::Sequential)),
+        ] {
+            let mut s = s.clone();
+            s.tile_size = tile;
+            s.frame_order = order;
+            let job = client
+                .submit(scene.clone(), "animated.glb", &s)
+                .await
+                .unwrap();
+            assert_eq!(job.samples_planned, 24 * 16 * 3 * 3);
+            let ws: Vec<_> = (0..workers)
+                .map(|_| TestWorker::spawn(&server.url, None, slice))
+                .collect();
+            let done = wait_final(&client, &job.id, Duration::from_secs(300)).await;
+            for w in ws {
+                w.stop().await;
+            }
+            assert_completed(&done);
+            let view = client.job(&job.id).await.unwrap();
+            assert_eq!((view.frames_total, view.frames_done), (Some(3), Some(3)));
+            let progress = view.frames.expect("per-frame progress in the job's view");
+            assert_eq!(progress.iter().map(|f| f.frame).collect::<Vec<_>>(), frames);
+            assert!(progress
+                .iter()
+                .all(|f| f.complete && f.samples_done == 24 * 16 * 3));
+            for (f, want) in frames.iter().zip(&expected) {
+                let got = client.frame_exr(&job.id, *f).await.unwrap();
+                assert!(
+                    got == *want,
+                    "{store}: {workers} workers, tile {tile}, slice {slice:?}, {order:?}: \
+                     frame {f} differs from the local render at that frame"
+                );
+            }
+            // The job's own image is its first frame's.
+            assert!(client.image_exr(&job.id, false).await.unwrap() == expected[0]);
+            eprintln!("{store}: {workers} workers, tile {tile}, {order:?}: every frame identical");
+        }
+        server.stop().await;
+    }
+}
+
+/// Leases every task of a frame job with one worker, recording (frame, first sample) in lease
+/// order.
+async fn lease_order(url: &str, order: Option<FrameOrder>) -> Vec<(i64, u32)> {
+    let mut c = config(url);
+    c.max_leases_per_worker = 1000;
+    let server = TestServer::start(c).await;
+    let client = server.client(None);
+    // 2 tiles a frame, passes [0,1) [1,3) [3,7) [7,8).
+    let mut s = frame_settings("5-9x2", order, 8);
+    s.width = 16;
+    s.height = 8;
+    s.spp = 8;
+    client.submit(animated(), "animated.glb", &s).await.unwrap();
+    let worker = client
+        .register(&WorkerRegistration {
+            name: "w".into(),
+            threads: 1,
+            version: "test".into(),
+            host: "test".into(),
+        })
+        .await
+        .unwrap()
+        .worker_id;
+    let mut got = Vec::new();
+    while let Some(l) = client.lease(&worker).await.unwrap() {
+        got.push((
+            l.frame.expect("a frame job's lease names its frame"),
+            l.sample_begin,
+        ));
+    }
+    server.stop().await;
+    got
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_are_leased_interleaved_by_default_or_in_sequence() {
+    for (store, url) in stores("frames-order").await {
+        let interleaved = lease_order(&url, None).await;
+        assert_eq!(interleaved.len(), 3 * 2 * 4, "{store}");
+        // Every frame's pass before any frame's next pass: the first samples never go back.
+        assert!(
+            interleaved.windows(2).all(|w| w[0].1 <= w[1].1),
+            "{store}: {interleaved:?}"
+        );
+        assert_eq!(
+            interleaved[..6].iter().map(|l| l.0).collect::<Vec<_>>(),
+            [5, 5, 7, 7, 9, 9],
+            "{store}"
+        );
+        let sequential = lease_order(&url, Some(FrameOrder::Sequential)).await;
+        assert_eq!(sequential.len(), 3 * 2 * 4, "{store}");
+        let frames: Vec<i64> = sequential.iter().map(|l| l.0).collect();
+        assert_eq!(frames[..8], [5; 8], "{store}: {sequential:?}");
+        assert_eq!(frames[8..16], [7; 8], "{store}: {sequential:?}");
+        assert_eq!(frames[16..], [9; 8], "{store}: {sequential:?}");
+        assert!(sequential[..8].windows(2).all(|w| w[0].1 <= w[1].1));
+    }
+}
+
+#[tokio::test]
+async fn bad_frame_settings_are_4xx_naming_the_field() {
+    for (store, url) in stores("frames-bad").await {
+        let server = TestServer::start(config(&url)).await;
+        let scene = animated();
+        for (settings, field) in [
+            (r#"{"width":8,"height":8,"spp":1,"frames":"5-1"}"#, "frames"),
+            (r#"{"width":8,"height":8,"spp":1,"frames":""}"#, "frames"),
+            (r#"{"width":8,"height":8,"spp":1,"frames":"1,x"}"#, "frames"),
+            (
+                r#"{"width":8,"height":8,"spp":1,"frames":"0-99999"}"#,
+                "frames",
+            ),
+            (
+                r#"{"width":8,"height":8,"spp":1,"frames":"1-3,2"}"#,
+                "frames",
+            ),
+            // A wrong JSON type is serde's message, as for every settings field.
+            (
+                r#"{"width":8,"height":8,"spp":1,"frames":7}"#,
+                "expected a string",
+            ),
+            (
+                r#"{"width":8,"height":8,"spp":1,"frames":"1-3","fps":0}"#,
+                "fps",
+            ),
+            (
+                r#"{"width":8,"height":8,"spp":1,"frames":"1-3","fps":-24}"#,
+                "fps",
+            ),
+            (r#"{"width":8,"height":8,"spp":1,"fps":24}"#, "fps"),
+            (
+                r#"{"width":8,"height":8,"spp":1,"frames":"1","frame_order":"random"}"#,
+                "expected `interleaved` or `sequential`",
+            ),
+            (
+                r#"{"width":8,"height":8,"spp":1,"frames":"1","noise_target":0.1}"#,
+                "noise_target",
+            ),
+        ] {
+            let (ct, body) = multipart(&scene, settings);
+            let (status, err): (StatusCode, ErrorBody) = call(
+                &server.state,
+                request("POST", "/api/v1/jobs", &[("content-type", &ct)], body),
+            )
+            .await;
+            assert!(status.is_client_error(), "{store}: {settings}: {status}");
+            assert!(
+                err.error.message.contains(field),
+                "{store}: {settings}: {}",
+                err.error.message
+            );
+        }
+        // A frame that is not the job's, and a frame of a still job, are 4xx too.
+        let client = server.client(None);
+        let job = client
+            .submit(scene.clone(), "a.glb", &frame_settings("1-2", None, 8))
+            .await
+            .unwrap();
+        let still = client
+            .submit(cornell(), "c.gltf", &settings(8, 8, 1, 8))
+            .await
+            .unwrap();
+        for (id, q) in [
+            (&job.id, "frame=3"),
+            (&job.id, "frame=x"),
+            (&still.id, "frame=1"),
+        ] {
+            for image in ["image.exr", "preview.png"] {
+                let (status, _): (StatusCode, ErrorBody) = call(
+                    &server.state,
+                    request("GET", &format!("/api/v1/jobs/{id}/{image}?{q}"), &[], ""),
+                )
+                .await;
+                assert!(status.is_client_error(), "{store}: {image}?{q}: {status}");
+            }
+        }
+        let view = client.job(&still.id).await.unwrap();
+        assert_eq!((view.frames_total, view.frames_done), (None, None));
+        assert!(view.state != JobState::Failed);
+        server.stop().await;
+    }
+}
+
+/// A worker that goes silent in the middle of a frame job (as a killed one does: no release, no
+/// sign-off) loses only its unmerged slice: its lease expires, the rest of its task is queued
+/// again and rendered by another worker, its merged slice counts once, and every frame ends
+/// bit-identical to the local render.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_silenced_worker_loses_only_its_slice() {
+    use pathfarm_tracer::{render_tile, Tile};
+    use pathfarm_wire::{encode_slice, Slice};
+    let scene = animated();
+    let frames = [2, 20];
+    let mut s = frame_settings("2,20", Some(FrameOrder::Sequential), 8);
+    s.spp = 8;
+    let expected: Vec<Vec<u8>> = frames.iter().map(|&f| local_frame(&scene, &s, f)).collect();
+    for (store, url) in stores("frames-silenced").await {
+        let mut cfg = config(&url);
+        cfg.lease_duration = Duration::from_millis(500);
+        cfg.monitor_interval = Duration::from_millis(50);
+        let server = TestServer::start(cfg).await;
+        let client = server.client(None);
+        let job = client
+            .submit(scene.clone(), "animated.glb", &s)
+            .await
+            .unwrap();
+        let a = client
+            .register(&WorkerRegistration {
+                name: "a".into(),
+                threads: 1,
+                version: "test".into(),
+                host: "test".into(),
+            })
+            .await
+            .unwrap()
+            .worker_id;
+        // Worker A takes tasks until it holds one of at least two samples, merges the first
+        // sample of it, and falls silent.
+        let (lease, built) = loop {
+            let l = client.lease(&a).await.unwrap().expect("work");
+            let frame = l.frame.expect("a frame task");
+            let source =
+                SceneSource::load(&scene, &NoExternalResources, &LoadOptions::default()).unwrap();
+            let built = source
+                .into_scene_at(gltf::frame_time(frame, s.frames_per_second()))
+                .unwrap();
+            if l.sample_end - l.sample_begin >= 2 {
+                break (l, built);
+            }
+            let tile = Tile {
+                x0: l.tile.x0,
+                y0: l.tile.y0,
+                width: l.tile.width,
+                height: l.tile.height,
+            };
+            let acc = render_tile(&built, &l.settings.render_settings(), tile, 0..1);
+            let body = encode_slice(&Slice {
+                sample_begin: 0,
+                sample_end: 1,
+                acc,
+            });
+            client
+                .upload_slice(l.task_id, &l.lease_token, body)
+                .await
+                .unwrap();
+        };
+        let tile = Tile {
+            x0: lease.tile.x0,
+            y0: lease.tile.y0,
+            width: lease.tile.width,
+            height: lease.tile.height,
+        };
+        let (b, e) = (lease.sample_begin, lease.sample_begin + 1);
+        let acc = render_tile(&built, &lease.settings.render_settings(), tile, b..e);
+        let ack = client
+            .upload_slice(
+                lease.task_id,
+                &lease.lease_token,
+                encode_slice(&Slice {
+                    sample_begin: b,
+                    sample_end: e,
+                    acc,
+                }),
+            )
+            .await
+            .unwrap();
+        assert!(!ack.task_complete && !ack.duplicate);
+        let w = TestWorker::spawn(&server.url, None, Some(1));
+        let done = wait_final(&client, &job.id, Duration::from_secs(300)).await;
+        let report = w.stop().await;
+        assert_completed(&done);
+        assert!(report.slices > 0);
+        let view = client.job(&job.id).await.unwrap();
+        assert_eq!(view.frames_done, Some(2), "{store}");
+        for (f, want) in frames.iter().zip(&expected) {
+            let got = client.frame_exr(&job.id, *f).await.unwrap();
+            assert!(
+                got == *want,
+                "{store}: frame {f} differs after the silenced worker"
+            );
+        }
+        server.stop().await;
+    }
+}
