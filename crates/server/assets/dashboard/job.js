@@ -198,7 +198,7 @@ export function mount(root, pageSignal, _query, id) {
     if (job.tiles) drawTiles(overlay, job);
     setText(caption.lastChild, job.samples_done === 0
       ? 'No samples yet: the image appears after the first pass.'
-      : `${job.settings.width}×${job.settings.height}, ${fmtInt(job.samples_done / (job.settings.width * job.settings.height))} samples per pixel on average`);
+      : `${job.settings.width}×${job.settings.height}, ${fmtInt(job.samples_done / (job.settings.width * job.settings.height * (job.frames_total || 1)))} samples per pixel on average`);
   }
 
   const update = async () => {
@@ -321,7 +321,11 @@ function drawTiles(svg, job) {
     }
   };
   const spp = job.settings.spp;
-  job.tiles.forEach((t, i) => {
+  // A frame job lists every frame's tiles, its first frame's first: the image shown is that
+  // frame's, so only its tiles are drawn over it.
+  const shown = job.tiles.length ? job.tiles[0].frame : undefined;
+  const tiles = job.tiles.filter((t) => t.frame == null || t.frame === shown);
+  tiles.forEach((t, i) => {
     let g = svg.children[i];
     if (!g) {
       g = make('g');
@@ -337,5 +341,5 @@ function drawTiles(svg, job) {
     set(g.children[3], { x: t.x0, y: bottom, width: (t.width * done).toFixed(2), height: h });
     g.firstChild.textContent = `tile at ${t.x0},${t.y0}: ${t.samples_per_pixel} / ${spp} spp`;
   });
-  while (svg.children.length > job.tiles.length) svg.lastChild.remove();
+  while (svg.children.length > tiles.length) svg.lastChild.remove();
 }
