@@ -257,6 +257,139 @@ async fn every_api_operation_has_a_command_that_works_with_and_without_json() {
     assert!(text.contains(&format!("deleted job {id}")), "{text}");
 }
 
+/// Blender's animated export (a cube that slides and turns, a camera on an arc).
+const ANIMATED: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../scenes/suite/animated.glb"
+);
+
+/// `submit --frames … --wait --out 'frame_##.exr'` writes one file per frame, each named by its
+/// frame number and bit-identical to `pathfarm render --frame f --fps F`; a pattern without `#`
+/// and a bad frame list are refused before anything is sent.
+#[tokio::test]
+async fn submit_frames_writes_one_file_per_frame_equal_to_local_renders() {
+    let farm = Farm::new("cli-frames");
+    let _server = farm.serve("server", &[]).await;
+    let settings = [
+        "--width", "20", "--height", "12", "--spp", "4", "--seed", "9",
+    ];
+
+    for (bad, want) in [
+        (["--frames", "0-2", "--out", "shots.exr"], "run of #"),
+        (["--frames", "2-1", "--out", "f_#.exr"], "frames item"),
+    ] {
+        let out_arg = farm.dir.arg(bad[3]);
+        let mut args = vec!["submit", ANIMATED, "--wait", bad[0], bad[1], "--out"];
+        args.push(&out_arg);
+        args.extend(["--server", farm.url.as_str()]);
+        let out = run_cli(&farm.dir, &args, Duration::from_secs(30)).await;
+        let line = one_error_line(&out, &format!("submit {}", bad.join(" ")));
+        assert!(line.contains(want), "{line}");
+    }
+    assert_eq!(
+        farm.api()
+            .jobs(None, 1, 100)
+            .await
+            .expect("jobs")
+            .jobs
+            .len(),
+        0,
+        "a refused submission reached the server"
+    );
+
+    let _worker = farm.worker("w1", 2);
+    let pattern = farm.dir.arg("shots/frame_##.exr");
+    std::fs::create_dir_all(farm.dir.path("shots")).expect("create shots/");
+    let mut args = vec!["submit", ANIMATED];
+    args.extend(settings);
+    args.extend([
+        "--frames", "0,7-8", "--fps", "12", "--wait", "--out", &pattern, "--server", &farm.url,
+    ]);
+    let out = run_cli(&farm.dir, &args, Duration::from_secs(240)).await;
+    assert_success(&out, "submit --frames --wait --out");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    for frame in [0, 7, 8] {
+        let name = format!("frame_{frame:02}.exr");
+        assert!(stdout.contains(&name), "{name} not reported:\n{stdout}");
+        let farm_exr = std::fs::read(farm.dir.path("shots").join(&name)).expect("read a frame");
+        let local_path = farm.dir.path(&format!("local_{frame}.exr"));
+        let f = frame.to_string();
+        let mut local = vec!["render", ANIMATED];
+        local.extend(settings);
+        local.extend(["--frame", &f, "--fps", "12", "--threads", "1", "--out"]);
+        let local_arg = local_path.to_string_lossy().into_owned();
+        local.push(&local_arg);
+        let out = run_cli(&farm.dir, &local, Duration::from_secs(120)).await;
+        assert_success(&out, "pathfarm render --frame");
+        let local = std::fs::read(&local_path).expect("read the local frame");
+        assert_same_bytes(&farm_exr, &local, &name);
+    }
+    // Frames differ (the animation moves): the files are not one image written three times.
+    let first = std::fs::read(farm.dir.path("shots/frame_00.exr")).expect("frame 0");
+    let last = std::fs::read(farm.dir.path("shots/frame_08.exr")).expect("frame 8");
+    assert_ne!(first, last, "frames 0 and 8 are the same image");
+
+    // Later, `job ID --out`: the frames again by pattern, all of them as one tar (the same EXR
+    // bytes, named by frame), and the animated preview.
+    let jobs = farm.api().jobs(None, 1, 10).await.expect("jobs").jobs;
+    let id = jobs[0].id.clone();
+    let again = farm.dir.arg("again_###.exr");
+    let text = ok(&farm, &["job", &id, "--out", &again]).await;
+    assert!(text.contains("wrote 3 frames"), "{text}");
+    assert_eq!(
+        std::fs::read(farm.dir.path("again_007.exr")).expect("again_007.exr"),
+        std::fs::read(farm.dir.path("shots/frame_07.exr")).expect("frame_07.exr")
+    );
+    let tar_path = farm.dir.arg("all.tar");
+    let text = ok(&farm, &["job", &id, "--out", &tar_path]).await;
+    assert!(
+        text.contains("wrote") && text.contains("completed"),
+        "{text}"
+    );
+    let tar_bytes = std::fs::read(&tar_path).expect("read all.tar");
+    let mut names = Vec::new();
+    for entry in tar::Archive::new(&tar_bytes[..]).entries().expect("a tar") {
+        let mut entry = entry.expect("an entry");
+        let name = entry.path().expect("a name").display().to_string();
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut entry, &mut bytes).expect("an entry's bytes");
+        let frame: u32 = name[6..10].parse().expect("frame_NNNN.exr");
+        let file = farm.dir.path(&format!("shots/frame_{frame:02}.exr"));
+        assert!(
+            bytes == std::fs::read(&file).expect("a frame file"),
+            "{name}"
+        );
+        names.push(name);
+    }
+    assert_eq!(
+        names,
+        ["frame_0000.exr", "frame_0007.exr", "frame_0008.exr"]
+    );
+    let apng = farm.dir.arg("all.apng");
+    ok(&farm, &["job", &id, "--out", &apng, "--exposure", "1"]).await;
+    let apng = std::fs::read(&apng).expect("read all.apng");
+    assert!(apng.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
+    assert!(apng.windows(4).any(|w| w == b"acTL"), "not animated");
+
+    // A pattern or an archive of a still job is refused, naming the job.
+    let still = submit(
+        &farm.dir,
+        &farm.url,
+        &["--width", "8", "--height", "8", "--spp", "1"],
+    )
+    .await;
+    for out in [farm.dir.arg("still_#.exr"), farm.dir.arg("still.tar")] {
+        let out = run_cli(
+            &farm.dir,
+            &["job", &still, "--out", &out, "--server", &farm.url],
+            Duration::from_secs(30),
+        )
+        .await;
+        let line = one_error_line(&out, "job --out of a still job");
+        assert!(line.contains(&still), "{line}");
+    }
+}
+
 /// Bad input fails at once with one line naming what is wrong: an unreachable server (reqwest's
 /// message once, not twice), a log filter that does not parse, an output folder that does not
 /// exist (before the render, not after it), `job --out` likewise before downloading.

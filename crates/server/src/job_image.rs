@@ -193,9 +193,9 @@ impl JobImage {
         })
     }
 
-    /// The mean image tone-mapped and encoded as the tracer's `encode_png` does.
-    pub fn png(&self, exposure: f32) -> Result<Vec<u8>, ImageError> {
-        let rgb: Vec<u8> = match &self.planes {
+    /// The mean image tone-mapped to 8-bit RGB, row-major, as the tracer's `encode_png` does.
+    pub fn rgb8(&self, exposure: f32) -> Vec<u8> {
+        match &self.planes {
             Some(p) => p
                 .mean
                 .iter()
@@ -203,8 +203,12 @@ impl JobImage {
                 .collect(),
             // Black at any exposure; zeroed memory, read but never written.
             None => vec![0; self.pixels() * 3],
-        };
-        encode_rgb8_png(self.width, self.height, &rgb)
+        }
+    }
+
+    /// The mean image tone-mapped and encoded as the tracer's `encode_png` does.
+    pub fn png(&self, exposure: f32) -> Result<Vec<u8>, ImageError> {
+        encode_rgb8_png(self.width, self.height, &self.rgb8(exposure))
     }
 
     /// The sample-count heat map, from 0 to [`JobImage::max_samples`].

@@ -626,6 +626,19 @@ impl ApiClient {
         Ok(resp.bytes().await.map_err(transport)?.to_vec())
     }
 
+    /// Every frame of a frame job with a merged sample, as a tar of EXRs (`frames.tar`), read
+    /// in chunks as the server streams it.
+    pub async fn frames_tar(&self, id: &str) -> Result<Chunks, ClientError> {
+        let path = format!("/api/v1/jobs/{id}/frames.tar");
+        Ok(Chunks(Self::send(self.download(&path)).await?))
+    }
+
+    /// The complete frames of a frame job as an animated PNG (`preview.apng`), read in chunks.
+    pub async fn preview_apng(&self, id: &str, exposure: f32) -> Result<Chunks, ClientError> {
+        let path = format!("/api/v1/jobs/{id}/preview.apng?exposure={exposure}");
+        Ok(Chunks(Self::send(self.download(&path)).await?))
+    }
+
     pub async fn preview_png(&self, id: &str, exposure: f32) -> Result<Vec<u8>, ClientError> {
         let path = format!("/api/v1/jobs/{id}/preview.png?exposure={exposure}");
         let resp = Self::send(self.download(&path)).await?;
@@ -650,6 +663,17 @@ impl ApiClient {
     /// The job's convergence history.
     pub async fn convergence(&self, id: &str) -> Result<Convergence, ClientError> {
         Self::json(self.request(Method::GET, &format!("/api/v1/jobs/{id}/convergence"))).await
+    }
+}
+
+/// A streamed download, read a chunk at a time (the frame archives are too large to hold).
+#[derive(Debug)]
+pub struct Chunks(reqwest::Response);
+
+impl Chunks {
+    /// The next chunk; `None` at the end. A transfer the server cut short is an error.
+    pub async fn next(&mut self) -> Result<Option<bytes::Bytes>, ClientError> {
+        self.0.chunk().await.map_err(transport)
     }
 }
 

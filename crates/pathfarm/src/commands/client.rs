@@ -2,13 +2,13 @@
 //! to download the image), `cancel`, `pause`, `resume`, `delete`, `priority`, `workers`. Every one
 //! takes `--json` (the API's own JSON on stdout instead of text).
 
-use super::output::{check_output, OutFormat};
+use super::output::{check_archive, check_output, frame_path, Archive, OutFormat};
 use super::render::{EnvironmentArgs, SettingsArgs};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use pathfarm_wire::api::{EnvironmentSettings, JobSettings, JobView, WorkerView};
-use pathfarm_worker::client::{ApiClient, ClientError};
+use pathfarm_wire::api::{EnvironmentSettings, FrameOrder, JobSettings, JobView, WorkerView};
+use pathfarm_worker::client::{ApiClient, Chunks, ClientError};
 use serde::Serialize;
 use std::future::Future;
 use std::path::PathBuf;
@@ -70,6 +70,17 @@ pub struct SubmitArgs {
     /// Stop after this many seconds of rendering.
     #[arg(long)]
     pub time_limit: Option<f64>,
+    /// Render these frames of the scene's animation, one image each: `1-240`, `1-240x2` (every
+    /// second frame), `1,5,10-12`. Each frame's image is `render --frame N --fps F`'s.
+    #[arg(long)]
+    pub frames: Option<String>,
+    /// Frames per second of --frames (frame f is time f / fps) [default: 24].
+    #[arg(long, requires = "frames")]
+    pub fps: Option<f64>,
+    /// interleaved: every frame gets each pass before any gets the next (all sharpen together);
+    /// sequential: frame after frame [default: interleaved].
+    #[arg(long, requires = "frames", value_parser = parse_frame_order)]
+    pub frame_order: Option<FrameOrder>,
     /// Priority: higher runs first; equal priorities share the farm (`pathfarm priority` changes
     /// it later).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
@@ -95,6 +106,14 @@ pub struct SubmitArgs {
     pub json: bool,
     #[command(flatten)]
     pub client: ClientArgs,
+}
+
+fn parse_frame_order(s: &str) -> Result<FrameOrder, String> {
+    match s {
+        "interleaved" => Ok(FrameOrder::Interleaved),
+        "sequential" => Ok(FrameOrder::Sequential),
+        _ => Err(format!("{s:?}: interleaved or sequential")),
+    }
 }
 
 /// Runs `call` until it succeeds or fails for good: a transient failure (no answer, 5xx) is retried
@@ -128,12 +147,104 @@ where
     }
 }
 
+/// Writes frames `frames` of frame job `id` to the files of `--out` pattern `out` (`#`s filled
+/// with each frame's number), each fetched patiently; says so for each file (on stderr with
+/// `--json`, whose stdout is the JSON).
+async fn write_frames(
+    client: &ApiClient,
+    id: &str,
+    frames: &[i64],
+    out: &std::path::Path,
+    format: OutFormat,
+    exposure: f32,
+    json: bool,
+) -> Result<()> {
+    let quiet = |e: &ClientError| eprintln!("no answer from the server ({e}); retrying");
+    for &frame in frames {
+        let path = frame_path(out, frame).context("--out has no # for the frame number")?;
+        let bytes = match format {
+            OutFormat::Png => {
+                patiently(
+                    WAIT_PATIENCE,
+                    || client.frame_png(id, frame, exposure),
+                    quiet,
+                )
+                .await
+            }
+            OutFormat::Exr => patiently(WAIT_PATIENCE, || client.frame_exr(id, frame), quiet).await,
+        }
+        .with_context(|| format!("fetching frame {frame} of job {id}"))?;
+        pathfarm_worker::files::write_atomic(&path, &bytes)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        if json {
+            eprintln!("wrote {}", path.display());
+        } else {
+            println!("wrote {}", path.display());
+        }
+    }
+    Ok(())
+}
+
+/// Writes a streamed download to `out` as it arrives: into a temporary file beside it, synced
+/// and renamed at the end, so a cut transfer leaves no partial file. The bytes written.
+async fn write_streamed(mut chunks: Chunks, out: &std::path::Path) -> Result<u64> {
+    use std::io::Write;
+    let dir = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.part-{}", std::process::id()));
+    let result: Result<u64> = async {
+        let mut file = std::fs::File::create(&tmp)
+            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        let mut written = 0u64;
+        while let Some(chunk) = chunks.next().await.context("downloading")? {
+            file.write_all(&chunk)
+                .with_context(|| format!("cannot write {}", tmp.display()))?;
+            written += chunk.len() as u64;
+        }
+        file.sync_all()
+            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::rename(&tmp, out).with_context(|| format!("cannot write {}", out.display()))?;
+        Ok(written)
+    }
+    .await;
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
 pub async fn submit(args: SubmitArgs) -> Result<()> {
     if args.out.is_some() && !args.wait {
         bail!("--out needs --wait");
     }
-    // Before anything is submitted: a job must not run only for its image to be refused.
-    let format = args.out.as_deref().map(check_output).transpose()?;
+    // Refused here, before anything is read or sent, in the server's words.
+    let frames = args
+        .frames
+        .as_deref()
+        .map(pathfarm_wire::frames::parse_frames)
+        .transpose()
+        .map_err(|e| anyhow::anyhow!("--{e}"))?;
+    // Before anything is submitted: a job must not run only for its image to be refused. A frame
+    // job's --out names one file per frame (`shots/frame_####.exr`).
+    let format = match (&args.out, &frames) {
+        (Some(out), Some(frames)) => {
+            let Some(first) = frames.first().and_then(|&f| frame_path(out, f)) else {
+                bail!(
+                    "--out {} with --frames must name one file per frame with a run of # that \
+                     the frame number fills, e.g. shots/frame_####.exr",
+                    out.display()
+                );
+            };
+            Some(check_output(&first)?)
+        }
+        (out, _) => out.as_deref().map(check_output).transpose()?,
+    };
     let client = args.client.client()?;
     let bytes = std::fs::read(&args.scene)
         .with_context(|| format!("cannot read {}", args.scene.display()))?;
@@ -155,6 +266,9 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
     settings.name = args.name.clone();
     settings.camera = args.camera.clone();
     settings.environment = environment;
+    settings.frames = args.frames.clone();
+    settings.fps = args.fps;
+    settings.frame_order = args.frame_order;
     let file_name = args
         .scene
         .file_name()
@@ -209,7 +323,18 @@ pub async fn submit(args: SubmitArgs) -> Result<()> {
     if !args.json {
         print_summary(&job);
     }
-    if let (Some(out), Some(format)) = (&args.out, format) {
+    if let (Some(out), Some(format), Some(frames)) = (&args.out, format, &frames) {
+        write_frames(
+            &client,
+            &job.id,
+            frames,
+            out,
+            format,
+            args.exposure,
+            args.json,
+        )
+        .await?;
+    } else if let (Some(out), Some(format)) = (&args.out, format) {
         let quiet = |e: &ClientError| eprintln!("no answer from the server ({e}); retrying");
         let bytes = match format {
             OutFormat::Png => {
@@ -347,10 +472,12 @@ pub struct JobArgs {
     #[arg(long)]
     pub json: bool,
     /// Download the job's image to this file: .exr (float32 linear, the exact accumulation) or
-    /// .png (tone-mapped). The current image of an unfinished job; checked before downloading.
+    /// .png (tone-mapped); the current image of an unfinished job; checked before downloading.
+    /// A frame job's frames: a pattern with # (`shots/frame_####.exr`, one file per rendered
+    /// frame), .tar (every rendered frame as EXR) or .apng (the complete frames, animated).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// With --out FILE.png: exposure in stops.
+    /// With --out FILE.png or FILE.apng: exposure in stops.
     #[arg(
         long,
         default_value_t = 0.0,
@@ -366,8 +493,23 @@ pub struct JobArgs {
 }
 
 pub async fn job(args: JobArgs) -> Result<()> {
-    let format = args.out.as_deref().map(check_output).transpose()?;
-    if args.extra_channels && format == Some(OutFormat::Png) {
+    // Checked before anything is downloaded: the folder, and an archive or image format.
+    let archive = args
+        .out
+        .as_deref()
+        .map(check_archive)
+        .transpose()?
+        .flatten();
+    let pattern = args
+        .out
+        .as_deref()
+        .filter(|out| archive.is_none() && frame_path(out, 0).is_some());
+    let format = match (&args.out, archive, pattern) {
+        (Some(_), Some(_), _) => None,
+        (_, _, Some(out)) => Some(check_output(&frame_path(out, 0).unwrap_or_default())?),
+        (out, _, _) => out.as_deref().map(check_output).transpose()?,
+    };
+    if args.extra_channels && format != Some(OutFormat::Exr) && args.out.is_some() {
         bail!("--extra-channels needs an .exr --out");
     }
     let client = args.client.client()?;
@@ -375,17 +517,61 @@ pub async fn job(args: JobArgs) -> Result<()> {
         .job(&args.id)
         .await
         .with_context(|| format!("job {}", args.id))?;
-    if let (Some(out), Some(format)) = (&args.out, format) {
-        let bytes = match format {
-            OutFormat::Exr => client.image_exr(&j.id, args.extra_channels).await,
-            OutFormat::Png => client.preview_png(&j.id, args.exposure).await,
+    let what = match (&args.out, archive, pattern, format) {
+        (Some(out), Some(kind), _, _) => {
+            let chunks = match kind {
+                Archive::Tar => client.frames_tar(&j.id).await,
+                Archive::Apng => client.preview_apng(&j.id, args.exposure).await,
+            }
+            .with_context(|| format!("downloading the frames of job {}", j.id))?;
+            let bytes = write_streamed(chunks, out).await?;
+            Some(format!("wrote {}, {bytes} bytes", out.display()))
         }
-        .with_context(|| format!("downloading the image of job {}", j.id))?;
-        pathfarm_worker::files::write_atomic(out, &bytes)
-            .with_context(|| format!("cannot write {}", out.display()))?;
+        (_, _, Some(out), Some(format)) => {
+            let Some(frames) = j.frames.as_ref() else {
+                bail!(
+                    "--out {}: job {} is a still image; a # pattern names one file per frame of \
+                     a frame job",
+                    out.display(),
+                    j.id
+                );
+            };
+            let rendered: Vec<i64> = frames
+                .iter()
+                .filter(|f| f.samples_done > 0)
+                .map(|f| f.frame)
+                .collect();
+            write_frames(
+                &client,
+                &j.id,
+                &rendered,
+                out,
+                format,
+                args.exposure,
+                args.json,
+            )
+            .await?;
+            Some(format!(
+                "wrote {} frames to {}",
+                rendered.len(),
+                out.display()
+            ))
+        }
+        (Some(out), None, None, Some(format)) => {
+            let bytes = match format {
+                OutFormat::Exr => client.image_exr(&j.id, args.extra_channels).await,
+                OutFormat::Png => client.preview_png(&j.id, args.exposure).await,
+            }
+            .with_context(|| format!("downloading the image of job {}", j.id))?;
+            pathfarm_worker::files::write_atomic(out, &bytes)
+                .with_context(|| format!("cannot write {}", out.display()))?;
+            Some(format!("wrote {}", out.display()))
+        }
+        _ => None,
+    };
+    if let Some(what) = what {
         let line = format!(
-            "wrote {} (job {}: {}, {}/{} samples)",
-            out.display(),
+            "{what} (job {}: {}, {}/{} samples)",
             j.id,
             j.state.as_str(),
             j.samples_done,

@@ -24,11 +24,54 @@ pub fn out_format(out: &Path) -> Result<OutFormat> {
     }
 }
 
+/// The file of frame `frame` in a frame job's `--out` pattern: its last run of `#` replaced by
+/// the frame number, padded with zeros to the run's length (`shots/frame_####.exr`, frame 7:
+/// `shots/frame_0007.exr`; a longer number is written whole). `None` when the file name has no
+/// `#`.
+pub fn frame_path(pattern: &Path, frame: i64) -> Option<std::path::PathBuf> {
+    let name = pattern.file_name()?.to_str()?;
+    let end = name.rfind('#')? + 1;
+    let start = name[..end].trim_end_matches('#').len();
+    let width = end - start;
+    let file = format!("{}{frame:0width$}{}", &name[..start], &name[end..]);
+    Some(pattern.with_file_name(file))
+}
+
 /// Checks `--out` before the work: a known extension, a folder that exists and can be written
 /// in (a probe file is created there and removed), and not a folder itself. Images are written
 /// to a temporary file in the same folder and renamed, so this is what writing will need.
 pub fn check_output(out: &Path) -> Result<OutFormat> {
     let format = out_format(out)?;
+    check_folder(out)?;
+    Ok(format)
+}
+
+/// A frame job's frames in one file (`job --out`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Archive {
+    /// `.tar`: every frame with a sample, as EXRs.
+    Tar,
+    /// `.apng`: the complete frames as an animated PNG.
+    Apng,
+}
+
+/// The archive `out`'s extension names, checked as [`check_output`] checks an image; `None`
+/// when it names none (an image, then).
+pub fn check_archive(out: &Path) -> Result<Option<Archive>> {
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let archive = match ext.as_deref() {
+        Some("tar") => Archive::Tar,
+        Some("apng") => Archive::Apng,
+        _ => return Ok(None),
+    };
+    check_folder(out)?;
+    Ok(Some(archive))
+}
+
+fn check_folder(out: &Path) -> Result<()> {
     let dir = match out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -56,12 +99,25 @@ pub fn check_output(out: &Path) -> Result<OutFormat> {
         .open(&probe)
         .with_context(|| format!("--out {}: cannot write in {}", out.display(), dir.display()))?;
     let _ = std::fs::remove_file(&probe);
-    Ok(format)
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn frame_paths_fill_the_last_run_of_hashes() {
+        let p = |s: &str, f| frame_path(Path::new(s), f).map(|p| p.display().to_string());
+        assert_eq!(
+            p("shots/frame_####.exr", 7).as_deref(),
+            Some("shots/frame_0007.exr")
+        );
+        assert_eq!(p("f#.png", 1234).as_deref(), Some("f1234.png"));
+        assert_eq!(p("a##_b###.exr", 12).as_deref(), Some("a##_b012.exr"));
+        assert_eq!(p("x.exr", 1), None);
+        assert_eq!(p("dir#/x.exr", 1), None);
+    }
 
     #[test]
     fn out_format_is_known_from_the_extension() {

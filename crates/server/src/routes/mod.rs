@@ -1,6 +1,7 @@
 //! The HTTP routes. [`api_routes`] is the single list the router is built from, so the test that
 //! holds `openapi.yaml` and the router to each other reads the same list the server serves.
 
+mod frames;
 mod health;
 mod images;
 mod jobs;
@@ -65,6 +66,16 @@ pub fn api_routes() -> Vec<Route> {
             M::GET,
             "/api/v1/jobs/{id}/preview.png",
             get(images::preview_png),
+        ),
+        route(
+            M::GET,
+            "/api/v1/jobs/{id}/frames.tar",
+            get(frames::frames_tar),
+        ),
+        route(
+            M::GET,
+            "/api/v1/jobs/{id}/preview.apng",
+            get(frames::preview_apng),
         ),
         route(M::GET, "/api/v1/scenes/{hash}", get(tasks::scene)),
         route(M::POST, "/api/v1/workers", post(workers::register)),
