@@ -692,3 +692,197 @@ async fn serve_terminates_tls_for_workers_and_clients_and_reloads_on_sighup() {
     .await;
     assert!(server.is_running());
 }
+
+/// `pathfarm jobs --json` against `url` with the configuration file `config` and the environment
+/// `env`, plus `extra` flags: whether the server let it in.
+async fn jobs_allowed(
+    dir: &TestDir,
+    url: &str,
+    config: &str,
+    env: &[(&str, &str)],
+    extra: &[&str],
+) -> bool {
+    let mut cmd = tokio::process::Command::from(command(dir));
+    cmd.args(["jobs", "--json", "--config", config, "--server", url])
+        .args(extra)
+        .kill_on_drop(true);
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = tokio::time::timeout(Duration::from_secs(60), cmd.output())
+        .await
+        .expect("pathfarm jobs finishes")
+        .expect("run pathfarm jobs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() || stderr.contains("401"),
+        "neither allowed nor refused: {stderr}"
+    );
+    out.status.success()
+}
+
+/// The client token of `[client]` in the file, `PATHFARM_TOKEN` and `--token`: a flag wins over
+/// the environment, which wins over the file, which wins over the default (none).
+#[tokio::test]
+async fn a_flag_wins_over_the_environment_which_wins_over_the_file() {
+    let farm = Farm::new("config-precedence");
+    let _server = farm
+        .serve(
+            "server",
+            &["--client-token", "right", "--worker-token", "w"],
+        )
+        .await;
+    let file = |name: &str, token: Option<&str>| {
+        let path = farm.dir.path(name);
+        let text = match token {
+            Some(t) => format!("[client]\ntoken = \"{t}\"\n"),
+            None => "[client]\n".to_string(),
+        };
+        std::fs::write(&path, text).expect("write the configuration");
+        path.to_string_lossy().into_owned()
+    };
+    let (good, bad, none) = (
+        file("good.toml", Some("right")),
+        file("bad.toml", Some("wrong")),
+        file("none.toml", None),
+    );
+    let d = &farm.dir;
+    let url = farm.url.as_str();
+    assert!(
+        !jobs_allowed(d, url, &none, &[], &[]).await,
+        "the default: no token"
+    );
+    assert!(
+        jobs_allowed(d, url, &good, &[], &[]).await,
+        "the file's token"
+    );
+    let env_right = [("PATHFARM_TOKEN", "right")];
+    let env_wrong = [("PATHFARM_TOKEN", "wrong")];
+    assert!(
+        jobs_allowed(d, url, &bad, &env_right, &[]).await,
+        "environment over file"
+    );
+    assert!(
+        !jobs_allowed(d, url, &good, &env_wrong, &[]).await,
+        "environment over file"
+    );
+    let flag_right = ["--token", "right"];
+    let flag_wrong = ["--token", "wrong"];
+    assert!(
+        jobs_allowed(d, url, &bad, &env_wrong, &flag_right).await,
+        "flag over all"
+    );
+    assert!(
+        !jobs_allowed(d, url, &good, &env_right, &flag_wrong).await,
+        "flag over all"
+    );
+
+    // A bad value in the file: one line naming the file and the key, nothing run.
+    let typo = farm.dir.path("typo.toml");
+    std::fs::write(&typo, "[client]\nserver = 8080\n").expect("write");
+    let out = run_cli(
+        &farm.dir,
+        &["jobs", "--config", &typo.to_string_lossy()],
+        Duration::from_secs(30),
+    )
+    .await;
+    let line = one_error_line(&out, "a number for a URL");
+    assert!(
+        line.contains("typo.toml: key \"client.server\": invalid type"),
+        "{line}"
+    );
+}
+
+/// The processes whose parent is `pid`.
+fn children_of(pid: i32) -> Vec<i32> {
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    entries
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse::<i32>().ok())
+        .filter(|p| {
+            std::fs::read_to_string(format!("/proc/{p}/stat"))
+                .ok()
+                .and_then(|s| {
+                    let after = s.rsplit_once(')')?.1.split_whitespace().nth(1)?.to_string();
+                    after.parse::<i32>().ok()
+                })
+                == Some(pid)
+        })
+        .collect()
+}
+
+/// `up` with its tokens in the configuration file (and a client token in its environment): its
+/// worker registers, so it has the worker token, yet no token is in the worker's environment or
+/// command line (read from `/proc`), nor any variable that may hold a secret.
+#[tokio::test(flavor = "multi_thread")]
+async fn up_keeps_tokens_out_of_its_workers_environment() {
+    let dir = TestDir::new("up-secrets");
+    let port = free_port();
+    let config = dir.path("farm.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[serve]\ndb = \"{}\"\nclient-tokens = [\"client-secret-1\"]\n\
+             worker-tokens = [\"worker-secret-1\"]\n[up]\nworkers = 1\nport = {port}\n",
+            dir.arg("up.db")
+        ),
+    )
+    .expect("write the configuration");
+    let log = dir.path("up.log");
+    let out = std::fs::File::create(&log).expect("create the log");
+    let err = out.try_clone().expect("clone the log");
+    let child = command(&dir)
+        .args(["up", "--config", &config.to_string_lossy()])
+        .env("PATHFARM_CLIENT_TOKENS", "env-client-secret")
+        .env("PATHFARM_DB", dir.arg("up.db"))
+        .stdout(out)
+        .stderr(err)
+        .spawn()
+        .expect("start pathfarm up");
+    let mut up = Proc {
+        name: "up".into(),
+        child,
+        log,
+    };
+    wait_healthy(port, &mut up).await;
+    let url = format!("http://127.0.0.1:{port}");
+    // The environment's client token won over the file's.
+    let api = ApiClient::new(&url, Some("env-client-secret".into())).expect("client");
+    poll("the local worker", Duration::from_secs(60), || async {
+        named(&workers(&api).await, "local-1").map(|_| ())
+    })
+    .await;
+    let kids = children_of(up.pid());
+    assert_eq!(kids.len(), 1, "one worker process: {kids:?}");
+    for pid in kids {
+        let environ = std::fs::read(format!("/proc/{pid}/environ")).expect("read environ");
+        let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).expect("read cmdline");
+        let (environ, cmdline) = (
+            String::from_utf8_lossy(&environ).replace('\0', " "),
+            String::from_utf8_lossy(&cmdline).replace('\0', " "),
+        );
+        assert!(cmdline.contains("--token-stdin"), "{cmdline}");
+        for secret in [
+            "worker-secret-1",
+            "client-secret-1",
+            "env-client-secret",
+            "PATHFARM_DB",
+            "PATHFARM_CLIENT_TOKENS",
+            "PATHFARM_WORKER_TOKEN",
+        ] {
+            assert!(
+                !environ.contains(secret),
+                "{secret} in the worker's environment"
+            );
+            assert!(
+                !cmdline.contains(secret),
+                "{secret} on the worker's command line"
+            );
+        }
+    }
+    up.signal(libc::SIGINT);
+    let status = up.wait_exit(Duration::from_secs(30)).await;
+    assert!(status.success(), "`pathfarm up` exited {status}");
+}

@@ -295,6 +295,7 @@ async fn hostile_scenes_get_clear_errors_while_another_job_renders() {
                 status,
                 code,
                 message,
+                ..
             }) => {
                 let missing: Vec<_> = case
                     .mentions

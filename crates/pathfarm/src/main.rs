@@ -2,10 +2,10 @@
 //! progress bars; the rendering lives in `pathfarm-tracer`.
 
 mod commands;
-mod config_file;
+mod config;
 mod resolver;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use commands::client::JobAction;
 use std::process::ExitCode;
 
@@ -118,15 +118,66 @@ fn block_on<F: std::future::Future<Output = anyhow::Result<()>>>(f: F) -> anyhow
         .block_on(f)
 }
 
-fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().collect();
-    if let Err(e) = config_file::apply(&args) {
-        eprintln!("error: {}", error_line(&e));
-        return ExitCode::FAILURE;
+fn job_action(
+    action: JobAction,
+    mut args: commands::client::JobActionArgs,
+    layers: &config::Layers,
+) -> anyhow::Result<()> {
+    args.client = layers.client(args.client)?;
+    block_on(commands::client::job_action(action, args))
+}
+
+/// Runs the command, its settings merged with the configuration file's (see `config`).
+fn run(cli: Cli, layers: &config::Layers) -> anyhow::Result<()> {
+    let client = |c| layers.client(c);
+    match cli.command {
+        Command::Render(args) => commands::render::run(args),
+        Command::Serve(args) => block_on(commands::serve::run(layers.serve(args)?)),
+        Command::Worker(args) => block_on(commands::worker::run(layers.worker(args)?)),
+        Command::Up(args) => block_on(commands::up::run(layers.up(args)?)),
+        Command::Submit(mut args) => {
+            args.client = client(args.client)?;
+            block_on(commands::client::submit(args))
+        }
+        Command::Jobs(mut args) => {
+            args.client = client(args.client)?;
+            block_on(commands::client::jobs(args))
+        }
+        Command::Job(mut args) => {
+            args.client = client(args.client)?;
+            block_on(commands::client::job(args))
+        }
+        Command::Cancel(args) => job_action(JobAction::Cancel, args, layers),
+        Command::Pause(args) => job_action(JobAction::Pause, args, layers),
+        Command::Resume(args) => job_action(JobAction::Resume, args, layers),
+        Command::Delete(args) => job_action(JobAction::Delete, args, layers),
+        Command::Priority(mut args) => {
+            args.client = client(args.client)?;
+            block_on(commands::client::priority(args))
+        }
+        Command::Workers(mut args) => {
+            args.client = client(args.client)?;
+            block_on(commands::client::workers(args))
+        }
+        Command::Bench(args) => commands::bench::run(args),
     }
-    let cli = Cli::parse();
-    let _ = &cli.config; // read by config_file::apply before parsing
-                         // Checked by clap already (parse_log_filter).
+}
+
+fn main() -> ExitCode {
+    let matches = Cli::command().get_matches();
+    let cli = match Cli::from_arg_matches(&matches) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
+    let sub = matches.subcommand().map_or(&matches, |(_, m)| m);
+    let layers = match config::Layers::load(cli.config.as_deref(), sub) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("error: {}", error_line(&e));
+            return ExitCode::FAILURE;
+        }
+    };
+    // Checked by clap already (parse_log_filter).
     let filter = tracing_subscriber::EnvFilter::try_new(&cli.log)
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let builder = tracing_subscriber::fmt()
@@ -139,22 +190,7 @@ fn main() -> ExitCode {
             .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
             .init();
     }
-    let result = match cli.command {
-        Command::Render(args) => commands::render::run(args),
-        Command::Serve(args) => block_on(commands::serve::run(args)),
-        Command::Worker(args) => block_on(commands::worker::run(args)),
-        Command::Up(args) => block_on(commands::up::run(args)),
-        Command::Submit(args) => block_on(commands::client::submit(args)),
-        Command::Jobs(args) => block_on(commands::client::jobs(args)),
-        Command::Job(args) => block_on(commands::client::job(args)),
-        Command::Cancel(args) => block_on(commands::client::job_action(JobAction::Cancel, args)),
-        Command::Pause(args) => block_on(commands::client::job_action(JobAction::Pause, args)),
-        Command::Resume(args) => block_on(commands::client::job_action(JobAction::Resume, args)),
-        Command::Delete(args) => block_on(commands::client::job_action(JobAction::Delete, args)),
-        Command::Priority(args) => block_on(commands::client::priority(args)),
-        Command::Workers(args) => block_on(commands::client::workers(args)),
-        Command::Bench(args) => commands::bench::run(args),
-    };
+    let result = run(cli, &layers);
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -168,31 +204,6 @@ fn main() -> ExitCode {
 mod tests {
     use super::*;
     use clap::CommandFactory;
-
-    /// `config_file` finds the command in the raw arguments before clap runs, from its own lists of
-    /// the commands and of the global options that take a value: they must match the parser.
-    #[test]
-    fn the_configuration_scanner_knows_every_command_and_global_option() {
-        let cli = Cli::command();
-        let mut commands: Vec<&str> = cli.get_subcommands().map(|c| c.get_name()).collect();
-        commands.push("help");
-        commands.sort_unstable();
-        let mut known = config_file::COMMANDS.to_vec();
-        known.sort_unstable();
-        assert_eq!(commands, known);
-        let mut globals: Vec<String> = cli
-            .get_arguments()
-            .filter(|a| a.is_global_set() && a.get_action().takes_values())
-            .filter_map(|a| a.get_long().map(|l| format!("--{l}")))
-            .collect();
-        globals.sort_unstable();
-        let mut known: Vec<String> = config_file::GLOBAL_VALUE_OPTIONS
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
-        known.sort_unstable();
-        assert_eq!(globals, known);
-    }
 
     /// Every option and argument of every command says what it is for, and the global options
     /// are listed apart from each command's own.

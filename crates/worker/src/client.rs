@@ -99,6 +99,8 @@ pub enum ClientError {
         status: StatusCode,
         code: String,
         message: String,
+        /// The answer's `Retry-After` (in seconds), when it has one.
+        retry_after: Option<Duration>,
     },
     /// The request did not get an answer (connection refused, reset, timeout).
     #[error("cannot reach the server: {0}")]
@@ -124,8 +126,16 @@ impl ClientError {
             _ => None,
         }
     }
+    /// How long the server asked to wait before trying again (`Retry-After`, in seconds).
+    pub fn retry_after(&self) -> Option<Duration> {
+        match self {
+            ClientError::Api { retry_after, .. } => *retry_after,
+            _ => None,
+        }
+    }
     /// Worth trying again later: no answer, or a server-side failure. A request that could not
     /// even be built (a bad URL or header) fails the same way every time, so it is not transient.
+    /// (The retry policy as a whole: [`crate::retry`].)
     pub fn is_transient(&self) -> bool {
         match self {
             ClientError::Transport(e) => !e.is_builder(),
@@ -284,17 +294,25 @@ impl ApiClient {
             return Ok(resp);
         }
         let status = resp.status();
+        let retry_after = resp
+            .headers()
+            .get(reqwest::header::RETRY_AFTER)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .map(Duration::from_secs);
         let body = resp.bytes().await.map_err(transport)?;
         Err(match serde_json::from_slice::<ErrorBody>(&body) {
             Ok(e) => ClientError::Api {
                 status,
                 code: e.error.code,
                 message: e.error.message,
+                retry_after,
             },
             Err(_) => ClientError::Api {
                 status,
                 code: "http".into(),
                 message: String::from_utf8_lossy(&body).chars().take(300).collect(),
+                retry_after,
             },
         })
     }

@@ -7,24 +7,28 @@
 //! queues the task's unmerged samples again when the lease expires.
 //!
 //! A task it cannot work on (its scene cannot be fetched or loaded, its uploads fail) is given back,
-//! and the worker waits before leasing again: [`ABANDON_BACKOFF`], doubling with each further such
-//! task up to [`ABANDON_BACKOFF_MAX`], back to the start once a slice is uploaded. A scene that
-//! failed is not fetched again for a while either (see `scene_cache`): its tasks are given back at
-//! once.
+//! and the worker waits before leasing again ([`retry::ABANDONED`]: up to 0.2 s, the ceiling
+//! doubling with each further such task up to 30 s, each wait drawn with full jitter), back to the
+//! start once a slice is uploaded. A scene that failed is not fetched again for a while either
+//! (see `scene_cache`): its tasks are given back at once.
+//!
+//! Every call that may be tried again goes through [`retry`]: one policy (what is retried, the
+//! waits, full jitter, `Retry-After`) for the worker and the command-line client.
 //!
 //! [`client`] is the typed HTTP client of the API, shared with the command-line client; [`files`]
 //! writes files atomically.
 
-mod backoff;
 pub mod client;
 pub mod files;
-use backoff::Backoff;
+pub mod retry;
 mod scene_cache;
+pub mod secret;
 
 use client::{ApiClient, ClientError, SetupError};
 use pathfarm_tracer::{render_tile, Tile};
 use pathfarm_wire::api::{Heartbeat, Lease, WorkerRegistration};
 use pathfarm_wire::{encode_slice, Slice};
+use retry::{needs_registration, Backoff, Limits};
 use scene_cache::SceneCache;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
@@ -34,7 +38,8 @@ use tokio::sync::watch;
 #[derive(Clone, Debug)]
 pub struct WorkerConfig {
     pub server: String,
-    pub token: Option<String>,
+    /// The worker token (`Debug` prints `"***"`).
+    pub token: Option<secret::Secret>,
     /// A PEM file of CA certificates to trust besides the system's, for an `https://` server
     /// with its own or a self-signed certificate (`--ca-cert`).
     pub ca_cert: Option<PathBuf>,
@@ -89,11 +94,6 @@ pub enum WorkerError {
     #[error(transparent)]
     Setup(#[from] SetupError),
 }
-
-/// The first wait after a task was given back unfinished (see the crate's documentation).
-pub const ABANDON_BACKOFF: Duration = Duration::from_millis(200);
-/// The longest wait after tasks given back unfinished.
-pub const ABANDON_BACKOFF_MAX: Duration = Duration::from_secs(30);
 
 /// What a worker did before it stopped.
 #[derive(Clone, Debug, Default)]
@@ -163,7 +163,7 @@ pub async fn run(
     );
     let client = ApiClient::with_ca_cert(
         &config.server,
-        config.token.clone(),
+        config.token.as_ref().map(|t| t.expose().to_string()),
         config.ca_cert.as_deref(),
     )?;
     let Some(mut session) = register(&client, &config, &mut stop).await? else {
@@ -185,15 +185,21 @@ pub async fn run(
     let mut report = WorkerReport::default();
     let mut rate = Rate::default();
     let mut idle = Duration::from_millis(20);
-    let mut abandoned = Backoff::new(ABANDON_BACKOFF, ABANDON_BACKOFF_MAX);
+    let mut abandoned = Backoff::new(retry::ABANDONED);
     while !*stop.borrow() {
-        let lease = match session.client.lease(&session.worker_id).await {
+        let lease = retry::retry(
+            retry::LEASE,
+            Limits {
+                deadline: None,
+                stop: Some(stop.clone()),
+            },
+            || session.client.lease(&session.worker_id),
+            |e, d| tracing::warn!(error = %e, retry_in = ?d, "lease failed; retrying"),
+        )
+        .await;
+        let lease = match lease {
             Ok(l) => l,
-            Err(e) if e.is_transient() => {
-                tracing::warn!(error = %e, "lease failed; retrying");
-                wait(&mut stop, Duration::from_secs(1)).await;
-                continue;
-            }
+            Err(_) if *stop.borrow() => break,
             Err(e) if needs_registration(&e) => {
                 // The server forgot this worker (its registration expired while the worker was
                 // cut off, say): register again, as a new worker, and go on.
@@ -280,18 +286,6 @@ pub async fn run(
     Ok(report)
 }
 
-/// The server does not know this worker any more: no registration has its credential, or none has
-/// its id.
-fn needs_registration(e: &ClientError) -> bool {
-    match e {
-        ClientError::Api { status, code, .. } => {
-            (*status == reqwest::StatusCode::UNAUTHORIZED && code == "unknown_worker_credential")
-                || (*status == reqwest::StatusCode::NOT_FOUND && code == "not_found")
-        }
-        _ => false,
-    }
-}
-
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
@@ -312,28 +306,31 @@ async fn register(
         version: env!("CARGO_PKG_VERSION").into(),
         host: host_name(),
     };
-    let mut backoff = Duration::from_millis(100);
-    loop {
-        if *stop.borrow() {
-            return Ok(None);
+    if *stop.borrow() {
+        return Ok(None);
+    }
+    let registered = retry::retry(
+        retry::REGISTER,
+        Limits {
+            deadline: None,
+            stop: Some(stop.clone()),
+        },
+        || client.register(&reg),
+        |e, d| tracing::info!(error = %e, retry_in = ?d, "server not reachable yet"),
+    )
+    .await;
+    match registered {
+        Ok(r) => {
+            tracing::info!(worker = %r.worker_id, server = client.base(), "registered");
+            Ok(Some(Session {
+                client: client.clone(),
+                worker_id: r.worker_id,
+                heartbeat_interval: Duration::from_millis(r.heartbeat_interval_ms.max(50)),
+                lease_duration: Duration::from_millis(r.lease_duration_ms),
+            }))
         }
-        match client.register(&reg).await {
-            Ok(r) => {
-                tracing::info!(worker = %r.worker_id, server = client.base(), "registered");
-                return Ok(Some(Session {
-                    client: client.clone(),
-                    worker_id: r.worker_id,
-                    heartbeat_interval: Duration::from_millis(r.heartbeat_interval_ms.max(50)),
-                    lease_duration: Duration::from_millis(r.lease_duration_ms),
-                }));
-            }
-            Err(e) if e.is_transient() => {
-                tracing::info!(error = %e, "server not reachable yet");
-                wait(stop, backoff).await;
-                backoff = (backoff * 2).min(Duration::from_secs(5));
-            }
-            Err(e) => return Err(e.into()),
-        }
+        Err(_) if *stop.borrow() => Ok(None),
+        Err(e) => Err(e.into()),
     }
 }
 
@@ -527,23 +524,24 @@ async fn upload(
     lease: &Lease,
     body: Vec<u8>,
 ) -> Result<pathfarm_wire::api::SliceAck, TaskError> {
-    let deadline = Instant::now() + session.lease_duration;
-    let mut backoff = Duration::from_millis(100);
-    loop {
-        match session
-            .client
-            .upload_slice(lease.task_id, &lease.lease_token, body.clone())
-            .await
-        {
-            Ok(ack) => return Ok(ack),
-            Err(e) if e.is_transient() && Instant::now() + backoff < deadline => {
-                tracing::warn!(task = lease.task_id, error = %e, "slice upload failed; retrying");
-                tokio::time::sleep(backoff).await;
-                backoff = (backoff * 2).min(Duration::from_secs(2));
-            }
-            Err(e) => return Err(e.into()),
-        }
-    }
+    let limits = Limits {
+        deadline: Some(Instant::now() + session.lease_duration),
+        stop: None,
+    };
+    let ack = retry::retry(
+        retry::UPLOAD,
+        limits,
+        || {
+            session
+                .client
+                .upload_slice(lease.task_id, &lease.lease_token, body.clone())
+        },
+        |e, d| {
+            tracing::warn!(task = lease.task_id, error = %e, retry_in = ?d, "slice upload failed; retrying")
+        },
+    )
+    .await?;
+    Ok(ack)
 }
 
 #[cfg(test)]
@@ -560,6 +558,7 @@ mod tests {
                 status: reqwest::StatusCode::from_u16(status).unwrap(),
                 code: "x".into(),
                 message: "x".into(),
+                retry_after: None,
             })
         };
         // Taken back by the farm (a cancel, an early stop, an expired lease): lease again at once.
@@ -707,14 +706,15 @@ mod tests {
         config.threads = 1;
         let (tx, rx) = watch::channel(false);
         let worker = tokio::spawn(run(config, rx));
-        // Backoffs of 0.2, 0.4, 0.8 and 1.6 s: leases at about 0, 0.2, 0.6 and 1.4 s.
+        // Waits of at most 0.2, 0.4, 0.8, 1.6, 3.2 s (full jitter: 0.1, 0.2, 0.4, 0.8 on average):
+        // about five leases in 1.7 s, and in any case nothing like a hot loop.
         tokio::time::sleep(Duration::from_millis(1700)).await;
         let (leases, scenes, releases) = (
             server.hits("lease"),
             server.hits("scene"),
             server.hits("release"),
         );
-        assert!((2..=5).contains(&leases), "{leases} leases in 1.7 s");
+        assert!((2..=10).contains(&leases), "{leases} leases in 1.7 s");
         assert_eq!(
             scenes, 1,
             "the scene was fetched {scenes} times in its cooldown"

@@ -9,7 +9,9 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pathfarm_wire::api::{EnvironmentSettings, FrameOrder, JobSettings, JobView, WorkerView};
 use pathfarm_worker::client::{ApiClient, Chunks, ClientError};
-use serde::Serialize;
+use pathfarm_worker::retry;
+use pathfarm_worker::secret::Secret;
+use serde::{Deserialize, Serialize};
 use std::future::Future;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -18,8 +20,9 @@ use std::time::{Duration, Instant};
 /// the job goes on without the client, so a server restart must not end the wait.
 pub const WAIT_PATIENCE: Duration = Duration::from_secs(300);
 
-/// Where the server is and how to authenticate.
-#[derive(Args, Clone, Debug)]
+/// Where the server is and how to authenticate (`[client]`; see `crate::config`).
+#[derive(Args, Clone, Debug, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 #[command(next_help_heading = "Server")]
 pub struct ClientArgs {
     /// The server's URL (http:// or https://).
@@ -27,7 +30,7 @@ pub struct ClientArgs {
     pub server: String,
     /// Client token (when the server requires one).
     #[arg(long, env = "PATHFARM_TOKEN", hide_env_values = true)]
-    pub token: Option<String>,
+    pub token: Option<Secret>,
     /// PEM file of CA certificates to trust besides the system's, for an https:// server with its
     /// own or a self-signed certificate.
     #[arg(long, env = "PATHFARM_CA_CERT")]
@@ -38,7 +41,7 @@ impl ClientArgs {
     fn client(&self) -> Result<ApiClient> {
         Ok(ApiClient::with_ca_cert(
             &self.server,
-            self.token.clone(),
+            self.token.as_ref().map(|t| t.expose().to_string()),
             self.ca_cert.as_deref(),
         )?)
     }
@@ -116,35 +119,24 @@ fn parse_frame_order(s: &str) -> Result<FrameOrder, String> {
     }
 }
 
-/// Runs `call` until it succeeds or fails for good: a transient failure (no answer, 5xx) is retried
-/// with a growing delay (0.2 s to 5 s) while the failures in a row have lasted less than `patience`.
+/// Runs `call` until it succeeds or fails for good, under the one retry policy
+/// (`pathfarm_worker::retry`: a transient failure — no answer, 5xx — is retried with full jitter,
+/// the ceiling growing from 0.2 s to 5 s, never sooner than a `Retry-After`) for up to `patience`.
 /// `on_retry` hears of each failure retried.
 async fn patiently<T, F, Fut>(
     patience: Duration,
-    mut call: F,
+    call: F,
     mut on_retry: impl FnMut(&ClientError),
 ) -> Result<T, ClientError>
 where
     F: FnMut() -> Fut,
     Fut: Future<Output = Result<T, ClientError>>,
 {
-    let mut first_failure = None;
-    let mut delay = Duration::from_millis(200);
-    loop {
-        match call().await {
-            Ok(v) => return Ok(v),
-            Err(e) if e.is_transient() => {
-                let since = *first_failure.get_or_insert_with(Instant::now);
-                if since.elapsed() + delay > patience {
-                    return Err(e);
-                }
-                on_retry(&e);
-                tokio::time::sleep(delay).await;
-                delay = (delay * 2).min(Duration::from_secs(5));
-            }
-            Err(e) => return Err(e),
-        }
-    }
+    let limits = retry::Limits {
+        deadline: Some(Instant::now() + patience),
+        stop: None,
+    };
+    retry::retry(retry::CLIENT, limits, call, |e, _| on_retry(e)).await
 }
 
 /// Writes frames `frames` of frame job `id` to the files of `--out` pattern `out` (`#`s filled
@@ -752,8 +744,9 @@ mod tests {
         .await
         .unwrap_err();
         assert!(e.is_transient(), "{e}");
-        // Delays of 0.2 and 0.4 s fit in 0.7 s; 0.8 more would not.
-        assert_eq!((calls, retries), (3, 2));
+        // Jittered waits (at most 0.2, 0.4, 0.8, … s) within 0.7 s: a few tries, each failure but
+        // the last one retried.
+        assert!(calls >= 2 && retries == calls - 1, "{calls} {retries}");
         assert!(
             t.elapsed() < Duration::from_millis(1500),
             "{:?}",

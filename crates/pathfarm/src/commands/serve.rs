@@ -3,24 +3,44 @@
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use pathfarm_server::{AppState, ServerConfig};
+use pathfarm_worker::secret::Secret;
+use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
+use std::num::{NonZeroU16, NonZeroU32};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-/// Server settings shared by `serve` and `up`.
-#[derive(Args, Clone, Debug)]
+/// Server settings shared by `serve` and `up`: the keys of the configuration file's `[serve]`
+/// table are the fields' names in kebab case (see `crate::config`).
+#[derive(Args, Clone, Debug, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub struct ServerArgs {
     /// Database: a SQLite file (`pathfarm.db`, `sqlite://path`) or `postgres://…`.
-    #[arg(long, env = "PATHFARM_DB", default_value = "pathfarm.db")]
-    pub db: String,
+    #[arg(
+        long,
+        env = "PATHFARM_DB",
+        default_value = "pathfarm.db",
+        hide_env_values = true
+    )]
+    pub db: Secret,
     /// Tokens API clients must present (comma-separated). Without any token the API is open, which
     /// is allowed on loopback addresses only.
-    #[arg(long, env = "PATHFARM_CLIENT_TOKENS", value_delimiter = ',')]
-    pub client_token: Vec<String>,
+    #[arg(
+        long = "client-token",
+        env = "PATHFARM_CLIENT_TOKENS",
+        value_delimiter = ',',
+        hide_env_values = true
+    )]
+    pub client_tokens: Vec<Secret>,
     /// Tokens workers must present (comma-separated).
-    #[arg(long, env = "PATHFARM_WORKER_TOKENS", value_delimiter = ',')]
-    pub worker_token: Vec<String>,
+    #[arg(
+        long = "worker-token",
+        env = "PATHFARM_WORKER_TOKENS",
+        value_delimiter = ',',
+        hide_env_values = true
+    )]
+    pub worker_tokens: Vec<Secret>,
     /// Seconds a lease lasts without a heartbeat; a dead worker's task is queued again after this.
     #[arg(long, env = "PATHFARM_LEASE_SECONDS", default_value_t = 30.0)]
     pub lease_seconds: f64,
@@ -29,8 +49,8 @@ pub struct ServerArgs {
     pub max_scene_mib: usize,
     /// Most submitted scenes validated at once (each load takes memory up to a few times the
     /// scene's size); further submissions wait.
-    #[arg(long, env = "PATHFARM_SCENE_CHECKS", default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..))]
-    pub scene_checks: u16,
+    #[arg(long, env = "PATHFARM_SCENE_CHECKS", default_value = "2")]
+    pub scene_checks: NonZeroU16,
     /// Most triangles a submitted scene may declare (every instance counted); loading one takes
     /// 40–170 bytes per triangle.
     #[arg(
@@ -59,12 +79,12 @@ pub struct ServerArgs {
     #[arg(long, env = "PATHFARM_BODY_MIN_KIB_PER_SECOND", default_value_t = 64)]
     pub body_min_kib_per_second: u64,
     /// Most connections open at once; further ones wait to be accepted until one closes.
-    #[arg(long, env = "PATHFARM_MAX_CONNECTIONS", default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..))]
-    pub max_connections: u32,
+    #[arg(long, env = "PATHFARM_MAX_CONNECTIONS", default_value = "1024")]
+    pub max_connections: NonZeroU32,
     /// Most tasks one worker may hold leased at once (the worker daemon holds one); beyond it a
     /// lease is refused with 429.
-    #[arg(long, env = "PATHFARM_MAX_LEASES_PER_WORKER", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..))]
-    pub max_leases_per_worker: u32,
+    #[arg(long, env = "PATHFARM_MAX_LEASES_PER_WORKER", default_value = "4")]
+    pub max_leases_per_worker: NonZeroU32,
     /// Seconds after which a worker registration that was not seen (no heartbeat, lease or
     /// upload) expires: its leases are queued again, its row deleted, its credential void.
     #[arg(long, env = "PATHFARM_WORKER_EXPIRY_SECONDS", default_value_t = 600.0)]
@@ -73,26 +93,22 @@ pub struct ServerArgs {
 
 impl ServerArgs {
     pub fn config(&self) -> Result<ServerConfig> {
-        let mut c = ServerConfig::new(&self.db);
-        c.client_tokens = self
-            .client_token
-            .iter()
-            .filter(|t| !t.is_empty())
-            .cloned()
-            .collect();
-        c.worker_tokens = self
-            .worker_token
-            .iter()
-            .filter(|t| !t.is_empty())
-            .cloned()
-            .collect();
+        let mut c = ServerConfig::new(self.db.expose());
+        let tokens = |list: &[Secret]| {
+            list.iter()
+                .filter(|t| !t.is_empty())
+                .map(|t| t.expose().to_string())
+                .collect()
+        };
+        c.client_tokens = tokens(&self.client_tokens);
+        c.worker_tokens = tokens(&self.worker_tokens);
         if !(self.lease_seconds.is_finite() && self.lease_seconds >= 0.1) {
             bail!("--lease-seconds must be at least 0.1");
         }
         c.lease_duration = Duration::from_secs_f64(self.lease_seconds);
         c.monitor_interval = Duration::from_secs_f64((self.lease_seconds / 10.0).clamp(0.05, 1.0));
         c.limits.max_scene_bytes = self.max_scene_mib << 20;
-        c.limits.scene_checks = usize::from(self.scene_checks);
+        c.limits.scene_checks = usize::from(self.scene_checks.get());
         c.limits.max_scene_triangles = self.max_scene_triangles;
         c.image_cache_bytes = self.image_cache_mib.saturating_mul(1 << 20);
         let seconds = |flag: &str, v: f64| {
@@ -109,8 +125,8 @@ impl ServerArgs {
         c.connections.keep_alive_timeout = seconds("keep-alive-seconds", self.keep_alive_seconds)?;
         c.connections.body_timeout = seconds("body-timeout-seconds", self.body_timeout_seconds)?;
         c.connections.body_min_rate = self.body_min_kib_per_second.saturating_mul(1024);
-        c.connections.max_connections = self.max_connections as usize;
-        c.max_leases_per_worker = self.max_leases_per_worker;
+        c.connections.max_connections = self.max_connections.get() as usize;
+        c.max_leases_per_worker = self.max_leases_per_worker.get();
         // Shorter than a lease would collect workers that are only between heartbeats.
         if !(self.worker_expiry_seconds.is_finite()
             && self.worker_expiry_seconds >= self.lease_seconds
@@ -123,7 +139,9 @@ impl ServerArgs {
     }
 }
 
-#[derive(Args, Debug)]
+/// `serve`'s own settings (`[serve]` too) and the server's, which `up` shares.
+#[derive(Args, Debug, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub struct ServeArgs {
     /// Address to listen on.
     #[arg(long, env = "PATHFARM_LISTEN", default_value = "127.0.0.1:8080")]

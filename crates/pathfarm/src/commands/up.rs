@@ -2,15 +2,23 @@
 //! processes. Ctrl-C stops the workers cleanly (they hand back their leases), then the server.
 //! The workers never outlive `up`: they are killed if it fails while starting them, and on Linux
 //! (where the kernel can tell a child that its parent died) also if `up` itself is killed.
+//!
+//! Secrets stay out of the workers' environment and command line: the worker token goes down a
+//! pipe to `pathfarm worker --token-stdin`, and the variables that may hold a secret
+//! ([`crate::config::SECRET_VARIABLES`]) are removed from what the workers inherit.
 
 use super::serve::{shutdown_signal, ServerArgs};
 use anyhow::{Context, Result};
 use clap::Args;
+use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 use std::process::Stdio;
 use std::time::Duration;
+use tokio::io::AsyncWriteExt;
 
-#[derive(Args, Debug)]
+/// `up`'s own settings (`[up]`); its server's are `[serve]`'s (see `crate::config`).
+#[derive(Args, Debug, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub struct UpArgs {
     /// Local worker processes (default: one per core).
     #[arg(long, env = "PATHFARM_WORKERS")]
@@ -53,16 +61,27 @@ pub async fn run(args: UpArgs) -> Result<()> {
             .arg(args.threads_per_worker.max(1).to_string())
             .arg("--name")
             .arg(format!("local-{}", i + 1))
-            .stdin(Stdio::null())
             // `up` failing (returning early) drops the workers started so far: killed with it.
             .kill_on_drop(true);
+        for var in crate::config::SECRET_VARIABLES {
+            cmd.env_remove(var);
+        }
+        if worker_token.is_some() {
+            cmd.arg("--token-stdin").stdin(Stdio::piped());
+        } else {
+            cmd.stdin(Stdio::null());
+        }
         #[cfg(target_os = "linux")]
         die_with_parent(&mut cmd);
-        match &worker_token {
-            Some(t) => cmd.env("PATHFARM_WORKER_TOKEN", t),
-            None => cmd.env_remove("PATHFARM_WORKER_TOKEN"),
-        };
-        children.push(cmd.spawn().context("cannot start a worker process")?);
+        let mut child = cmd.spawn().context("cannot start a worker process")?;
+        if let (Some(token), Some(mut stdin)) = (&worker_token, child.stdin.take()) {
+            stdin
+                .write_all(format!("{token}\n").as_bytes())
+                .await
+                .context("cannot hand a worker its token")?;
+            // Dropped: the worker reads one line, then end of file.
+        }
+        children.push(child);
     }
     println!("pathfarm is up: dashboard and API at {url} ({n} local workers); Ctrl-C stops it");
     shutdown_signal().await;

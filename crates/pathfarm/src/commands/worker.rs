@@ -1,20 +1,28 @@
 //! `pathfarm worker`: the worker daemon. SIGTERM or Ctrl-C: finish and upload the slice in hand,
 //! give the lease back, sign off, exit 0.
 
-use anyhow::Result;
+use anyhow::{bail, Context, Result};
 use clap::Args;
+use pathfarm_worker::secret::Secret;
 use pathfarm_worker::WorkerConfig;
+use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::time::Duration;
 
-#[derive(Args, Debug)]
+/// The worker's settings (`[worker]`; see `crate::config`).
+#[derive(Args, Debug, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub struct WorkerArgs {
     /// The server's URL.
     #[arg(long, env = "PATHFARM_SERVER", default_value = "http://127.0.0.1:8080")]
     pub server: String,
     /// Worker token (when the server requires one).
-    #[arg(long, env = "PATHFARM_WORKER_TOKEN")]
-    pub token: Option<String>,
+    #[arg(long, env = "PATHFARM_WORKER_TOKEN", hide_env_values = true)]
+    pub token: Option<Secret>,
+    /// Read the worker token from the first line of standard input instead (so it is in neither
+    /// the environment nor the command line; `pathfarm up` passes it to its workers so).
+    #[arg(long, conflicts_with = "token")]
+    pub token_stdin: bool,
     /// PEM file of CA certificates to trust besides the system's, for an https:// server with its
     /// own or a self-signed certificate.
     #[arg(long, env = "PATHFARM_CA_CERT")]
@@ -36,6 +44,19 @@ pub struct WorkerArgs {
     pub slice_samples: Option<u32>,
 }
 
+/// The first line of standard input, which must not be empty.
+fn token_from_stdin() -> Result<Secret> {
+    let mut line = String::new();
+    std::io::stdin()
+        .read_line(&mut line)
+        .context("--token-stdin: cannot read standard input")?;
+    let token = line.trim();
+    if token.is_empty() {
+        bail!("--token-stdin: no token on standard input");
+    }
+    Ok(Secret::from(token))
+}
+
 fn default_cache_dir() -> Option<PathBuf> {
     std::env::var_os("XDG_CACHE_HOME")
         .map(PathBuf::from)
@@ -45,7 +66,11 @@ fn default_cache_dir() -> Option<PathBuf> {
 
 pub async fn run(args: WorkerArgs) -> Result<()> {
     let mut c = WorkerConfig::new(args.server);
-    c.token = args.token;
+    c.token = if args.token_stdin {
+        Some(token_from_stdin()?)
+    } else {
+        args.token
+    };
     c.ca_cert = args.ca_cert;
     if let Some(t) = args.threads {
         c.threads = t.max(1);

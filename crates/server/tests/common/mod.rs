@@ -142,7 +142,7 @@ impl TestWorker {
     /// The configuration [`TestWorker::spawn`] runs with, to change before [`TestWorker::spawn_with`].
     pub fn config(server: &str, token: Option<&str>, slice_samples: Option<u32>) -> WorkerConfig {
         let mut c = WorkerConfig::new(server);
-        c.token = token.map(str::to_string);
+        c.token = token.map(Into::into);
         c.threads = 1;
         c.slice_samples = slice_samples;
         c.slice_seconds = 0.2;
