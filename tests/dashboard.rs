@@ -929,6 +929,96 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
     })
     .await;
 
+    // ---- a frame job: the strip shows each frame's progress, a click shows that frame, the
+    // player steps through the frames by itself, the downloads and the jobs list know frames
+    let animated = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../scenes/suite/animated.glb"
+    ))
+    .expect("read animated.glb");
+    let mut anim = JobSettings::new(16, 12, 2);
+    anim.name = Some(format!("animated-{variant}"));
+    anim.frames = Some("1,10,20".into());
+    anim.fps = Some(8.0);
+    let id4 = api
+        .submit(animated, "animated.glb", &anim)
+        .await
+        .expect("submit the frame job")
+        .id;
+    until(
+        "the frame job to complete",
+        Duration::from_secs(120),
+        || async {
+            let j = api.job(&id4).await.ok()?;
+            (j.state == JobState::Completed).then_some(())
+        },
+    )
+    .await;
+    b.goto(&format!("{url}/#/jobs/{id4}")).await;
+    b.wait_text(
+        "every frame complete",
+        "[data-testid=frames-summary]",
+        |t| t.starts_with("3 of 3 complete"),
+    )
+    .await;
+    let cells = b
+        .js(
+            "return [...document.querySelectorAll('[data-testid=frame-cell]')]\
+               .map((c) => c.dataset.frame + ':' + c.dataset.complete);",
+            vec![],
+        )
+        .await;
+    assert_eq!(cells, json!(["1:true", "10:true", "20:true"]));
+    let shown_frame = || async {
+        b.js(
+            "const i = document.querySelector('[data-testid=preview-image]'); \
+             return i.complete && i.naturalWidth > 0 ? (i.dataset.frame ?? null) : null;",
+            vec![],
+        )
+        .await
+        .as_str()
+        .map(String::from)
+    };
+    until("frame 1 shown", Duration::from_secs(20), || async {
+        (shown_frame().await.as_deref() == Some("1")).then_some(())
+    })
+    .await;
+    b.click("[data-testid=frame-cell][data-frame=\"20\"] button")
+        .await;
+    until("frame 20 shown", Duration::from_secs(20), || async {
+        (shown_frame().await.as_deref() == Some("20")).then_some(())
+    })
+    .await;
+    b.screenshot("frame-job").await;
+    b.click("[data-testid=frame-play]").await;
+    let mut seen = BTreeSet::new();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while seen.len() < 3 && Instant::now() < deadline {
+        if let Some(f) = shown_frame().await {
+            seen.insert(f);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(seen.len(), 3, "the player showed only frames {seen:?}");
+    b.click("[data-testid=frame-play]").await;
+    let playing = b
+        .js(
+            "return document.querySelector('.frames').dataset.playing;",
+            vec![],
+        )
+        .await;
+    assert_eq!(playing, json!("false"), "Pause did not stop the player");
+    b.find("[data-testid=download-frames-tar]").await;
+    b.find("[data-testid=download-apng]").await;
+    b.goto(&format!("{url}/#/jobs")).await;
+    let row4 = format!("tr[data-job-id=\"{id4}\"]");
+    b.wait_text(
+        "the frame count in the jobs list",
+        &format!("{row4} [data-testid=job-progress]"),
+        |t| t.ends_with("3 / 3 frames"),
+    )
+    .await;
+
     // ---- a phone: one column, nothing wider than the screen
     b.client
         .set_window_size(390, 844)

@@ -44,6 +44,7 @@ static ASSETS: &[Asset] = assets![
     "workers.js",
     "submit.js",
     "charts.js",
+    "frames.js",
     "vendor/uplot/uPlot.esm.js",
     "vendor/uplot/uPlot.min.css",
     "vendor/uplot/LICENSE",

@@ -15,6 +15,7 @@
 //! [`run`] measures (synchronously, on its own tokio runtime); [`write_report`] charts and
 //! tabulates.
 
+pub mod frames;
 mod harness;
 pub mod loadgen;
 mod report;

@@ -32,6 +32,12 @@ pub enum Suite {
     /// built flattened): load and BVH build seconds, memory, samples/s. Writes scale.md and
     /// scale.json. Smaller cases with --quick. Not part of `all`.
     Scale,
+    /// An animation on the farm: a frame job of scenes/suite/animated.glb (240 frames at 160×90,
+    /// 16 spp; 24 frames at 32×18, 2 spp with --quick) against a still job of the same scene and
+    /// total samples, each on one in-process worker of --threads threads (default 2): samples/s,
+    /// their ratio, and the time until every frame has its first pass. Writes frames.md and
+    /// frames.json. Not part of `all`.
+    Frames,
 }
 
 #[derive(Args, Debug)]
@@ -193,8 +199,27 @@ fn blender(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn frames(args: BenchArgs) -> anyhow::Result<()> {
+    let threads = args.threads.unwrap_or(2);
+    anyhow::ensure!(threads > 0, "--threads must be at least 1");
+    let opts = pathfarm_bench::farm::frames::FramesOptions {
+        out_dir: args.out.clone(),
+        scenes_dir: args.scenes_dir,
+        threads,
+        quick: args.quick,
+        seed: args.seed,
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let (_, markdown) =
+        pathfarm_bench::farm::frames::run(&opts).context("frames benchmark failed")?;
+    println!("{markdown}");
+    eprintln!("report in {}", args.out.join("frames.md").display());
+    Ok(())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.suite {
+        Suite::Frames => return frames(args),
         Suite::Soak => return soak(args),
         Suite::Speed => return speed(args),
         Suite::Blender => return blender(args),

@@ -1,6 +1,7 @@
 // The job page: the live progress image (tone-mapped, or a heat map of samples or noise per
 // pixel) with the tile overlay, the job's numbers, actions and settings, downloads, and the
-// convergence and throughput charts.
+// convergence and throughput charts. A frame job adds its frame strip and player (frames.js):
+// the image, overlay and downloads are then those of the frame selected.
 //
 // Polling: the JobView about three times a second while the job can still change (every five
 // seconds once it is final); the preview only when the merged samples (or the view) changed
@@ -10,6 +11,7 @@ import { api, fetchImage, download, ApiError } from './api.js';
 import { actionButtons, updateActionButtons, priorityField, updatePriorityField } from './actions.js';
 import { showBlob, releaseImage } from './images.js';
 import { errorChart, rateChart } from './charts.js';
+import { frameStrip } from './frames.js';
 import {
   el, setText, poll, showError, fmtInt, fmtError, fmtRate, fmtDuration, fmtTime, progress,
   FINAL_STATES,
@@ -17,6 +19,9 @@ import {
 
 const LIVE_MS = 330;
 const FINAL_MS = 5000;
+
+// Previews of a frame job's frames kept for the player, at most this many (oldest out).
+const FRAME_CACHE = 240;
 
 const VIEWS = [
   { value: 'image', label: 'Current image' },
@@ -31,6 +36,10 @@ export function mount(root, pageSignal, _query, id) {
   pageSignal.addEventListener('abort', () => stop.abort());
   const signal = stop.signal;
   const enc = encodeURIComponent(id);
+  // A frame job's strip (null for a still job), and the frame it shows.
+  let strip = null;
+  const frame = () => (strip ? strip.selected() : null);
+  const frameQuery = (sep) => (frame() === null ? '' : `${sep}frame=${frame()}`);
 
   // ---- preview controls
   const viewBox = el('fieldset', { class: 'views' }, el('legend', {}, 'Show'),
@@ -77,18 +86,25 @@ export function mount(root, pageSignal, _query, id) {
     onclick: () => download(path(), file()).catch(showError),
   }, label);
   const base = () => (job ? job.name.replace(/[^\w.-]+/g, '_').replace(/\.(gltf|glb)$/i, '') : id);
+  const frameName = () => (frame() === null ? '' : `-${String(frame()).padStart(4, '0')}`);
   const downloads = el('div', { class: 'downloads', role: 'group', 'aria-label': 'Downloads' },
-    dl('EXR', () => `/jobs/${enc}/image.exr`, () => `${base()}.exr`, 'download-exr'),
-    dl('EXR + variance, samples', () => `/jobs/${enc}/image.exr?extra=true`, () => `${base()}-extra.exr`, 'download-exr-extra'),
-    dl('PNG', () => `/jobs/${enc}/preview.png?exposure=${exposure.value}`, () => `${base()}.png`, 'download-png'));
+    dl('EXR', () => `/jobs/${enc}/image.exr${frameQuery('?')}`, () => `${base()}${frameName()}.exr`, 'download-exr'),
+    dl('EXR + variance, samples', () => `/jobs/${enc}/image.exr?extra=true${frameQuery('&')}`, () => `${base()}${frameName()}-extra.exr`, 'download-exr-extra'),
+    dl('PNG', () => `/jobs/${enc}/preview.png?exposure=${exposure.value}${frameQuery('&')}`, () => `${base()}${frameName()}.png`, 'download-png'));
+  // A frame job's: every rendered frame, and the complete ones animated.
+  const frameDownloads = () => [
+    dl('All frames (tar of EXRs)', () => `/jobs/${enc}/frames.tar`, () => `${base()}-frames.tar`, 'download-frames-tar'),
+    dl('Animated PNG', () => `/jobs/${enc}/preview.apng?exposure=${exposure.value}`, () => `${base()}.apng`, 'download-apng'),
+  ];
 
+  const previewSection = el('section', { class: 'preview-section', 'aria-label': 'Progress image' },
+    el('figure', { class: 'preview' }, stage, caption), controls);
   root.replaceChildren(el('article', { class: 'job', 'aria-labelledby': 'job-title' },
     el('div', { class: 'page-head' }, el('p', { class: 'crumb' }, el('a', { href: '#/jobs' }, '← Jobs')), title, badge, headActions),
     message,
     warnings,
     el('div', { class: 'job-grid' },
-      el('section', { class: 'preview-section', 'aria-label': 'Progress image' },
-        el('figure', { class: 'preview' }, stage, caption), controls),
+      previewSection,
       el('div', { class: 'side' },
         el('section', { 'aria-labelledby': 'progress-title' }, el('h2', { id: 'progress-title' }, 'Progress'), stats),
         el('section', { 'aria-labelledby': 'downloads-title' }, el('h2', { id: 'downloads-title' }, 'Download'), downloads),
@@ -102,33 +118,57 @@ export function mount(root, pageSignal, _query, id) {
   const charts = [errorChart(errorBox, errorSummary), rateChart(rateBox, rateSummary)];
   signal.addEventListener('abort', () => {
     charts.forEach((c) => c.destroy());
+    strip?.destroy();
     releaseImage(img);
   });
 
   // ---- state of the preview on screen
   const shown = { key: null, etag: null, samples: -1 };
+  // A frame job's previews by key and frame, with the samples they show: the player shows a
+  // frame it has seen at once, without a request.
+  const frameCache = new Map();
   const view = () => viewBox.querySelector('input:checked').value;
-  const previewKey = () => (view() === 'image' ? `image@${exposure.value}` : view());
+  const previewKey = () => (view() === 'image' ? `image@${exposure.value}` : view()) + frameQuery('#');
+  // The merged samples of what the preview shows: the job's, or the selected frame's.
+  const shownFrame = () => (frame() === null ? null : (job.frames || []).find((f) => f.frame === frame()));
+  const samplesShown = () => (frame() === null ? job.samples_done : shownFrame()?.samples_done ?? 0);
+
+  async function show(blob, headers, etag) {
+    await showBlob(img, blob);
+    img.dataset.etag = etag || '';
+    img.dataset.view = view();
+    img.dataset.frame = frame() === null ? '' : String(frame());
+    img.alt = `${VIEWS.find((v) => v.value === view()).label} of ${job.name}${frame() === null ? '' : `, frame ${frame()}`}${view() === 'image' ? '' : ' (heat map)'}`;
+    showLegend(headers);
+  }
 
   async function updatePreview() {
-    if (!job || job.samples_done === 0) return;
+    if (!job) return;
+    const samples = samplesShown();
+    if (samples === 0) return;
     const key = previewKey();
-    // Same image as on screen: nothing merged since, same view and exposure.
-    if (key === shown.key && job.samples_done === shown.samples) return;
-    const samples = job.samples_done;
+    // Same image as on screen: nothing merged since, same view, exposure and frame.
+    if (key === shown.key && samples === shown.samples) return;
+    const kept = frameCache.get(key);
+    if (kept && kept.samples === samples) {
+      await show(kept.blob, kept.headers, kept.etag);
+      Object.assign(shown, { key, etag: kept.etag, samples });
+      return;
+    }
     const q = new URLSearchParams({ view: view() });
     if (view() === 'image') q.set('exposure', exposure.value);
+    if (frame() !== null) q.set('frame', frame());
     const r = await fetchImage(`/jobs/${enc}/preview.png?${q}`, {
       etag: key === shown.key ? shown.etag : null, signal,
     });
-    if (key !== previewKey()) return; // the view changed meanwhile; the next poll fetches it
-    if (r.changed) {
-      await showBlob(img, r.blob);
-      img.dataset.etag = r.etag || '';
-      img.dataset.view = view();
-      img.alt = `${VIEWS.find((v) => v.value === view()).label} of ${job.name}${view() === 'image' ? '' : ' (heat map)'}`;
-      showLegend(r.headers);
+    // Kept even when the player has moved on meanwhile: the next round shows it at once.
+    if (r.changed && strip) {
+      frameCache.delete(key);
+      frameCache.set(key, { samples, blob: r.blob, headers: r.headers, etag: r.etag });
+      if (frameCache.size > FRAME_CACHE) frameCache.delete(frameCache.keys().next().value);
     }
+    if (key !== previewKey()) return; // the view or frame changed meanwhile; the next poll fetches it
+    if (r.changed) await show(r.blob, r.headers, r.etag);
     shown.key = key;
     shown.etag = r.etag;
     shown.samples = samples;
@@ -185,6 +225,23 @@ export function mount(root, pageSignal, _query, id) {
       actionButtons(() => job, after));
     fillSettings(settings, job);
     fillWarnings(warnings, job);
+    if (job.frames_total) {
+      strip = frameStrip(() => {
+        if (job.tiles) drawTiles(overlay, job, frame());
+        fillCaption();
+        refreshPreview();
+      });
+      previewSection.append(strip.element);
+      downloads.append(...frameDownloads());
+    }
+  }
+
+  function fillCaption() {
+    const f = shownFrame();
+    const perPixel = f ? f.samples_per_pixel : job.samples_done / (job.settings.width * job.settings.height);
+    setText(caption.lastChild, samplesShown() === 0
+      ? `No samples${f ? ` in frame ${f.frame}` : ''} yet: the image appears after the first pass.`
+      : `${f ? `Frame ${f.frame}: ` : ''}${job.settings.width}×${job.settings.height}, ${fmtInt(perPixel)} samples per pixel${f ? '' : ' on average'}`);
   }
 
   function fill() {
@@ -195,10 +252,9 @@ export function mount(root, pageSignal, _query, id) {
     message.hidden = !job.message;
     setText(message, job.message || '');
     fillStats(stats, job);
-    if (job.tiles) drawTiles(overlay, job);
-    setText(caption.lastChild, job.samples_done === 0
-      ? 'No samples yet: the image appears after the first pass.'
-      : `${job.settings.width}×${job.settings.height}, ${fmtInt(job.samples_done / (job.settings.width * job.settings.height * (job.frames_total || 1)))} samples per pixel on average`);
+    if (strip) strip.update(job);
+    if (job.tiles) drawTiles(overlay, job, frame());
+    fillCaption();
   }
 
   const update = async () => {
@@ -250,6 +306,7 @@ function fillStats(dl, job) {
     ['Elapsed', 'elapsed', fmtDuration(elapsed)],
     ['Leased tasks', 'leased', String(job.leased_tasks)],
   ];
+  if (job.frames_total) rows.splice(1, 0, ['Frames complete', 'frames', `${fmtInt(job.frames_done)} / ${fmtInt(job.frames_total)}`]);
   if (!dl.firstChild) {
     const bar = el('progress', { max: 1, value: 0, 'aria-label': 'Progress', dataset: { testid: 'job-progress-bar' } });
     for (const [label, key] of rows) {
@@ -297,6 +354,7 @@ function fillSettings(dl, job) {
     ['Camera', s.camera ?? 'first in the scene'],
     ['Noise target', s.noise_target ? fmtError(s.noise_target) : '–'],
     ['Time limit', s.time_limit_s ? fmtDuration(s.time_limit_s) : '–'],
+    ...(s.frames ? [['Frames', `${s.frames} at ${s.fps ?? 24} fps, ${s.frame_order ?? 'interleaved'}`]] : []),
     ['Environment', el('span', { title: s.environment?.image ?? '', dataset: { testid: 'job-environment' } }, environmentText(s.environment))],
     ['Scene', el('code', { title: job.scene_hash }, job.scene_hash.slice(0, 12) + '…')],
     ['Submitted', fmtTime(job.created_at_ms)],
@@ -307,8 +365,8 @@ function fillSettings(dl, job) {
 
 // Per tile, over the image: its outline and a bar along its bottom edge filled in proportion to
 // its merged samples, so the overlay shows progress without hiding the picture (or the heat map)
-// underneath. Finished tiles draw nothing.
-function drawTiles(svg, job) {
+// underneath. Finished tiles draw nothing. A frame job's tiles are those of `frame`, the frame shown.
+function drawTiles(svg, job, frame) {
   const NS = 'http://www.w3.org/2000/svg';
   const make = (tag, cls) => {
     const n = document.createElementNS(NS, tag);
@@ -321,10 +379,7 @@ function drawTiles(svg, job) {
     }
   };
   const spp = job.settings.spp;
-  // A frame job lists every frame's tiles, its first frame's first: the image shown is that
-  // frame's, so only its tiles are drawn over it.
-  const shown = job.tiles.length ? job.tiles[0].frame : undefined;
-  const tiles = job.tiles.filter((t) => t.frame == null || t.frame === shown);
+  const tiles = job.tiles.filter((t) => t.frame == null || t.frame === frame);
   tiles.forEach((t, i) => {
     let g = svg.children[i];
     if (!g) {

@@ -134,7 +134,8 @@ function fillRow(row, job) {
   const bar = row.querySelector('progress');
   const p = progress(job);
   if (Number(bar.value) !== p) bar.value = p;
-  setText(q('job-progress'), `${fmtInt(job.samples_done)} / ${fmtInt(job.samples_planned)} (${(p * 100).toFixed(0)} %)`);
+  const frames = job.frames_total ? `, ${fmtInt(job.frames_done)} / ${fmtInt(job.frames_total)} frames` : '';
+  setText(q('job-progress'), `${fmtInt(job.samples_done)} / ${fmtInt(job.samples_planned)} (${(p * 100).toFixed(0)} %)${frames}`);
   setText(q('job-error'), fmtError(job.relative_error));
   setText(q('job-rate'), job.state === 'running' ? fmtRate(job.samples_per_second) : '–');
   setText(q('job-eta'), fmtDuration(job.eta_seconds));
