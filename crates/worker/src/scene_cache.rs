@@ -74,6 +74,22 @@ pub struct SceneCache {
     failed: HashMap<Key, Failure>,
 }
 
+/// Runs `work` (parsing, building: CPU-heavy) on a blocking thread; its failure, or a panic, is a
+/// load error of scene `hash`.
+async fn blocking<T: Send + 'static>(
+    hash: &str,
+    work: impl FnOnce() -> Result<T, String> + Send + 'static,
+) -> Result<T, SceneError> {
+    let load_error = |message: String| SceneError::Load {
+        hash: hash.into(),
+        message,
+    };
+    tokio::task::spawn_blocking(work)
+        .await
+        .map_err(|e| load_error(e.to_string()))?
+        .map_err(load_error)
+}
+
 fn is_hash(s: &str) -> bool {
     s.len() == 64 && s.bytes().all(|b| b.is_ascii_hexdigit())
 }
@@ -157,36 +173,13 @@ impl SceneCache {
         if let Some((_, s)) = self.loaded.iter().find(|(k, _)| k == key) {
             return Ok(s.clone());
         }
-        let (hash, camera) = (key.0.as_str(), key.1.clone());
-        let (bytes, image) = self.fetch(client, key, environment).await?;
-        let environment = environment.cloned();
-        let scene = tokio::task::spawn_blocking(move || {
-            let scene = gltf::load(
-                &bytes,
-                &NoExternalResources,
-                &LoadOptions {
-                    camera,
-                    ..LoadOptions::default()
-                },
-            )
-            .map_err(|e| e.to_string())?;
-            // The environment exactly as `pathfarm render` builds it (one function, in the wire
-            // crate), so the job's image keeps the local render's bits.
-            let env = environment
-                .map(|e| e.build(image.as_deref()))
-                .transpose()
-                .map_err(|e| e.to_string())?;
-            Ok::<_, String>(scene.with_environment(env))
-        })
-        .await
-        .map_err(|e| SceneError::Load {
-            hash: hash.into(),
-            message: e.to_string(),
-        })?
-        .map_err(|message| SceneError::Load {
-            hash: hash.into(),
-            message,
-        })?;
+        let scene = self
+            .fetch_parsed(client, key, environment, |bytes, options, env| {
+                let scene =
+                    gltf::load(bytes, &NoExternalResources, options).map_err(|e| e.to_string())?;
+                Ok(scene.with_environment(env))
+            })
+            .await?;
         let scene = Arc::new(scene);
         if self.loaded.len() >= LOADED {
             self.loaded.remove(0);
@@ -208,38 +201,19 @@ impl SceneCache {
         if let Some((_, s)) = self.frames.iter().find(|(k, _)| *k == frame_key) {
             return Ok(s.clone());
         }
-        let hash = key.0.clone();
-        let load_error = |message: String| SceneError::Load {
-            hash: hash.clone(),
-            message,
-        };
         let source = match self.sources.iter().find(|(k, _)| k == key) {
             Some((_, s)) => s.clone(),
             None => {
-                let (bytes, image) = self.fetch(client, key, environment).await?;
-                let (camera, environment) = (key.1.clone(), environment.cloned());
-                let source = tokio::task::spawn_blocking(move || {
-                    let source = SceneSource::load(
-                        &bytes,
-                        &NoExternalResources,
-                        &LoadOptions {
-                            camera,
-                            ..LoadOptions::default()
-                        },
-                    )
-                    .map_err(|e| e.to_string())?;
-                    let environment = environment
-                        .map(|e| e.build(image.as_deref()))
-                        .transpose()
-                        .map_err(|e| e.to_string())?;
-                    Ok::<_, String>(Source {
-                        source,
-                        environment,
+                let source = self
+                    .fetch_parsed(client, key, environment, |bytes, options, environment| {
+                        let source = SceneSource::load(bytes, &NoExternalResources, options)
+                            .map_err(|e| e.to_string())?;
+                        Ok(Source {
+                            source,
+                            environment,
+                        })
                     })
-                })
-                .await
-                .map_err(|e| load_error(e.to_string()))?
-                .map_err(load_error)?;
+                    .await?;
                 let source = Arc::new(source);
                 if self.sources.len() >= SOURCES {
                     self.sources.remove(0);
@@ -248,7 +222,7 @@ impl SceneCache {
                 source
             }
         };
-        let scene = tokio::task::spawn_blocking(move || {
+        let scene = blocking(&key.0, move || {
             // `pathfarm render --frame` builds the same scene: the time by the one function, the
             // environment attached after.
             let time = gltf::frame_time(frame, fps);
@@ -258,15 +232,42 @@ impl SceneCache {
                 .map(|s| s.into_owned().with_environment(source.environment.clone()))
                 .map_err(|e| format!("at frame {frame}: {e}"))
         })
-        .await
-        .map_err(|e| load_error(e.to_string()))?
-        .map_err(load_error)?;
+        .await?;
         let scene = Arc::new(scene);
         if self.frames.len() >= FRAMES {
             self.frames.remove(0);
         }
         self.frames.push((frame_key, scene.clone()));
         Ok(scene)
+    }
+
+    /// Fetches scene `key` (and its environment image) and makes what `parse` makes of its bytes,
+    /// the camera's load options and its environment, on a blocking thread: a still scene or a
+    /// frame job's source. The environment is built exactly as `pathfarm render` builds it (one
+    /// function, in the wire crate), so the job's image keeps the local render's bits.
+    async fn fetch_parsed<T: Send + 'static>(
+        &mut self,
+        client: &ApiClient,
+        key: &Key,
+        environment: Option<&EnvironmentSettings>,
+        parse: impl FnOnce(&[u8], &LoadOptions, Option<Environment>) -> Result<T, String>
+            + Send
+            + 'static,
+    ) -> Result<T, SceneError> {
+        let (bytes, image) = self.fetch(client, key, environment).await?;
+        let (camera, environment) = (key.1.clone(), environment.cloned());
+        blocking(&key.0, move || {
+            let env = environment
+                .map(|e| e.build(image.as_deref()))
+                .transpose()
+                .map_err(|e| e.to_string())?;
+            let options = LoadOptions {
+                camera,
+                ..LoadOptions::default()
+            };
+            parse(&bytes, &options, env)
+        })
+        .await
     }
 
     /// The scene's bytes and its environment image's, fetched or from the disk cache.
