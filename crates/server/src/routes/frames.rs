@@ -291,12 +291,7 @@ pub async fn preview_apng(
     query: Result<Query<ApngQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
-    if !q.exposure.is_finite() || q.exposure.abs() > 64.0 {
-        return Err(ApiError::bad_request(
-            "bad_query",
-            "exposure must be a number of stops in [-64, 64]",
-        ));
-    }
+    super::images::check_exposure(q.exposure)?;
     if q.fps
         .is_some_and(|f| !(f.is_finite() && f > 0.0 && f <= 1000.0))
     {

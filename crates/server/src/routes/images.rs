@@ -74,6 +74,18 @@ async fn job_image(
     Ok((img, image_key(id, slot)))
 }
 
+/// A preview's exposure: a finite number of stops in [-64, 64] (400 otherwise).
+pub(super) fn check_exposure(exposure: f32) -> ApiResult<()> {
+    if exposure.is_finite() && exposure.abs() <= 64.0 {
+        Ok(())
+    } else {
+        Err(ApiError::bad_request(
+            "bad_query",
+            "exposure must be a number of stops in [-64, 64]",
+        ))
+    }
+}
+
 fn etag(version: i64) -> String {
     format!("\"v{version}\"")
 }
@@ -146,12 +158,7 @@ pub async fn preview_png(
     query: Result<Query<PngQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
-    if !q.exposure.is_finite() || q.exposure.abs() > 64.0 {
-        return Err(ApiError::bad_request(
-            "bad_query",
-            "exposure must be a number of stops in [-64, 64]",
-        ));
-    }
+    check_exposure(q.exposure)?;
     let (img, image) = job_image(&state, &id, q.frame).await?;
     if let Some(r) = not_modified(&request, img.version) {
         return Ok(r);
