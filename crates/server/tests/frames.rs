@@ -344,6 +344,11 @@ async fn a_silenced_worker_loses_only_its_slice() {
     }
 }
 
+/// `GET path` through the router in process: status, content type, body.
+async fn get(server: &TestServer, path: &str) -> (StatusCode, Option<String>, axum::body::Bytes) {
+    call_raw(&server.state, request("GET", path, &[], "")).await
+}
+
 /// What [`png_frames`] reads: each frame's 8-bit RGB, the first frame's delay (`None` for a still
 /// PNG) and the APNG's frame count.
 type PngFrames = (Vec<Vec<u8>>, Option<(u16, u16)>, Option<u32>);
@@ -423,16 +428,7 @@ async fn all_frames_download_as_a_tar_of_exrs_and_as_an_animated_png() {
         w.stop().await;
         assert_completed(&done);
 
-        let (status, ct, body) = call_raw(
-            &server.state,
-            request(
-                "GET",
-                &format!("/api/v1/jobs/{}/frames.tar", job.id),
-                &[],
-                "",
-            ),
-        )
-        .await;
+        let (status, ct, body) = get(&server, &format!("/api/v1/jobs/{}/frames.tar", job.id)).await;
         assert_eq!(status, StatusCode::OK, "{store}");
         assert_eq!(ct.as_deref(), Some("application/x-tar"), "{store}");
         assert!(
@@ -470,14 +466,9 @@ async fn all_frames_download_as_a_tar_of_exrs_and_as_an_animated_png() {
             "{store}"
         );
 
-        let (status, ct, body) = call_raw(
-            &server.state,
-            request(
-                "GET",
-                &format!("/api/v1/jobs/{}/preview.apng?exposure=1.5&fps=12", job.id),
-                &[],
-                "",
-            ),
+        let (status, ct, body) = get(
+            &server,
+            &format!("/api/v1/jobs/{}/preview.apng?exposure=1.5&fps=12", job.id),
         )
         .await;
         assert_eq!(status, StatusCode::OK, "{store}");
