@@ -296,7 +296,7 @@ pub fn named<'a>(list: &'a [WorkerView], name: &str) -> Option<&'a WorkerView> {
 /// are the server's own plan (`pathfarm_server::scheduler`), uncapped: the server caps a task at
 /// `max_task_samples / tile pixels` samples per pixel (≥ 1024 here), far above these jobs' spp.
 pub fn partial_tile(j: &JobView) -> Option<(TileProgress, u64)> {
-    let passes = pass_ranges(j.settings.spp, u32::MAX);
+    let passes = pass_ranges(j.settings.spp, 1, u32::MAX);
     j.tiles.as_ref()?.iter().find_map(|t| {
         let s = t.samples_per_pixel;
         passes

@@ -125,6 +125,12 @@ pub struct ServerConfig {
     /// Most samples per pixel in one task of the last passes, capped further so that a task stays
     /// a few seconds of work.
     pub max_task_samples: u64,
+    /// Fewest samples in a frame job's first-pass task of a full tile (its first pass is then
+    /// this over the tile's pixels, in samples per pixel): a task costs the farm about the same
+    /// whatever its samples, and small frames at one sample a pixel would spend the job on that
+    /// (`scheduler::first_pass`). 65,536: a few tens of milliseconds of one thread's rendering,
+    /// 16 samples a pixel in a 64-pixel tile.
+    pub min_frame_task_samples: u64,
     pub limits: Limits,
     /// Most bytes job images take in this server, counted before they are spent: the images kept
     /// for the next request (least recently used let go first), the images requests are using,
@@ -149,6 +155,14 @@ pub struct ServerConfig {
 }
 
 impl ServerConfig {
+    /// The task sizes the scheduler plans with.
+    pub fn task_sizes(&self) -> crate::scheduler::TaskSizes {
+        crate::scheduler::TaskSizes {
+            max: self.max_task_samples,
+            min_frame: self.min_frame_task_samples,
+        }
+    }
+
     pub fn new(db_url: impl Into<String>) -> Self {
         ServerConfig {
             db_url: db_url.into(),
@@ -159,6 +173,7 @@ impl ServerConfig {
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             worker_expiry: DEFAULT_WORKER_EXPIRY,
             max_task_samples: 4 << 20,
+            min_frame_task_samples: 1 << 16,
             limits: Limits::default(),
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,

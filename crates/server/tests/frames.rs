@@ -104,6 +104,8 @@ async fn every_frame_is_bit_identical_to_a_local_render_at_that_frame() {
 async fn lease_order(url: &str, order: Option<FrameOrder>) -> Vec<(i64, u32)> {
     let mut c = config(url);
     c.max_leases_per_worker = 1000;
+    // Tasks of any size, so that a frame has passes to interleave.
+    c.min_frame_task_samples = 1;
     let server = TestServer::start(c).await;
     let client = server.client(None);
     // 2 tiles a frame, passes [0,1) [1,3) [3,7) [7,8).

@@ -230,13 +230,13 @@ pub async fn submit(
         settings.tile_size,
         settings.spp,
     );
-    let max_task_samples = state.config.max_task_samples;
+    let sizes = state.config.task_sizes();
     // `validate` parsed them.
     let frames = settings.frame_list().ok().flatten();
     let frame_count = frames.as_ref().map_or(1, |f| f.len() as u64);
     let order = settings.frame_order.unwrap_or_default();
     let (tiles, tasks) = tokio::task::spawn_blocking(move || {
-        scheduler::plan_frames(size, max_task_samples, frames.as_deref(), order)
+        scheduler::plan_frames(size, sizes, frames.as_deref(), order)
     })
     .await
     .map_err(|e| ApiError::internal(format!("job planning: {e}")))?;
@@ -468,7 +468,8 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
         s.height,
         s.tile_size,
         s.spp,
-        state.config.max_task_samples,
+        state.config.task_sizes(),
+        s.frames.is_some(),
     );
     let (tiles, tasks) = (tiles.saturating_mul(frames), tasks.saturating_mul(frames));
     if tiles > l.max_tiles {
