@@ -333,6 +333,13 @@ async fn submit_frames_writes_one_file_per_frame_equal_to_local_renders() {
     // bytes, named by frame), and the animated preview.
     let jobs = farm.api().jobs(None, 1, 10).await.expect("jobs").jobs;
     let id = jobs[0].id.clone();
+    // The text list counts the complete frames.
+    let list = ok(&farm, &["jobs"]).await;
+    let row = list
+        .lines()
+        .find(|l| l.starts_with(&id))
+        .expect("the job's row");
+    assert!(row.split_whitespace().any(|w| w == "3/3"), "{list}");
     let again = farm.dir.arg("again_###.exr");
     let text = ok(&farm, &["job", &id, "--out", &again]).await;
     assert!(text.contains("wrote 3 frames"), "{text}");

@@ -432,18 +432,24 @@ pub async fn jobs(args: JobsArgs) -> Result<()> {
         return print_json(&list);
     }
     println!(
-        "{:<32}  {:<10} {:>4} {:>7} {:>9}  NAME",
-        "ID", "STATE", "PRIO", "DONE", "ERROR"
+        "{:<32}  {:<10} {:>4} {:>7} {:>9} {:>11}  NAME",
+        "ID", "STATE", "PRIO", "DONE", "ERROR", "FRAMES"
     );
     for j in &list.jobs {
+        // A frame job's complete frames of its frames; "-" for a still job.
+        let frames = match (j.frames_done, j.frames_total) {
+            (Some(done), Some(total)) => format!("{done}/{total}"),
+            _ => "-".into(),
+        };
         println!(
-            "{:<32}  {:<10} {:>4} {:>6.1}% {:>9}  {}",
+            "{:<32}  {:<10} {:>4} {:>6.1}% {:>9} {:>11}  {}",
             j.id,
             j.state.as_str(),
             j.priority,
             100.0 * j.samples_done as f64 / j.samples_planned.max(1) as f64,
             j.relative_error
                 .map_or("-".into(), |e| format!("{:.2}%", e * 100.0)),
+            frames,
             j.name
         );
     }
