@@ -218,6 +218,21 @@ fn the_dockerfile_copies_what_exists_and_every_workspace_member() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
+/// Copies the directory `from`'s files and folders into `to`, as a Dockerfile's `COPY` of a
+/// directory does.
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("create a COPY destination");
+    for entry in std::fs::read_dir(from).expect("read a COPY source") {
+        let entry = entry.expect("a directory entry");
+        let path = entry.path();
+        if path.is_dir() {
+            copy_tree(&path, &to.join(entry.file_name()));
+        } else {
+            std::fs::copy(&path, to.join(entry.file_name())).expect("copy");
+        }
+    }
+}
+
 /// The dependency stage, replayed in a scratch directory: its COPYs, then its `RUN` lines but the
 /// build (the stand-ins), then `cargo metadata --locked --offline`, which loads the workspace as
 /// `cargo build -p pathfarm` does. Every member must be there, every target file of every member
@@ -234,6 +249,11 @@ fn the_dependency_stage_is_a_workspace_cargo_accepts() {
                 let (sources, dest) = copy_parts(ins).expect("no --from in the dependency stage");
                 for s in sources {
                     let from = root().join(&s);
+                    if from.is_dir() {
+                        // `COPY DIR DEST`: DIR's contents into DEST.
+                        copy_tree(&from, &scratch.join(dest.trim_start_matches("./")));
+                        continue;
+                    }
                     assert!(from.is_file(), "line {}: {s} is not a file", ins.line);
                     let to_dir = scratch.join(dest.trim_start_matches("./"));
                     std::fs::create_dir_all(&to_dir).expect("create the COPY destination");

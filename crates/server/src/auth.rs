@@ -94,7 +94,19 @@ fn require(state: &AppState, parts: &Parts, want: Role) -> Result<(), ApiError> 
 }
 
 /// Extractor: the request carries a client token (or auth is off).
-pub struct ClientAuth;
+pub struct ClientAuth {
+    /// Whose request it is, as the store keeps it with the jobs it submits: the first 16 hex
+    /// digits of the token's SHA-256 (not the token, which the store must not hold), or `""` when
+    /// the server takes no tokens. Quotas count per owner.
+    pub owner: String,
+}
+
+/// The owner a client token's jobs are stored under ([`ClientAuth::owner`]).
+pub fn owner_of(token: &str) -> String {
+    let mut digest = hex::encode(Sha256::digest(token.as_bytes()));
+    digest.truncate(16);
+    digest
+}
 /// Extractor: the request carries a worker token (or auth is off).
 pub struct WorkerAuth;
 /// Extractor: the request carries any valid token (or auth is off).
@@ -128,7 +140,12 @@ impl WorkerIdentity {
 impl FromRequestParts<AppState> for ClientAuth {
     type Rejection = ApiError;
     async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, ApiError> {
-        require(state, parts, Role::Client).map(|_| ClientAuth)
+        require(state, parts, Role::Client)?;
+        let owner = match bearer(parts) {
+            Some(token) if state.config.auth_required() => owner_of(token),
+            _ => String::new(),
+        };
+        Ok(ClientAuth { owner })
     }
 }
 

@@ -19,6 +19,34 @@ pub const DEFAULT_MAX_LEASES_PER_WORKER: u32 = 4;
 /// The default of [`ServerConfig::worker_expiry`]: ten minutes, twenty default leases.
 pub const DEFAULT_WORKER_EXPIRY: Duration = Duration::from_secs(600);
 
+/// The default of [`ServerConfig::job_retention`]: 30 days.
+pub const DEFAULT_JOB_RETENTION: Duration = Duration::from_secs(30 * 24 * 3600);
+
+/// The default of [`Quotas::max_unfinished_jobs`].
+pub const DEFAULT_MAX_UNFINISHED_JOBS: u64 = 10_000;
+
+/// What one client token may hold in the store at once (with no tokens configured, everyone
+/// together). A submission beyond either is refused with 429 `quota_exceeded`; finishing,
+/// deleting or the retention of jobs makes room again.
+#[derive(Clone, Debug)]
+pub struct Quotas {
+    /// Most jobs not yet finished (queued, running or paused).
+    pub max_unfinished_jobs: Option<u64>,
+    /// Most bytes its jobs may take in the store, as each job's `stored_bytes` counts them at
+    /// submission: its scene and environment image (counted for each job that uses them) and the
+    /// largest accumulation each of its tiles can hold.
+    pub max_stored_bytes: Option<u64>,
+}
+
+impl Default for Quotas {
+    fn default() -> Self {
+        Quotas {
+            max_unfinished_jobs: Some(DEFAULT_MAX_UNFINISHED_JOBS),
+            max_stored_bytes: None,
+        }
+    }
+}
+
 /// Limits on requests, each enforced with a clear 4xx.
 #[derive(Clone, Debug)]
 pub struct Limits {
@@ -132,6 +160,17 @@ pub struct ServerConfig {
     /// 16 samples a pixel in a 64-pixel tile.
     pub min_frame_task_samples: u64,
     pub limits: Limits,
+    /// Finished jobs (completed, cancelled or failed) are deleted this long after they finished,
+    /// with their tiles, tasks and convergence history, and their scene and environment image
+    /// once no job uses them; `None`: kept until deleted through the API.
+    pub job_retention: Option<Duration>,
+    /// Per-client-token limits on what the store holds.
+    pub quotas: Quotas,
+    /// Rows (tiles or tasks) a submission stores per transaction; `None`: the store's default
+    /// ([`crate::store::Store::default_batch_rows`]: batches on SQLite, whose one writer makes
+    /// every other write wait for a submission, the whole plan at once on PostgreSQL, where
+    /// inserting blocks nobody). `pathfarm bench submission` measures both on both.
+    pub submission_batch_rows: Option<usize>,
     /// Most bytes job images take in this server, counted before they are spent: the images kept
     /// for the next request (least recently used let go first), the images requests are using,
     /// and the work of building and encoding them (see [`crate::image_cache`]). A job's image
@@ -175,6 +214,9 @@ impl ServerConfig {
             max_task_samples: 4 << 20,
             min_frame_task_samples: 1 << 16,
             limits: Limits::default(),
+            job_retention: Some(DEFAULT_JOB_RETENTION),
+            quotas: Quotas::default(),
+            submission_batch_rows: None,
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,
             connections: ConnectionLimits::default(),

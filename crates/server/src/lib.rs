@@ -26,7 +26,7 @@ pub mod states;
 pub mod store;
 pub mod tls;
 
-pub use config::{ConnectionLimits, Limits, ServerConfig};
+pub use config::{ConnectionLimits, Limits, Quotas, ServerConfig};
 pub use store::Store;
 
 use axum::extract::DefaultBodyLimit;

@@ -1,22 +1,74 @@
 //! The background loop every server runs: expires leases, marks silent workers lost, collects
 //! registrations idle past the worker expiry, keeps each
-//! job's error estimate current, and ends jobs at their noise target or time limit. Every step is
-//! a transaction on the shared store, so any number of servers can run it side by side.
+//! job's error estimate current, and ends jobs at their noise target or time limit; and, less
+//! often, keeps the store from growing forever ([`housekeeping`]). Every step is a transaction on
+//! the shared store, so any number of servers can run it side by side.
 
 use crate::states::JobEvent;
 use crate::store::{Estimate, JobRow};
 use crate::AppState;
 use pathfarm_wire::api::JobState;
 
+/// How often [`housekeeping`] runs: retention is counted in days, and its queries scan more than
+/// a monitor step's.
+pub const HOUSEKEEPING_INTERVAL: std::time::Duration = std::time::Duration::from_secs(60);
+
 pub async fn run(state: AppState) {
     let mut tick = tokio::time::interval(state.config.monitor_interval);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut last_housekeeping: Option<tokio::time::Instant> = None;
     loop {
         tick.tick().await;
         if let Err(e) = step(&state).await {
             tracing::warn!(error = %e, "monitor step failed");
         }
+        if last_housekeeping.is_none_or(|t| t.elapsed() >= HOUSEKEEPING_INTERVAL) {
+            last_housekeeping = Some(tokio::time::Instant::now());
+            if let Err(e) = housekeeping(&state).await {
+                tracing::warn!(error = %e, "housekeeping failed");
+            }
+        }
     }
+}
+
+/// Deletes finished jobs past [`crate::ServerConfig::job_retention`] (a bounded number per
+/// call) and the blobs no job uses, and fails jobs whose submission was interrupted.
+pub async fn housekeeping(state: &AppState) -> Result<(), crate::error::ApiError> {
+    let store = &state.store;
+    let now = store.now_ms();
+    let grace = crate::store::SUBMISSION_TIMEOUT.as_millis() as i64;
+    for id in store.fail_interrupted_submissions(now - grace).await? {
+        tracing::warn!(job = %id, "job failed: its submission was interrupted");
+    }
+    if let Some(retention) = state.config.job_retention {
+        let cutoff = now.saturating_sub(retention.as_millis().min(i64::MAX as u128) as i64);
+        // A bounded number of rounds: a backlog (a retention just shortened) is worked off over
+        // a few calls rather than in one long one.
+        let mut deleted = Vec::new();
+        for _ in 0..16 {
+            let round = store.collect_finished_jobs(cutoff).await?;
+            let more = round.len() as u64 == crate::store::JOBS_PER_STEP;
+            deleted.extend(round);
+            if !more {
+                break;
+            }
+        }
+        if !deleted.is_empty() {
+            tracing::info!(
+                jobs = deleted.len(),
+                retention_s = retention.as_secs(),
+                "finished jobs past their retention deleted"
+            );
+            for id in &deleted {
+                state.images.forget(id);
+            }
+        }
+    }
+    let blobs = store.collect_unused_blobs(now - grace).await?;
+    if blobs > 0 {
+        tracing::info!(blobs, "scenes and environment images no job uses deleted");
+    }
+    Ok(())
 }
 
 pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {

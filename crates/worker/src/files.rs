@@ -1,9 +1,11 @@
 //! Writing a file so that it is never seen half-written: the scene cache, and the images the
 //! command-line tools save.
 
+use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::SystemTime;
 
 /// Writes `bytes` to `path` atomically: into a temporary file in the same directory, synced to
 /// disk, then renamed over `path`. A crash or a full disk leaves the previous file (or none), never
@@ -11,6 +13,42 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// are kept; a symbolic link is written through (its target is replaced).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let path = resolve_link(path);
+    write_via_temporary(&path, bytes, false, |f| {
+        if let Ok(meta) = std::fs::metadata(&path) {
+            f.set_permissions(meta.permissions())?;
+        }
+        Ok(())
+    })
+}
+
+/// [`write_atomic`] for the scene cache: the file is its owner's alone (0600 on Unix, from the
+/// moment the temporary file is created, so no other user can open it meanwhile), last modified at
+/// `modified` (the cache's recency), and a symbolic link at `path` is replaced by the file, its
+/// target left alone: the rename replaces the directory entry, whatever it is.
+pub(crate) fn write_private(
+    path: &Path,
+    bytes: &[u8],
+    modified: SystemTime,
+) -> std::io::Result<()> {
+    write_via_temporary(path, bytes, true, |f| {
+        #[cfg(unix)]
+        {
+            // The umask may have taken bits from the mode asked for at creation: exactly 0600.
+            use std::os::unix::fs::PermissionsExt;
+            f.set_permissions(std::fs::Permissions::from_mode(0o600))?;
+        }
+        f.set_modified(modified)
+    })
+}
+
+/// Writes `bytes` into a new temporary file beside `path` (readable by its owner only when
+/// `private`), lets `finish` set its permissions and times, syncs it and renames it over `path`.
+fn write_via_temporary(
+    path: &Path,
+    bytes: &[u8],
+    private: bool,
+    finish: impl FnOnce(&File) -> std::io::Result<()>,
+) -> std::io::Result<()> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
@@ -29,17 +67,22 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
         NEXT.fetch_add(1, Ordering::Relaxed)
     ));
     let written = (|| {
-        let mut f = std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)?;
-        f.write_all(bytes)?;
-        if let Ok(meta) = std::fs::metadata(&path) {
-            f.set_permissions(meta.permissions())?;
+        let mut options = std::fs::OpenOptions::new();
+        // `create_new` (O_EXCL) does not follow a link left at the temporary name either.
+        options.write(true).create_new(true);
+        #[cfg(unix)]
+        if private {
+            use std::os::unix::fs::OpenOptionsExt;
+            options.mode(0o600);
         }
+        #[cfg(not(unix))]
+        let _ = private;
+        let mut f = options.open(&tmp)?;
+        f.write_all(bytes)?;
+        finish(&f)?;
         f.sync_all()?;
         drop(f);
-        std::fs::rename(&tmp, &path)
+        std::fs::rename(&tmp, path)
     })();
     if let Err(e) = written {
         let _ = std::fs::remove_file(&tmp);

@@ -47,6 +47,11 @@ pub struct WorkerConfig {
     pub threads: usize,
     /// Where fetched scenes are kept (none: memory only).
     pub cache_dir: Option<PathBuf>,
+    /// The most bytes of scenes and environment images kept in `cache_dir` (default
+    /// [`DEFAULT_CACHE_MAX_BYTES`], 4 GiB): after each write the least recently used files go
+    /// until the directory is within it, and a blob larger than it is used but not kept. Workers
+    /// sharing a directory (`pathfarm up`'s) keep it within the bound together.
+    pub cache_max_bytes: u64,
     /// Target render time of one slice.
     pub slice_seconds: f64,
     /// Fixed samples per pixel per slice instead of timing (tests use it to vary the split).
@@ -54,6 +59,9 @@ pub struct WorkerConfig {
     /// Longest wait between lease attempts while the queue is empty.
     pub idle_poll: Duration,
 }
+
+/// The default [`WorkerConfig::cache_max_bytes`]: 4 GiB.
+pub const DEFAULT_CACHE_MAX_BYTES: u64 = 4 << 30;
 
 impl WorkerConfig {
     pub fn new(server: impl Into<String>) -> Self {
@@ -64,6 +72,7 @@ impl WorkerConfig {
             name: default_name(),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             cache_dir: None,
+            cache_max_bytes: DEFAULT_CACHE_MAX_BYTES,
             slice_seconds: 1.5,
             slice_samples: None,
             idle_poll: Duration::from_millis(500),
@@ -181,7 +190,7 @@ pub async fn run(
         ))
     };
     let mut heartbeat = beat(&session);
-    let mut cache = SceneCache::new(config.cache_dir.clone());
+    let mut cache = SceneCache::new(config.cache_dir.clone(), config.cache_max_bytes);
     let mut report = WorkerReport::default();
     let mut rate = Rate::default();
     let mut idle = Duration::from_millis(20);

@@ -8,7 +8,10 @@
 //! rebuilds only what moves) and the last few frames' scenes are kept too, so a worker neither
 //! reparses the file per frame nor rebuilds a frame per task.
 
+mod disk;
+
 use crate::client::{ApiClient, ClientError};
+use disk::{DiskCache, Stored};
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources, SceneSource};
 use pathfarm_tracer::light::Environment;
 use pathfarm_tracer::Scene;
@@ -67,7 +70,8 @@ struct Source {
 type Frame = (i64, u64);
 
 pub struct SceneCache {
-    dir: Option<PathBuf>,
+    /// The blobs on disk (see [`disk`]); none: memory only.
+    disk: Option<Arc<DiskCache>>,
     loaded: Vec<(Key, Arc<Scene>)>,
     sources: Vec<(Key, Arc<Source>)>,
     frames: Vec<((Key, Frame), Arc<Scene>)>,
@@ -95,10 +99,14 @@ fn is_hash(s: &str) -> bool {
 }
 
 impl SceneCache {
-    /// `dir`: where scene bytes are kept between runs (created on demand); `None` keeps nothing.
-    pub fn new(dir: Option<PathBuf>) -> Self {
+    /// `dir`: where scene bytes are kept between runs (created if missing, at most `max_bytes`
+    /// of them, least recently used out: see [`disk`]); `None` keeps nothing. The directory is
+    /// scanned here, once, before the worker's first lease.
+    pub fn new(dir: Option<PathBuf>, max_bytes: u64) -> Self {
         SceneCache {
-            dir,
+            disk: dir
+                .and_then(|d| DiskCache::open(d, max_bytes))
+                .map(Arc::new),
             loaded: Vec::new(),
             sources: Vec::new(),
             frames: Vec::new(),
@@ -300,7 +308,7 @@ impl SceneCache {
         &self,
         client: &ApiClient,
         hash: &str,
-        what: &str,
+        what: &'static str,
     ) -> Result<Vec<u8>, SceneError> {
         if !is_hash(hash) {
             return Err(SceneError::Load {
@@ -308,53 +316,51 @@ impl SceneCache {
                 message: format!("not a {what} hash"),
             });
         }
-        let path = self.dir.as_ref().map(|d| d.join(format!("{hash}.{what}")));
-        let cached = match &path {
-            Some(p) => tokio::task::spawn_blocking({
-                let p = p.clone();
-                move || std::fs::read(p).ok()
+        let cached = match &self.disk {
+            // The disk cache checks the bytes against the hash (and removes a file that fails).
+            Some(disk) => tokio::task::spawn_blocking({
+                let (disk, hash) = (disk.clone(), hash.to_string());
+                move || disk.get(&hash, what)
             })
             .await
             .ok()
             .flatten(),
             None => None,
         };
-        Ok(
-            match cached.filter(|b| hex::encode(Sha256::digest(b)) == hash) {
-                Some(b) => b,
-                None => {
-                    let b = client.scene(hash).await?;
-                    let got = hex::encode(Sha256::digest(&b));
-                    if got != hash {
-                        return Err(SceneError::Hash {
-                            hash: hash.into(),
-                            got,
-                        });
-                    }
-                    match (&path, &self.dir) {
-                        (Some(p), Some(dir)) => {
-                            // A cache that cannot be written only costs a fetch next time.
-                            let (p, dir) = (p.clone(), dir.clone());
-                            let (b, written) = tokio::task::spawn_blocking(move || {
-                                let written = std::fs::create_dir_all(&dir)
-                                    .and_then(|_| crate::files::write_atomic(&p, &b))
-                                    .map_err(|e| format!("{}: {e}", dir.display()));
-                                (b, written)
-                            })
-                            .await
-                            .map_err(|e| SceneError::Load {
-                                hash: hash.into(),
-                                message: e.to_string(),
-                            })?;
-                            if let Err(e) = written {
-                                tracing::warn!(error = %e, "cannot cache the {what} on disk");
-                            }
-                            b
-                        }
-                        _ => b,
-                    }
-                }
-            },
-        )
+        if let Some(b) = cached {
+            return Ok(b);
+        }
+        let b = client.scene(hash).await?;
+        let got = hex::encode(Sha256::digest(&b));
+        if got != hash {
+            return Err(SceneError::Hash {
+                hash: hash.into(),
+                got,
+            });
+        }
+        let Some(disk) = &self.disk else {
+            return Ok(b);
+        };
+        // A cache that cannot be written only costs a fetch next time.
+        let (disk, key) = (disk.clone(), hash.to_string());
+        let (b, stored) = tokio::task::spawn_blocking(move || {
+            let stored = disk.put(&key, what, &b);
+            (b, stored)
+        })
+        .await
+        .map_err(|e| SceneError::Load {
+            hash: hash.into(),
+            message: e.to_string(),
+        })?;
+        match stored {
+            Ok(Stored::Kept { .. }) => {}
+            Ok(Stored::TooLarge) => tracing::info!(
+                hash,
+                bytes = b.len(),
+                "the {what} is larger than the disk cache (--cache-max-bytes): used, not kept"
+            ),
+            Err(e) => tracing::warn!(error = %e, "cannot cache the {what} on disk"),
+        }
+        Ok(b)
     }
 }

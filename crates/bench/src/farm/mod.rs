@@ -21,6 +21,7 @@ pub mod loadgen;
 mod report;
 pub mod scaling;
 pub mod soak;
+pub mod submission;
 
 use crate::BenchError;
 use harness::{farm_err, unique_suffix, StoreSpec, WorkerSetup};

@@ -38,6 +38,12 @@ pub enum Suite {
     /// their ratio, and the time until every frame has its first pass. Writes frames.md and
     /// frames.json. Not part of `all`.
     Frames,
+    /// A huge submission (2048², tile 16, 240,000 spp: 458,752 tasks; 512² with --quick) while 16
+    /// simulated workers lease and give back tasks in a closed loop, over real HTTP: lease
+    /// latency before and during it, the plan stored in one transaction and in batches, on
+    /// SQLite (and PostgreSQL with --postgres). Writes submission.md and submission.json. Not
+    /// part of `all`.
+    Submission,
 }
 
 #[derive(Args, Debug)]
@@ -217,8 +223,33 @@ fn frames(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn submission(args: BenchArgs) -> anyhow::Result<()> {
+    let scene_path = args.scenes_dir.join("cornell.gltf");
+    anyhow::ensure!(
+        scene_path.is_file(),
+        "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
+        args.scenes_dir.display()
+    );
+    let opts = pathfarm_bench::farm::submission::SubmissionOptions {
+        out_dir: args.out.clone(),
+        scene_path,
+        work_dir: args.out.join("submission-work"),
+        postgres_url: args.postgres,
+        workers: 16,
+        quick: args.quick,
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let (_, markdown) =
+        pathfarm_bench::farm::submission::run(&opts).context("submission benchmark failed")?;
+    let _ = std::fs::remove_dir_all(&opts.work_dir);
+    println!("{markdown}");
+    eprintln!("report in {}", args.out.join("submission.md").display());
+    Ok(())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.suite {
+        Suite::Submission => return submission(args),
         Suite::Frames => return frames(args),
         Suite::Soak => return soak(args),
         Suite::Speed => return speed(args),

@@ -89,6 +89,21 @@ pub struct ServerArgs {
     /// upload) expires: its leases are queued again, its row deleted, its credential void.
     #[arg(long, env = "PATHFARM_WORKER_EXPIRY_SECONDS", default_value_t = 600.0)]
     pub worker_expiry_seconds: f64,
+    /// Days after which a finished job (completed, cancelled or failed) is deleted, with its
+    /// tiles and its scene once no job uses it; 0 keeps finished jobs until deleted.
+    #[arg(long, env = "PATHFARM_JOB_RETENTION_DAYS", default_value_t = 30.0)]
+    pub job_retention_days: f64,
+    /// Most unfinished jobs (queued, running, paused) one client token may have; 0: no limit.
+    #[arg(
+        long,
+        env = "PATHFARM_MAX_UNFINISHED_JOBS_PER_TOKEN",
+        default_value_t = 10_000
+    )]
+    pub max_unfinished_jobs_per_token: u64,
+    /// Most GiB one client token's jobs may take in the store (each job's scene and the largest
+    /// accumulation its tiles can hold); 0: no limit.
+    #[arg(long, env = "PATHFARM_MAX_STORED_GIB_PER_TOKEN", default_value_t = 0.0)]
+    pub max_stored_gib_per_token: f64,
 }
 
 impl ServerArgs {
@@ -135,6 +150,21 @@ impl ServerArgs {
             bail!("--worker-expiry-seconds must be at least --lease-seconds (and at most 1e9)");
         }
         c.worker_expiry = Duration::from_secs_f64(self.worker_expiry_seconds);
+        if !(self.job_retention_days.is_finite() && (0.0..=1e6).contains(&self.job_retention_days))
+        {
+            bail!("--job-retention-days must be between 0 (keep) and 1000000");
+        }
+        c.job_retention = (self.job_retention_days > 0.0)
+            .then(|| Duration::from_secs_f64(self.job_retention_days * 86_400.0));
+        c.quotas.max_unfinished_jobs =
+            (self.max_unfinished_jobs_per_token > 0).then_some(self.max_unfinished_jobs_per_token);
+        if !(self.max_stored_gib_per_token.is_finite()
+            && (0.0..=1e9).contains(&self.max_stored_gib_per_token))
+        {
+            bail!("--max-stored-gib-per-token must be between 0 (no limit) and 1e9");
+        }
+        let stored_bytes = (self.max_stored_gib_per_token * (1u64 << 30) as f64) as u64;
+        c.quotas.max_stored_bytes = (self.max_stored_gib_per_token > 0.0).then_some(stored_bytes);
         Ok(c)
     }
 }

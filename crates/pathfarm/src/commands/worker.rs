@@ -36,6 +36,14 @@ pub struct WorkerArgs {
     /// Where fetched scenes are cached (default: $XDG_CACHE_HOME/pathfarm/scenes or ~/.cache/…).
     #[arg(long, env = "PATHFARM_CACHE_DIR")]
     pub cache_dir: Option<PathBuf>,
+    /// Most bytes of scenes kept in the cache directory, a plain byte count (4 GiB by default):
+    /// the least recently used go first; a scene larger than this is used but not kept.
+    #[arg(
+        long,
+        env = "PATHFARM_CACHE_MAX_BYTES",
+        default_value_t = pathfarm_worker::DEFAULT_CACHE_MAX_BYTES
+    )]
+    pub cache_max_bytes: u64,
     /// Target render time of one uploaded slice, in seconds.
     #[arg(long, env = "PATHFARM_SLICE_SECONDS", default_value_t = 1.5)]
     pub slice_seconds: f64,
@@ -79,6 +87,7 @@ pub async fn run(args: WorkerArgs) -> Result<()> {
         c.name = n;
     }
     c.cache_dir = args.cache_dir.or_else(default_cache_dir);
+    c.cache_max_bytes = args.cache_max_bytes;
     c.slice_seconds = args.slice_seconds.clamp(0.01, 60.0);
     c.slice_samples = args.slice_samples.filter(|&n| n > 0);
     c.idle_poll = Duration::from_millis(500);

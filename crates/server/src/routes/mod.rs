@@ -114,6 +114,10 @@ impl From<crate::store::Error> for ApiError {
             E::TooManyLeases { .. } => {
                 ApiError::new(StatusCode::TOO_MANY_REQUESTS, "too_many_leases", message)
             }
+            E::QuotaExceeded { .. } => {
+                ApiError::new(StatusCode::TOO_MANY_REQUESTS, "quota_exceeded", message)
+            }
+            E::DeletedWhileStored(_) => ApiError::conflict("deleted_while_stored", message),
             E::TaskNotLeased { .. } => ApiError::conflict("task_not_leased", message),
             E::SliceOutOfOrder { .. } => ApiError::conflict("slice_out_of_order", message),
             E::InvalidState(_) => ApiError::conflict("invalid_state", message),

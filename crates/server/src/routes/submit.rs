@@ -96,7 +96,7 @@ enum CheckError {
 /// are loaded here, as a worker will load them, so a broken one is refused with a 422 before any
 /// job exists.
 pub async fn submit(
-    _: ClientAuth,
+    auth: ClientAuth,
     State(state): State<AppState>,
     multipart: Result<Multipart, MultipartRejection>,
 ) -> ApiResult<(StatusCode, Json<JobCreated>)> {
@@ -161,6 +161,16 @@ pub async fn submit(
         .ok_or_else(|| ApiError::bad_request("bad_multipart", "missing the `settings` part"))?;
     validate(&state, &settings, scene.len())?;
     let uploaded = environment_part(&state, &mut settings, environment)?;
+    // The quotas, before the scene is loaded (the store checks them again as it stores the job).
+    // A stored environment image named by hash is counted once it is read, by the store.
+    let stored_bytes = accumulation_bytes(&settings)
+        .saturating_add(scene.len() as u64)
+        .saturating_add(uploaded.as_ref().map_or(0, |(_, b)| b.len() as u64));
+    state
+        .store
+        .usage(&auth.owner)
+        .await?
+        .admit(stored_bytes, &state.config.quotas)?;
 
     // Load the scene exactly as a worker will (no external resources: a URI in a submitted scene
     // never reads the server's files or the network), then the environment, as the worker builds
@@ -249,20 +259,29 @@ pub async fn submit(
     let samples_planned =
         settings.width as u64 * settings.height as u64 * settings.spp as u64 * frame_count;
     let task_count = tasks.len() as u64;
+    let stored_bytes = accumulation_bytes(&settings)
+        .saturating_add(scene.len() as u64)
+        .saturating_add(environment.as_ref().map_or(0, |(_, b)| b.len() as u64));
     state
         .store
-        .create_job(NewJob {
-            id: id.clone(),
-            name,
-            settings,
-            scene_hash: hash.clone(),
-            scene_bytes: scene.to_vec(),
-            environment: environment.map(|(h, b)| (h, b.to_vec())),
-            warnings,
-            tiles,
-            tasks,
-            samples_planned,
-        })
+        .create_job(
+            NewJob {
+                id: id.clone(),
+                name,
+                settings,
+                scene_hash: hash.clone(),
+                scene_bytes: scene.to_vec(),
+                environment: environment.map(|(h, b)| (h, b.to_vec())),
+                warnings,
+                tiles,
+                tasks,
+                samples_planned,
+                owner: auth.owner,
+                stored_bytes,
+            },
+            &state.config.quotas,
+            state.config.submission_batch_rows,
+        )
         .await?;
     tracing::info!(job = %id, scene = %hash, tasks = task_count, "job submitted");
     Ok((
@@ -355,6 +374,21 @@ async fn environment_image(
         },
         (None, None) => Ok(None),
     }
+}
+
+/// The most bytes a job's tiles can take in the store: every tile's largest accumulation (a
+/// slice's encoding, affine in its pixels), for every frame.
+fn accumulation_bytes(s: &JobSettings) -> u64 {
+    let (w, h, spp) = (u64::from(s.width), u64::from(s.height), u64::from(s.spp));
+    let edge = u64::from(s.tile_size.max(1));
+    let tiles = w.div_ceil(edge) * h.div_ceil(edge);
+    let fixed = pathfarm_wire::max_slice_body_bytes(0, spp);
+    let per_pixel = pathfarm_wire::max_slice_body_bytes(1, spp) - fixed;
+    let frames = s.frame_list().ok().flatten().map_or(1, |f| f.len() as u64);
+    tiles
+        .saturating_mul(fixed)
+        .saturating_add(per_pixel.saturating_mul(w * h))
+        .saturating_mul(frames)
 }
 
 fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<()> {

@@ -27,6 +27,19 @@ pub enum Error {
          release one first"
     )]
     TooManyLeases { worker_id: String, held: u64 },
+    /// A submission would take its client token past one of its quotas ([`crate::Quotas`]).
+    #[error(
+        "quota exceeded: {what} would be {would_be}, over this client token's limit of {limit}; \
+         finish or delete jobs first"
+    )]
+    QuotaExceeded {
+        what: &'static str,
+        would_be: u64,
+        limit: u64,
+    },
+    /// The job was deleted while its submission was still being stored.
+    #[error("job {0} was deleted while its submission was being stored")]
+    DeletedWhileStored(String),
     /// A slice does not start where the task's merged samples end.
     #[error(
         "task {task_id} has samples up to {done_end} merged; a slice starting at {begin} does \

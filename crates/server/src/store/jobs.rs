@@ -1,8 +1,7 @@
 //! Jobs, their tiles and scenes.
 
 use super::error::{Error, StoreResult};
-use super::{Dialect, Store};
-use crate::scheduler::{PlannedTask, PlannedTile};
+use super::Store;
 use crate::states::{job_transition, JobEvent, TaskState, WorkerEvent};
 use pathfarm_tracer::Tile;
 use pathfarm_wire::api::{JobSettings, JobState};
@@ -114,108 +113,7 @@ impl TileRow {
     }
 }
 
-pub struct NewJob {
-    pub id: String,
-    pub name: String,
-    pub settings: JobSettings,
-    pub scene_hash: String,
-    pub scene_bytes: Vec<u8>,
-    /// The environment image named by `settings.environment.image`: its hash and bytes, stored
-    /// once per hash beside the scenes.
-    pub environment: Option<(String, Vec<u8>)>,
-    /// The scene loader's warnings, already cleaned and capped ([`crate::routes`]).
-    pub warnings: Vec<String>,
-    pub tiles: Vec<PlannedTile>,
-    pub tasks: Vec<PlannedTask>,
-    pub samples_planned: u64,
-}
-
-/// Rows per multi-row INSERT (7 parameters each stays far below both stores' limits).
-const INSERT_BATCH: usize = 500;
-
 impl Store {
-    /// Stores the scene and the environment image (each once per content hash), the job, its
-    /// tiles and its tasks, atomically.
-    pub async fn create_job(&self, job: NewJob) -> StoreResult<()> {
-        let settings = serde_json::to_string(&job.settings)
-            .map_err(|e| Error::internal(format!("cannot encode settings: {e}")))?;
-        let warnings = serde_json::to_string(&job.warnings)
-            .map_err(|e| Error::internal(format!("cannot encode warnings: {e}")))?;
-        let now = self.now_ms();
-        let mut w = self.write().await?;
-        let blobs = std::iter::once((&job.scene_hash, &job.scene_bytes))
-            .chain(job.environment.as_ref().map(|(h, b)| (h, b)));
-        for (hash, bytes) in blobs {
-            sqlx::query(
-                "INSERT INTO scenes (hash, bytes, size, created_ms) VALUES ($1, $2, $3, $4) \
-                 ON CONFLICT (hash) DO NOTHING",
-            )
-            .bind(hash)
-            .bind(bytes)
-            .bind(bytes.len() as i64)
-            .bind(now)
-            .execute(&mut *w.tx)
-            .await?;
-        }
-        sqlx::query(
-            "INSERT INTO jobs (id, name, scene_hash, settings, priority, state, samples_planned, \
-             queued_tasks, created_ms, environment_hash, warnings) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
-        )
-        .bind(&job.id)
-        .bind(&job.name)
-        .bind(&job.scene_hash)
-        .bind(&settings)
-        .bind(job.settings.priority as i64)
-        .bind(JobState::Queued.as_str())
-        .bind(job.samples_planned as i64)
-        .bind(job.tasks.len() as i64)
-        .bind(now)
-        .bind(job.environment.as_ref().map(|(h, _)| h.as_str()))
-        .bind(&warnings)
-        .execute(&mut *w.tx)
-        .await?;
-        for (chunk_index, chunk) in job.tiles.chunks(INSERT_BATCH).enumerate() {
-            let mut sql = String::from(
-                "INSERT INTO tiles (job_id, tile_index, x0, y0, width, height, frame) VALUES ",
-            );
-            push_placeholders(&mut sql, chunk.len(), 7, self.dialect());
-            let mut q = sqlx::query(sqlx::AssertSqlSafe(sql));
-            for (i, PlannedTile { tile: t, frame }) in chunk.iter().enumerate() {
-                q = q
-                    .bind(&job.id)
-                    .bind((chunk_index * INSERT_BATCH + i) as i64)
-                    .bind(t.x0 as i64)
-                    .bind(t.y0 as i64)
-                    .bind(t.width as i64)
-                    .bind(t.height as i64)
-                    .bind(*frame);
-            }
-            q.execute(&mut *w.tx).await?;
-        }
-        for chunk in job.tasks.chunks(INSERT_BATCH) {
-            let mut sql = String::from(
-                "INSERT INTO tasks (job_id, tile_index, pass, sample_begin, sample_end, done_end, \
-                 state) VALUES ",
-            );
-            push_placeholders(&mut sql, chunk.len(), 7, self.dialect());
-            let mut q = sqlx::query(sqlx::AssertSqlSafe(sql));
-            for t in chunk {
-                q = q
-                    .bind(&job.id)
-                    .bind(t.tile_index as i64)
-                    .bind(t.pass as i64)
-                    .bind(t.sample_begin as i64)
-                    .bind(t.sample_end as i64)
-                    .bind(t.sample_begin as i64)
-                    .bind(TaskState::Queued.as_str());
-            }
-            q.execute(&mut *w.tx).await?;
-        }
-        w.commit().await?;
-        Ok(())
-    }
-
     pub async fn job(&self, id: &str) -> StoreResult<JobRow> {
         let row = sqlx::query(sql!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = $1"))
             .bind(id)
@@ -425,26 +323,5 @@ impl Store {
             Some(r) => Ok(r.try_get("bytes")?),
             None => Err(Error::not_found("scene", hash)),
         }
-    }
-}
-
-/// Appends `($1, $2, …), (…)` for `rows` rows of `cols` parameters.
-fn push_placeholders(sql: &mut String, rows: usize, cols: usize, dialect: Dialect) {
-    use std::fmt::Write;
-    for r in 0..rows {
-        sql.push_str(if r == 0 { "(" } else { ", (" });
-        for c in 0..cols {
-            sql.push_str(if c == 0 { "" } else { ", " });
-            match dialect {
-                // Anonymous parameters: sqlx binds a named one (`$n`) by asking SQLite for each
-                // parameter's name, a scan of the statement's name list, so a 3,500-parameter
-                // insert cost 6 million steps; `?` is bound by position.
-                Dialect::Sqlite => sql.push('?'),
-                Dialect::Postgres => {
-                    let _ = write!(sql, "${}", r * cols + c + 1);
-                }
-            }
-        }
-        sql.push(')');
     }
 }

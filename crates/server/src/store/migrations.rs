@@ -29,6 +29,7 @@ pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
         "0003_environment_and_warnings.sql",
         "0004_worker_identity.sql",
         "0005_frames.sql",
+        "0006_retention_and_quotas.sql",
     ))
 });
 
@@ -40,6 +41,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0003_environment_and_warnings.sql",
         "0004_worker_identity.sql",
         "0005_frames.sql",
+        "0006_retention_and_quotas.sql",
     ))
 });
 
