@@ -893,3 +893,39 @@ async fn up_keeps_tokens_out_of_its_workers_environment() {
     let status = up.wait_exit(Duration::from_secs(30)).await;
     assert!(status.success(), "`pathfarm up` exited {status}");
 }
+
+/// A store that cannot be opened is reported with its URL, the password hidden: in the user
+/// info and in a `password` query parameter.
+#[test]
+fn a_failed_store_start_does_not_print_the_password() {
+    let Some(base) = std::env::var("PATHFARM_TEST_POSTGRES_URL")
+        .ok()
+        .filter(|u| !u.is_empty())
+    else {
+        eprintln!("SKIPPED: PATHFARM_TEST_POSTGRES_URL is not set");
+        return;
+    };
+    let dir = TestDir::new("store-password");
+    let host = base
+        .split_once("://")
+        .and_then(|(_, rest)| rest.rsplit_once('@').map_or(Some(rest), |(_, h)| Some(h)))
+        .and_then(|rest| rest.split_once('/'))
+        .map(|(host, _)| host.to_string())
+        .expect("a host in PATHFARM_TEST_POSTGRES_URL");
+    for db in [
+        format!("postgres://postgres:s3cret-pw@{host}/pathfarm_no_such_database"),
+        format!("postgres://{host}/pathfarm_no_such_database?user=postgres&password=s3cret-pw"),
+    ] {
+        let out = command(&dir)
+            .args(["serve", "--db", &db, "--listen", "127.0.0.1:0"])
+            .output()
+            .expect("run pathfarm serve");
+        assert!(!out.status.success(), "{db}: serve started");
+        let line = one_error_line(&out, "serve with a database that does not exist");
+        assert!(!line.contains("s3cret-pw"), "{line}");
+        assert!(
+            line.contains("***") && line.contains("pathfarm_no_such_database"),
+            "{line}"
+        );
+    }
+}

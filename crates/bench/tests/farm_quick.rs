@@ -67,11 +67,21 @@ fn run_and_check(quick: bool) {
         "first preview must come before the job ends: {o:?}"
     );
 
-    // Simulated workers: one run per store and worker count, each merged what it was told.
+    // Simulated workers: one run per store and worker count, each merged what it was told, and
+    // SQLite with synchronous=NORMAL at the largest count.
     let stores = if postgres_url.is_some() { 2 } else { 1 };
     assert_eq!(
         r.loadgen.runs.len(),
-        stores * r.loadgen.worker_counts.len(),
+        stores * r.loadgen.worker_counts.len() + 1,
+        "{:?}",
+        r.loadgen.runs
+    );
+    let largest = r.loadgen.worker_counts.iter().max().copied();
+    assert!(
+        r.loadgen
+            .runs
+            .iter()
+            .any(|run| run.store.contains("NORMAL") && Some(run.workers) == largest),
         "{:?}",
         r.loadgen.runs
     );

@@ -47,6 +47,28 @@ impl Default for Quotas {
     }
 }
 
+/// How SQLite syncs its write-ahead log ([`ServerConfig::sqlite_synchronous`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SqliteSynchronous {
+    /// Every commit is on the disk before it is answered: an acknowledged submission, cancel,
+    /// delete, lease or upload survives an OS crash or power loss.
+    #[default]
+    Full,
+    /// Commits are on the disk at WAL checkpoints: a process crash loses nothing, an OS crash or
+    /// power loss the last transactions (acknowledged ones included). Faster on slow disks.
+    Normal,
+}
+
+impl SqliteSynchronous {
+    /// The `PRAGMA synchronous` value.
+    pub fn pragma(self) -> &'static str {
+        match self {
+            SqliteSynchronous::Full => "FULL",
+            SqliteSynchronous::Normal => "NORMAL",
+        }
+    }
+}
+
 /// Limits on requests, each enforced with a clear 4xx.
 #[derive(Clone, Debug)]
 pub struct Limits {
@@ -166,6 +188,8 @@ pub struct ServerConfig {
     pub job_retention: Option<Duration>,
     /// Per-client-token limits on what the store holds.
     pub quotas: Quotas,
+    /// SQLite's durability (PostgreSQL's is its own `synchronous_commit`).
+    pub sqlite_synchronous: SqliteSynchronous,
     /// Rows (tiles or tasks) a submission stores per transaction; `None`: the store's default
     /// ([`crate::store::Store::default_batch_rows`]: batches on SQLite, whose one writer makes
     /// every other write wait for a submission, the whole plan at once on PostgreSQL, where
@@ -216,6 +240,7 @@ impl ServerConfig {
             limits: Limits::default(),
             job_retention: Some(DEFAULT_JOB_RETENTION),
             quotas: Quotas::default(),
+            sqlite_synchronous: SqliteSynchronous::Full,
             submission_batch_rows: None,
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,

@@ -26,7 +26,7 @@ pub mod states;
 pub mod store;
 pub mod tls;
 
-pub use config::{ConnectionLimits, Limits, Quotas, ServerConfig};
+pub use config::{ConnectionLimits, Limits, Quotas, ServerConfig, SqliteSynchronous};
 pub use store::Store;
 
 use axum::extract::DefaultBodyLimit;
@@ -59,7 +59,12 @@ impl std::ops::Deref for AppState {
 impl AppState {
     /// Opens the store (applying migrations) and builds the state.
     pub async fn open(config: ServerConfig) -> Result<AppState, store::StoreError> {
-        let store = Store::connect_with_clock(&config.db_url, config.clock.clone()).await?;
+        let store = Store::connect_with(
+            &config.db_url,
+            config.clock.clone(),
+            config.sqlite_synchronous,
+        )
+        .await?;
         let scene_checks = tokio::sync::Semaphore::new(config.limits.scene_checks.max(1));
         let images = image_cache::ImageCache::new(config.image_cache_bytes, config.image_wait);
         Ok(AppState(Arc::new(Inner {

@@ -147,9 +147,10 @@ pub(crate) struct Server {
 impl Server {
     pub(crate) async fn start(config: ServerConfig) -> Result<Server, BenchError> {
         let db = config.db_url.clone();
-        let state = AppState::open(config)
-            .await
-            .map_err(|e| farm_err(format!("cannot open the store {db}: {e}")))?;
+        let state = AppState::open(config).await.map_err(|e| {
+            let db = pathfarm_server::store::redact_url(&db);
+            farm_err(format!("cannot open the store {db}: {e}"))
+        })?;
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .map_err(|e| farm_err(format!("cannot listen on 127.0.0.1: {e}")))?;

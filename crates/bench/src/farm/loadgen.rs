@@ -40,6 +40,8 @@ pub struct LoadgenConfig {
     pub spp: u32,
     /// Tile edge: each upload is one sample of one `tile_size`² tile.
     pub tile_size: u32,
+    /// A SQLite store's durability (the server's default unless a run compares them).
+    pub sqlite_synchronous: pathfarm_server::SqliteSynchronous,
 }
 
 impl LoadgenConfig {
@@ -54,6 +56,7 @@ impl LoadgenConfig {
             height: 512,
             spp: 64,
             tile_size: 8,
+            sqlite_synchronous: Default::default(),
         }
     }
 }
@@ -242,6 +245,7 @@ pub async fn run(
         )));
     }
     let mut config = ServerConfig::new(db_url);
+    config.sqlite_synchronous = cfg.sqlite_synchronous;
     // Nothing may expire during a run: the simulated workers send no heartbeats.
     config.lease_duration = Duration::from_secs(600);
     let server = Server::start(config).await?;

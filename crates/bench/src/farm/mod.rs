@@ -216,19 +216,32 @@ fn measure(
     ))?;
     drop(direct);
 
-    let mut stores = vec!["sqlite".to_string()];
+    // SQLite as the server runs it (synchronous=FULL), at the largest worker count also with
+    // synchronous=NORMAL: what durability costs the upload rate.
+    const SQLITE_NORMAL: &str = "sqlite (synchronous=NORMAL)";
+    let mut stores = vec!["sqlite".to_string(), SQLITE_NORMAL.to_string()];
     if opts.postgres_url.is_some() {
         stores.push("postgres".to_string());
     }
     let (width, height, spp, tile_size) = plan.loadgen_job;
+    let largest = plan.loadgen_workers.iter().copied().max().unwrap_or(1);
     let mut runs = Vec::new();
     for store in &stores {
         for &workers in &plan.loadgen_workers {
+            let normal = store == SQLITE_NORMAL;
+            if normal && workers != largest {
+                continue;
+            }
             let cfg = LoadgenConfig {
                 width,
                 height,
                 spp,
                 tile_size,
+                sqlite_synchronous: if normal {
+                    pathfarm_server::SqliteSynchronous::Normal
+                } else {
+                    pathfarm_server::SqliteSynchronous::Full
+                },
                 ..LoadgenConfig::new(workers, plan.loadgen_seconds)
             };
             let run = rt.block_on(async {
@@ -236,7 +249,8 @@ fn measure(
                     ("postgres", Some(url)) => StoreSpec::postgres(url).await?,
                     _ => StoreSpec::sqlite(dir, &format!("loadgen-{workers}.db"))?,
                 };
-                let r = loadgen::run(&spec.url(), spec.kind(), scene, &cfg).await;
+                let label = if normal { SQLITE_NORMAL } else { spec.kind() };
+                let r = loadgen::run(&spec.url(), label, scene, &cfg).await;
                 spec.dispose().await;
                 r
             })?;

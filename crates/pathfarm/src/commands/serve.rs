@@ -104,6 +104,24 @@ pub struct ServerArgs {
     /// accumulation its tiles can hold); 0: no limit.
     #[arg(long, env = "PATHFARM_MAX_STORED_GIB_PER_TOKEN", default_value_t = 0.0)]
     pub max_stored_gib_per_token: f64,
+    /// How a SQLite store syncs: `full` (every commit on the disk before it is answered) or
+    /// `normal` (at checkpoints: an OS crash or power loss can lose the last acknowledged
+    /// transactions; faster on slow disks). PostgreSQL has its own `synchronous_commit`.
+    #[arg(
+        long,
+        env = "PATHFARM_SQLITE_SYNCHRONOUS",
+        value_enum,
+        default_value = "full"
+    )]
+    pub sqlite_synchronous: SqliteSync,
+}
+
+/// `--sqlite-synchronous`.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum SqliteSync {
+    Full,
+    Normal,
 }
 
 impl ServerArgs {
@@ -165,6 +183,10 @@ impl ServerArgs {
         }
         let stored_bytes = (self.max_stored_gib_per_token * (1u64 << 30) as f64) as u64;
         c.quotas.max_stored_bytes = (self.max_stored_gib_per_token > 0.0).then_some(stored_bytes);
+        c.sqlite_synchronous = match self.sqlite_synchronous {
+            SqliteSync::Full => pathfarm_server::SqliteSynchronous::Full,
+            SqliteSync::Normal => pathfarm_server::SqliteSynchronous::Normal,
+        };
         Ok(c)
     }
 }
@@ -242,9 +264,12 @@ pub async fn start(
 ) -> Result<(AppState, tokio::net::TcpListener)> {
     check_exposure(&addr, &config)?;
     let db = config.db_url.clone();
-    let state = AppState::open(config)
-        .await
-        .with_context(|| format!("cannot open the store {db}"))?;
+    let state = AppState::open(config).await.with_context(|| {
+        format!(
+            "cannot open the store {}",
+            pathfarm_server::store::redact_url(&db)
+        )
+    })?;
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .with_context(|| format!("cannot listen on {addr}"))?;

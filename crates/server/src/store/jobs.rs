@@ -301,17 +301,35 @@ impl Store {
         free_job_workers(&mut w, id).await?;
         let scene: String = row.try_get("scene_hash")?;
         let environment: Option<String> = row.try_get("environment_hash")?;
-        for hash in std::iter::once(scene).chain(environment) {
-            sqlx::query(
-                "DELETE FROM scenes WHERE hash = $1 AND NOT EXISTS \
-                 (SELECT 1 FROM jobs WHERE scene_hash = $1 OR environment_hash = $1)",
-            )
-            .bind(&hash)
-            .execute(&mut *w.tx)
-            .await?;
-        }
         w.commit().await?;
+        // Its blobs after the job is gone, each apart: a submission may be taking the same blob
+        // meanwhile (on PostgreSQL), and then the blob stays and the deletion is still done.
+        for hash in std::iter::once(scene).chain(environment) {
+            self.delete_blob_if_unused(&hash).await?;
+        }
         Ok(())
+    }
+
+    /// Deletes the scene or environment image `hash` when no job uses it; true when it did. A
+    /// concurrent submission that took the blob meanwhile (PostgreSQL: the foreign key refuses
+    /// the delete) keeps it.
+    pub(super) async fn delete_blob_if_unused(&self, hash: &str) -> StoreResult<bool> {
+        let mut w = self.write().await?;
+        let deleted = sqlx::query(
+            "DELETE FROM scenes WHERE hash = $1 AND NOT EXISTS \
+             (SELECT 1 FROM jobs WHERE scene_hash = $1 OR environment_hash = $1)",
+        )
+        .bind(hash)
+        .execute(&mut *w.tx)
+        .await;
+        match deleted {
+            Ok(r) => {
+                w.commit().await?;
+                Ok(r.rows_affected() > 0)
+            }
+            Err(sqlx::Error::Database(e)) if e.is_foreign_key_violation() => Ok(false),
+            Err(e) => Err(e.into()),
+        }
     }
 
     pub async fn scene(&self, hash: &str) -> StoreResult<Vec<u8>> {

@@ -90,12 +90,15 @@ pub enum StoreError {
     Sql(#[from] sqlx::Error),
 }
 
+/// Cheap to clone (its parts are shared): a group commit runs on a clone of its own
+/// ([`group_commit`]).
+#[derive(Clone)]
 pub struct Store {
     pool: AnyPool,
     dialect: Dialect,
-    sqlite_writer: Option<Mutex<()>>,
+    sqlite_writer: Option<std::sync::Arc<Mutex<()>>>,
     /// SQLite only: merges and leases waiting for the next group commit.
-    write_queue: Option<group_commit::WriteQueue>,
+    write_queue: Option<std::sync::Arc<group_commit::WriteQueue>>,
     /// The time of every timestamp ([`Store::now_ms`]).
     clock: std::sync::Arc<dyn Clock>,
 }
@@ -158,13 +161,19 @@ pub fn normalize_url(url: &str) -> Result<(String, Dialect), StoreError> {
 impl Store {
     /// Connects, configures SQLite (WAL, busy timeout) and applies the migrations.
     pub async fn connect(url: &str) -> Result<Store, StoreError> {
-        Store::connect_with_clock(url, std::sync::Arc::new(SystemClock)).await
+        Store::connect_with(
+            url,
+            std::sync::Arc::new(SystemClock),
+            crate::config::SqliteSynchronous::default(),
+        )
+        .await
     }
 
-    /// [`Store::connect`] with the clock its timestamps come from.
-    pub async fn connect_with_clock(
+    /// [`Store::connect`] with the clock its timestamps come from and SQLite's durability.
+    pub async fn connect_with(
         url: &str,
         clock: std::sync::Arc<dyn Clock>,
+        synchronous: crate::config::SqliteSynchronous,
     ) -> Result<Store, StoreError> {
         sqlx::any::install_default_drivers();
         let (url, dialect) = normalize_url(url)?;
@@ -176,8 +185,10 @@ impl Store {
             .after_connect(move |conn, _| {
                 Box::pin(async move {
                     if dialect == Dialect::Sqlite {
-                        // WAL: readers never block the writer; NORMAL sync is durable across a
-                        // process crash (only an OS crash can lose the last transactions).
+                        // WAL: readers never block the writer. `synchronous` FULL by default:
+                        // every commit is synced before it is answered (NORMAL syncs at
+                        // checkpoints, so an OS crash can lose acknowledged transactions; its
+                        // gain on the upload rate is in docs/benchmarks.md).
                         // A page cache of up to 64 MiB per connection (8 at most, so the
                         // server's memory stays bounded): with SQLite's default 2 MB a farm's
                         // task and tile pages were read back with a system call each.
@@ -185,11 +196,12 @@ impl Store {
                         // The busy timeout comes first: a connection opened while the farm is
                         // busy may have to wait for a lock in the pragmas after it (a soak run
                         // once answered two leases "database is locked" from a new connection).
-                        conn.execute(
+                        conn.execute(sqlx::AssertSqlSafe(format!(
                             "PRAGMA busy_timeout = 10000; PRAGMA journal_mode = WAL; \
-                             PRAGMA synchronous = NORMAL; PRAGMA foreign_keys = ON; \
+                             PRAGMA synchronous = {}; PRAGMA foreign_keys = ON; \
                              PRAGMA cache_size = -65536;",
-                        )
+                            synchronous.pragma()
+                        )))
                         .await?;
                     }
                     Ok(())
@@ -199,7 +211,7 @@ impl Store {
             .connect(&url)
             .await
             .map_err(|source| StoreError::Connect {
-                url: redact(&url),
+                url: redact_url(&url),
                 source,
             })?;
         match dialect {
@@ -210,7 +222,8 @@ impl Store {
             clock,
             pool,
             dialect,
-            sqlite_writer: (dialect == Dialect::Sqlite).then(|| Mutex::new(())),
+            sqlite_writer: (dialect == Dialect::Sqlite)
+                .then(|| std::sync::Arc::new(Mutex::new(()))),
             write_queue: (dialect == Dialect::Sqlite).then(Default::default),
         })
     }
@@ -261,23 +274,71 @@ impl Store {
     }
 }
 
-/// Hides a password in a database URL for error messages.
-fn redact(url: &str) -> String {
-    match (url.find("://"), url.rfind('@')) {
+/// A database URL with its password hidden, for messages and logs: the one after the user name
+/// (`postgres://user:***@host/db`) and a `password` query parameter (`?password=***`).
+pub fn redact_url(url: &str) -> String {
+    let (base, query) = match url.split_once('?') {
+        Some((b, q)) => (b, Some(q)),
+        None => (url, None),
+    };
+    let mut out = match (base.find("://"), base.rfind('@')) {
         (Some(s), Some(at)) if at > s => {
-            let creds = &url[s + 3..at];
+            let creds = &base[s + 3..at];
             match creds.find(':') {
-                Some(c) => format!("{}{}:***{}", &url[..s + 3], &creds[..c], &url[at..]),
-                None => url.to_string(),
+                Some(c) => format!("{}{}:***{}", &base[..s + 3], &creds[..c], &base[at..]),
+                None => base.to_string(),
             }
         }
-        _ => url.to_string(),
+        _ => base.to_string(),
+    };
+    if let Some(query) = query {
+        let params: Vec<String> = query
+            .split('&')
+            .map(|p| match p.split_once('=') {
+                Some((k, _)) if k.eq_ignore_ascii_case("password") => format!("{k}=***"),
+                _ => p.to_string(),
+            })
+            .collect();
+        out.push('?');
+        out.push_str(&params.join("&"));
     }
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::SqliteSynchronous;
+
+    #[tokio::test]
+    async fn sqlite_syncs_as_configured() {
+        let dir = std::env::temp_dir().join(format!("pathfarm-sync-{}", uuid::Uuid::new_v4()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (setting, want) in [(SqliteSynchronous::Full, 2), (SqliteSynchronous::Normal, 1)] {
+            let url = format!("sqlite://{}", dir.join(format!("{want}.db")).display());
+            let store = Store::connect_with(&url, std::sync::Arc::new(SystemClock), setting)
+                .await
+                .unwrap();
+            // Every connection of the pool, not only the first.
+            let mut conns = Vec::new();
+            for _ in 0..3 {
+                let mut c = store.pool().acquire().await.unwrap();
+                let level: i64 = sqlx::query("PRAGMA synchronous")
+                    .fetch_one(&mut *c)
+                    .await
+                    .unwrap()
+                    .try_get(0)
+                    .unwrap();
+                assert_eq!(level, want, "{setting:?}");
+                conns.push(c);
+            }
+        }
+        assert_eq!(
+            SqliteSynchronous::default(),
+            SqliteSynchronous::Full,
+            "durable by default"
+        );
+    }
 
     #[test]
     fn urls() {
@@ -294,6 +355,21 @@ mod tests {
             Dialect::Postgres
         );
         assert!(normalize_url("mysql://x").is_err());
-        assert_eq!(redact("postgres://u:secret@h/db"), "postgres://u:***@h/db");
+        assert_eq!(
+            redact_url("postgres://u:secret@h/db"),
+            "postgres://u:***@h/db"
+        );
+        assert_eq!(
+            redact_url("postgres://u:s:e@cret@h/db?sslmode=disable&Password=pw&x=1"),
+            "postgres://u:***@h/db?sslmode=disable&Password=***&x=1"
+        );
+        assert_eq!(
+            redact_url("postgres://h/db?password="),
+            "postgres://h/db?password=***"
+        );
+        assert_eq!(
+            redact_url("sqlite://farm.db?mode=rwc"),
+            "sqlite://farm.db?mode=rwc"
+        );
     }
 }

@@ -41,16 +41,20 @@ impl Store {
     /// `cutoff_ms`; returns how many. Deleting a job deletes its blobs when it was their last
     /// user, so this finds only what a race or an older server left behind.
     pub async fn collect_unused_blobs(&self, cutoff_ms: i64) -> StoreResult<u64> {
-        let mut w = self.write().await?;
-        let n = sqlx::query(
-            "DELETE FROM scenes WHERE created_ms < $1 AND NOT EXISTS \
+        let rows = sqlx::query(
+            "SELECT hash FROM scenes WHERE created_ms < $1 AND NOT EXISTS \
              (SELECT 1 FROM jobs WHERE scene_hash = scenes.hash OR environment_hash = scenes.hash)",
         )
         .bind(cutoff_ms)
-        .execute(&mut *w.tx)
-        .await?
-        .rows_affected();
-        w.commit().await?;
+        .fetch_all(self.pool())
+        .await?;
+        let mut n = 0;
+        for row in rows {
+            let hash: String = row.try_get("hash")?;
+            if self.delete_blob_if_unused(&hash).await? {
+                n += 1;
+            }
+        }
         Ok(n)
     }
 

@@ -139,9 +139,12 @@ impl Store {
         let blobs = std::iter::once((&job.scene_hash, &job.scene_bytes))
             .chain(job.environment.as_ref().map(|(h, b)| (h, b)));
         for (hash, bytes) in blobs {
+            // An update of a stored blob (to itself) locks its row: a deletion of its last
+            // job under way elsewhere (PostgreSQL) either finishes first, and the blob is stored
+            // again, or waits for this job to be stored, and then keeps the blob.
             sqlx::query(
                 "INSERT INTO scenes (hash, bytes, size, created_ms) VALUES ($1, $2, $3, $4) \
-                 ON CONFLICT (hash) DO NOTHING",
+                 ON CONFLICT (hash) DO UPDATE SET size = scenes.size",
             )
             .bind(hash)
             .bind(bytes)

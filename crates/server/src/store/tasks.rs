@@ -425,37 +425,55 @@ impl Store {
         }
         if state == TaskState::Leased {
             let job_id: String = task.try_get("job_id")?;
-            self.requeue(&mut w, task_id, &job_id, worker_id.as_deref())
+            self.requeue(&mut w, &[(task_id, job_id, worker_id)])
                 .await?;
         }
         w.commit().await?;
         Ok(())
     }
 
+    /// Puts leased tasks back in the queue: `(task, job, worker)` each. Rows are written in the
+    /// documented lock order (tasks, jobs, workers), and within each table in the order of their
+    /// ids, with one update per job: two servers requeueing overlapping jobs and workers (their
+    /// monitors expiring leases at once) lock them in the same order, so they cannot deadlock.
     pub(super) async fn requeue(
         &self,
         w: &mut super::WriteTx<'_>,
-        task_id: i64,
-        job_id: &str,
-        worker_id: Option<&str>,
+        leases: &[(i64, String, Option<String>)],
     ) -> StoreResult<()> {
         let to = task_transition(TaskState::Leased, TaskEvent::Requeue).map_err(Error::internal)?;
-        sqlx::query(
-            "UPDATE tasks SET state = $1, lease_token = NULL, worker_id = NULL, \
-             lease_expires_ms = NULL WHERE id = $2",
-        )
-        .bind(to.as_str())
-        .bind(task_id)
-        .execute(&mut *w.tx)
-        .await?;
-        sqlx::query(
-            "UPDATE jobs SET queued_tasks = queued_tasks + 1, leased_tasks = leased_tasks - 1 \
-             WHERE id = $1",
-        )
-        .bind(job_id)
-        .execute(&mut *w.tx)
-        .await?;
-        if let Some(worker) = worker_id {
+        let mut tasks: Vec<i64> = leases.iter().map(|(t, _, _)| *t).collect();
+        tasks.sort_unstable();
+        for task_id in tasks {
+            sqlx::query(
+                "UPDATE tasks SET state = $1, lease_token = NULL, worker_id = NULL, \
+                 lease_expires_ms = NULL WHERE id = $2",
+            )
+            .bind(to.as_str())
+            .bind(task_id)
+            .execute(&mut *w.tx)
+            .await?;
+        }
+        let mut jobs = std::collections::BTreeMap::<&str, i64>::new();
+        for (_, job, _) in leases {
+            *jobs.entry(job.as_str()).or_default() += 1;
+        }
+        for (job_id, n) in jobs {
+            sqlx::query(
+                "UPDATE jobs SET queued_tasks = queued_tasks + $1, \
+                 leased_tasks = leased_tasks - $1 WHERE id = $2",
+            )
+            .bind(n)
+            .bind(job_id)
+            .execute(&mut *w.tx)
+            .await?;
+        }
+        let mut workers: Vec<(&str, i64)> = leases
+            .iter()
+            .filter_map(|(t, _, worker)| worker.as_deref().map(|w| (w, *t)))
+            .collect();
+        workers.sort_unstable();
+        for (worker, task_id) in workers {
             sqlx::query(sql!(
                 "UPDATE workers SET current_task = NULL, current_job = NULL, state = {} \
                  WHERE id = $1 AND current_task = $2",
@@ -482,14 +500,15 @@ impl Store {
         .fetch_all(&mut *w.tx)
         .await?;
         let n = rows.len() as u64;
+        let mut leases = Vec::with_capacity(rows.len());
         for r in rows {
             let id: i64 = r.try_get("id")?;
             let job_id: String = r.try_get("job_id")?;
             let worker_id: Option<String> = r.try_get("worker_id")?;
             tracing::info!(task = id, job = %job_id, worker = ?worker_id, "lease expired; unmerged samples queued again");
-            self.requeue(&mut w, id, &job_id, worker_id.as_deref())
-                .await?;
+            leases.push((id, job_id, worker_id));
         }
+        self.requeue(&mut w, &leases).await?;
         w.commit().await?;
         Ok(n)
     }

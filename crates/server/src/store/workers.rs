@@ -98,14 +98,15 @@ impl Store {
         .bind(cutoff)
         .fetch_all(&mut *w.tx)
         .await?;
+        let mut requeued = Vec::with_capacity(leases.len());
         for r in leases {
             let task: i64 = r.try_get("id")?;
             let job_id: String = r.try_get("job_id")?;
             let worker: Option<String> = r.try_get("worker_id")?;
             tracing::info!(task, job = %job_id, worker = ?worker, "worker registration expired; its lease is queued again");
-            self.requeue(&mut w, task, &job_id, worker.as_deref())
-                .await?;
+            requeued.push((task, job_id, worker));
         }
+        self.requeue(&mut w, &requeued).await?;
         // The cutoff is compared again by the delete itself: a worker seen meanwhile stays.
         let n = sqlx::query(sql!(
             "DELETE FROM workers WHERE id IN (SELECT id FROM workers WHERE last_seen_ms < $1 \
@@ -159,9 +160,13 @@ impl Store {
     /// Workers silent for longer than `after_ms` become lost. Returns how many.
     pub async fn mark_lost_workers(&self, after_ms: u64) -> StoreResult<u64> {
         let mut w = self.write().await?;
+        // The rows are locked in the order of their ids (on PostgreSQL; SQLite has one writer),
+        // as every transaction that locks several workers does (`Store::requeue`).
         let n = sqlx::query(sql!(
-            "UPDATE workers SET state = {} WHERE state IN ('idle', 'busy') AND last_seen_ms < $1",
-            super::worker_state_after(WorkerEvent::Silent)
+            "UPDATE workers SET state = {} WHERE id IN (SELECT id FROM workers \
+             WHERE state IN ('idle', 'busy') AND last_seen_ms < $1 ORDER BY id{})",
+            super::worker_state_after(WorkerEvent::Silent),
+            self.dialect().for_update()
         ))
         .bind(self.now_ms() - after_ms as i64)
         .execute(&mut *w.tx)

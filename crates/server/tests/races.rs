@@ -1,0 +1,108 @@
+//! Races between servers sharing a store (PostgreSQL; on SQLite the same steps run one at a time):
+//! a submission taking a scene while the deletion of its last job deletes it, and two monitors
+//! expiring overlapping leases at once.
+
+mod common;
+
+use axum::http::StatusCode;
+use common::*;
+use pathfarm_server::store::ManualClock;
+use pathfarm_server::AppState;
+use pathfarm_wire::api::WorkerRegistration;
+use serde_json::Value;
+use std::sync::Arc;
+use std::time::Duration;
+
+const SETTINGS: &str = r#"{"width":16,"height":16,"spp":4,"tile_size":8}"#;
+
+async fn submit(state: &AppState) -> String {
+    let (ct, body) = multipart(&cornell(), SETTINGS);
+    let (status, created): (_, Value) = call(
+        state,
+        request("POST", "/api/v1/jobs", &[("content-type", &ct)], body),
+    )
+    .await;
+    assert_eq!(status, StatusCode::CREATED, "{created}");
+    created["id"].as_str().unwrap().to_string()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_submission_and_the_deletion_of_the_last_job_of_its_scene_both_succeed() {
+    for (store, url) in stores("scene-race").await {
+        // Two servers on one store.
+        let a = AppState::open(config(&url)).await.unwrap();
+        let b = AppState::open(config(&url)).await.unwrap();
+        let mut last = submit(&a).await;
+        for round in 0..40 {
+            let delete = {
+                let b = b.clone();
+                let id = last.clone();
+                tokio::spawn(async move {
+                    let (status, body): (_, Value) = call(
+                        &b,
+                        request("DELETE", &format!("/api/v1/jobs/{id}"), &[], ""),
+                    )
+                    .await;
+                    (status, body)
+                })
+            };
+            let next = submit(&a).await;
+            let (status, body) = delete.await.unwrap();
+            assert!(
+                status.is_success(),
+                "{store} round {round}: delete: {status} {body}"
+            );
+            // The scene stays for the job that uses it, whatever the order.
+            let job = a.store.job(&next).await.unwrap();
+            a.store
+                .scene(&job.scene_hash)
+                .await
+                .unwrap_or_else(|e| panic!("{store} round {round}: the scene in use is gone: {e}"));
+            last = next;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn two_monitors_expire_overlapping_leases_at_once() {
+    for (store, url) in stores("expiry-race").await {
+        let clock = Arc::new(ManualClock::new());
+        let open = || {
+            let mut c = config(&url);
+            c.clock = clock.clone();
+            AppState::open(c)
+        };
+        let (a, b) = (open().await.unwrap(), open().await.unwrap());
+        for _ in 0..8 {
+            submit(&a).await;
+        }
+        let mut workers = Vec::new();
+        for i in 0..48 {
+            let reg = WorkerRegistration {
+                name: format!("w{i}"),
+                threads: 1,
+                version: "t".into(),
+                host: "h".into(),
+            };
+            workers.push(a.store.register_worker(&reg).await.unwrap().0);
+        }
+        for round in 0..10 {
+            // Every worker leases a task (fair share spreads them over the jobs), then every
+            // lease expires and both servers' monitors collect them at once.
+            for w in &workers {
+                a.store
+                    .lease(w, 1_000, 4)
+                    .await
+                    .unwrap()
+                    .expect("a task for every worker");
+            }
+            clock.advance(Duration::from_secs(2));
+            let (ea, eb) = tokio::join!(a.store.expire_leases(), b.store.expire_leases());
+            let (ea, eb) = (
+                ea.unwrap_or_else(|e| panic!("{store} round {round}: {e}")),
+                eb.unwrap_or_else(|e| panic!("{store} round {round}: {e}")),
+            );
+            assert_eq!(ea + eb, workers.len() as u64, "{store} round {round}");
+        }
+    }
+}
