@@ -6,9 +6,13 @@
 //! A small real job is submitted first and its id handed to the job and image operations, so they
 //! are exercised on an existing job and not only on unknown ids.
 //!
-//! Two runs, because an operation takes one kind of token: the client token for jobs, images and
-//! health; the worker token for the worker and task operations. The slice upload is left out: its
-//! body is the binary PFSL format, which schemathesis cannot generate; the Rust tests cover it.
+//! Every check schemathesis has (its default), through every phase, the stateful one included,
+//! with one exclusion, named where it is configured: positive-data acceptance for the submission,
+//! whose scene must be glTF (JSON Schema cannot say so). Two runs, because an operation takes one
+//! kind of token: the client token for jobs, images and health; the worker token, with a
+//! registered worker's credential, for the worker and task operations. The slice upload is left
+//! out: its body is the binary PFSL format, which schemathesis cannot generate; the Rust tests and
+//! a fuzz target cover it.
 //!
 //! schemathesis comes from PyPI (`.ci/run` installs it in a virtualenv and sets
 //! `PATHFARM_SCHEMATHESIS`). Without it the test prints SKIPPED, unless
@@ -100,54 +104,67 @@ fn the_api_never_fails_and_always_matches_its_spec() {
         std::thread::sleep(Duration::from_millis(50));
     }
 
-    // A real job, so that the job and image operations reach more than 404s: schemathesis'
-    // generated scenes are never valid glTF, so it cannot create one itself. Its id is given to
-    // those operations through schemathesis' configuration file; deleting it is left out of the
-    // run (the Rust tests cover DELETE) so that it stays there for the other operations.
-    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/cornell.gltf");
-    let submitted = Command::new(BIN)
-        .args([
-            "submit", scene, "--width", "16", "--height", "16", "--spp", "2",
-        ])
-        .args(["--server", &url, "--token", "fuzz-client"])
-        .output()
-        .expect("pathfarm submit");
-    assert!(submitted.status.success(), "submit: {submitted:?}");
-    let job_id = String::from_utf8_lossy(&submitted.stdout)
-        .trim()
-        .to_string();
-    assert!(
-        job_id.len() == 32 && job_id.chars().all(|c| c.is_ascii_hexdigit()),
-        "unexpected job id {job_id:?}"
-    );
+    // Real jobs, so that the job and image operations reach more than 404s: schemathesis'
+    // generated scenes are never valid glTF, so it cannot create one itself. Their ids are given
+    // to those operations through schemathesis' configuration file: one job for every operation
+    // but the deletion, which gets a job of its own (deleted at its first success, then 404).
+    let submit = || {
+        let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/cornell.gltf");
+        let submitted = Command::new(BIN)
+            .args([
+                "submit", scene, "--width", "16", "--height", "16", "--spp", "2",
+            ])
+            .args(["--server", &url, "--token", "fuzz-client"])
+            .output()
+            .expect("pathfarm submit");
+        assert!(submitted.status.success(), "submit: {submitted:?}");
+        let job_id = String::from_utf8_lossy(&submitted.stdout)
+            .trim()
+            .to_string();
+        assert!(
+            job_id.len() == 32 && job_id.chars().all(|c| c.is_ascii_hexdigit()),
+            "unexpected job id {job_id:?}"
+        );
+        job_id
+    };
+    let (job_id, doomed_id) = (submit(), submit());
+    // A registered worker holding a lease on the job, so that the worker operations act as that
+    // worker (its credential in a header) and the scene download is allowed.
+    let (worker_id, credential, scene_hash) = registered_worker_with_a_lease(&url);
+    // The one exclusion: a submission's scene must be glTF, which JSON Schema cannot say, so no
+    // generated submission is valid and "positive data acceptance" cannot hold for it.
     std::fs::write(
         dir.join("schemathesis.toml"),
         format!(
-            "[[operations]]\ninclude-tag = \"jobs\"\nparameters = {{ id = \"{job_id}\" }}\n\n\
-             [[operations]]\ninclude-tag = \"images\"\nparameters = {{ id = \"{job_id}\" }}\n"
+            "[[operations]]\ninclude-tag = \"jobs\"\nexclude-operation-id = \"deleteJob\"\n\
+             parameters = {{ id = \"{job_id}\" }}\n\n\
+             [[operations]]\ninclude-operation-id = \"deleteJob\"\n\
+             parameters = {{ id = \"{doomed_id}\" }}\n\n\
+             [[operations]]\ninclude-tag = \"images\"\nparameters = {{ id = \"{job_id}\" }}\n\n\
+             [[operations]]\ninclude-tag = \"workers\"\n\
+             parameters = {{ id = \"{worker_id}\" }}\n\n\
+             [[operations]]\ninclude-operation-id = \"getScene\"\n\
+             parameters = {{ hash = \"{scene_hash}\" }}\n\n\
+             [[operations]]\ninclude-operation-id = \"submitJob\"\n\
+             checks.positive_data_acceptance.enabled = false\n"
         ),
     )
     .expect("write schemathesis.toml");
 
-    let checks = "not_a_server_error,status_code_conformance,content_type_conformance,\
-                  response_schema_conformance,response_headers_conformance";
-    let runs: [(&str, &str, &[&str]); 2] = [
+    // Every check (schemathesis' default; `--checks` would override the file's exclusion).
+    let credential_header = format!("pathfarm-worker-credential: {credential}");
+    let runs: [(&str, &str, Vec<&str>); 2] = [
         (
             "client",
             "fuzz-client",
-            &[
-                "--exclude-tag",
-                "workers",
-                "--exclude-tag",
-                "tasks",
-                "--exclude-operation-id",
-                "deleteJob",
-            ],
+            vec!["--exclude-tag", "workers", "--exclude-tag", "tasks"],
         ),
         (
             "worker",
             "fuzz-worker",
-            &[
+            vec![
+                "-H",
+                credential_header.as_str(),
                 "--include-tag",
                 "workers",
                 "--include-tag",
@@ -162,8 +179,7 @@ fn the_api_never_fails_and_always_matches_its_spec() {
         let out = Command::new(&st)
             .args(["run", SPEC, "--url", &url])
             .args(["-H", &format!("Authorization: Bearer {token}")])
-            .args(filter)
-            .args(["--checks", checks])
+            .args(&filter)
             .args(["--max-examples", "40", "--workers", "1"])
             .args(["--generation-deterministic"])
             .env("NO_COLOR", "1")
@@ -195,4 +211,33 @@ fn the_api_never_fails_and_always_matches_its_spec() {
     drop(server);
     let _ = std::fs::remove_dir_all(&dir);
     assert!(failures.is_empty(), "{}", failures.join("\n\n"));
+}
+
+/// Registers a worker and leases a task for it: its id, its credential and the leased job's
+/// scene hash.
+fn registered_worker_with_a_lease(url: &str) -> (String, String, String) {
+    pathfarm_worker::client::install_crypto_provider();
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    runtime.block_on(async {
+        let client = pathfarm_worker::client::ApiClient::new(url, Some("fuzz-worker".into()))
+            .expect("a client");
+        let reg = client
+            .register(&pathfarm_wire::api::WorkerRegistration {
+                name: "fuzz".into(),
+                threads: 1,
+                version: "fuzz".into(),
+                host: "fuzz".into(),
+            })
+            .await
+            .expect("register");
+        let lease = client
+            .lease(&reg.worker_id)
+            .await
+            .expect("lease")
+            .expect("a task to lease");
+        (reg.worker_id, reg.credential, lease.scene_hash)
+    })
 }

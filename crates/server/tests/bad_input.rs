@@ -28,7 +28,7 @@ async fn malformed_requests_get_documented_errors() {
         let state = AppState::open(cfg).await.unwrap();
         // The worker calls below are made as a registered worker: without its credential they
         // would all be the 401 of the last case.
-        let (_, cred) = state
+        let (worker_id, cred) = state
             .store
             .register_worker(&WorkerRegistration {
                 name: "w".into(),
@@ -96,6 +96,27 @@ async fn malformed_requests_get_documented_errors() {
                     "/api/v1/workers",
                     Some("application/json"),
                     r#"{"name":"w"}"#,
+                ),
+                StatusCode::BAD_REQUEST,
+                "bad_json",
+            ),
+            // An array is not an object, even where serde would read the struct from it.
+            (
+                as_worker(req(
+                    "POST",
+                    &format!("/api/v1/workers/{worker_id}/heartbeat"),
+                    Some("application/json"),
+                    "[null, null]",
+                )),
+                StatusCode::BAD_REQUEST,
+                "bad_json",
+            ),
+            (
+                req(
+                    "POST",
+                    "/api/v1/workers",
+                    Some("application/json"),
+                    r#" ["w", 1, "t", "h"]"#,
                 ),
                 StatusCode::BAD_REQUEST,
                 "bad_json",
@@ -221,6 +242,13 @@ async fn malformed_requests_get_documented_errors() {
                 StatusCode::UNPROCESSABLE_ENTITY,
                 "invalid_settings",
                 "magic",
+            ),
+            (
+                scene.clone(),
+                "[16, 16, 2]".into(),
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "invalid_settings",
+                "object",
             ),
             (
                 scene.clone(),

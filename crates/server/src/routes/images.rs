@@ -52,10 +52,13 @@ async fn job_image(
         .map_err(|e| ApiError::internal(format!("stored settings: {e}")))?;
     let slot = match (frames, frame) {
         (None, None) => None,
-        (None, Some(_)) => {
-            return Err(ApiError::bad_request(
-                "bad_query",
-                "frame: this job is a still image, not a frame job",
+        // A still job has no frames: like a frame that a frame job does not render, the image
+        // asked for does not exist.
+        (None, Some(f)) => {
+            return Err(ApiError::new(
+                StatusCode::NOT_FOUND,
+                "not_found",
+                format!("job {id} is a still image: it has no frame {f}"),
             ))
         }
         (Some(_), None) => Some(0),

@@ -144,6 +144,15 @@ impl From<crate::store::Error> for ApiError {
     }
 }
 
+/// Whether JSON text is an object (or empty, which the parser refuses by itself). Every JSON body
+/// of the API is an object, and serde would take a struct from an array too (`[null, null]` as a
+/// heartbeat), which the contract does not allow.
+pub(crate) fn starts_an_object(json: &[u8]) -> bool {
+    json.iter()
+        .find(|b| !b.is_ascii_whitespace())
+        .is_none_or(|&b| b == b'{')
+}
+
 /// Parses a JSON body, insisting on the JSON content type, with our error body on failure.
 pub(crate) fn json_body<T: DeserializeOwned>(
     headers: &HeaderMap,
@@ -158,6 +167,12 @@ pub(crate) fn json_body<T: DeserializeOwned>(
             axum::http::StatusCode::UNSUPPORTED_MEDIA_TYPE,
             "unsupported_media_type",
             format!("expected Content-Type application/json, got {ct:?}"),
+        ));
+    }
+    if !starts_an_object(body) {
+        return Err(ApiError::bad_request(
+            "bad_json",
+            "invalid JSON body: expected a JSON object",
         ));
     }
     serde_json::from_slice(body)

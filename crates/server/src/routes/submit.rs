@@ -131,6 +131,12 @@ pub async fn submit(
                     .bytes()
                     .await
                     .map_err(|e| multipart_error(e, &state))?;
+                if !super::starts_an_object(&bytes) {
+                    return Err(ApiError::unprocessable(
+                        "invalid_settings",
+                        "settings: expected a JSON object",
+                    ));
+                }
                 settings = Some(serde_json::from_slice(&bytes).map_err(|e| {
                     ApiError::unprocessable("invalid_settings", format!("settings: {e}"))
                 })?);
