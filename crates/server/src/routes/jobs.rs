@@ -1,15 +1,13 @@
 //! Managing jobs: list, view, change, cancel, pause, resume, delete.
 
-use super::{json_body, json_bytes, Page};
+use super::{JsonBody, Page};
 use crate::auth::{ClientAuth, ReadAuth};
 use crate::error::{ApiError, ApiResult};
 use crate::states::JobEvent;
 use crate::store::JobRow;
 use crate::AppState;
-use axum::body::Bytes;
-use axum::extract::rejection::BytesRejection;
 use axum::extract::{Path, Query, State};
-use axum::http::{HeaderMap, StatusCode};
+use axum::http::StatusCode;
 use axum::Json;
 use pathfarm_wire::api::{
     Convergence, JobList, JobPatch, JobState, JobView, TileProgress, TileRect,
@@ -162,10 +160,8 @@ pub async fn patch_job(
     _: ClientAuth,
     State(state): State<AppState>,
     Path(id): Path<String>,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
+    JsonBody(patch): JsonBody<JobPatch>,
 ) -> ApiResult<Json<JobView>> {
-    let patch: JobPatch = json_body(&headers, &json_bytes(body)?)?;
     let job = state.store.set_priority(&id, patch.priority).await?;
     let v = view(job, None, state.store.now_ms());
     Ok(Json(with_frames(&state, v, false).await?))

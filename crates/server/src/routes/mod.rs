@@ -5,7 +5,9 @@ mod frames;
 mod health;
 mod images;
 mod jobs;
+mod json;
 pub(crate) mod metrics;
+pub(crate) use json::{starts_an_object, JsonBody, OptionalJsonBody};
 mod submit;
 mod tasks;
 mod workers;
@@ -13,14 +15,12 @@ mod workers;
 use crate::config::{Limits, MAX_JSON_BODY_BYTES};
 use crate::error::ApiError;
 use crate::AppState;
-use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
 use axum::extract::Request;
-use axum::http::{HeaderMap, Method, StatusCode};
+use axum::http::{Method, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{delete, get, patch, post, MethodRouter};
-use serde::de::DeserializeOwned;
 
 pub struct Route {
     pub method: Method,
@@ -144,41 +144,6 @@ impl From<crate::store::Error> for ApiError {
     }
 }
 
-/// Whether JSON text is an object (or empty, which the parser refuses by itself). Every JSON body
-/// of the API is an object, and serde would take a struct from an array too (`[null, null]` as a
-/// heartbeat), which the contract does not allow.
-pub(crate) fn starts_an_object(json: &[u8]) -> bool {
-    json.iter()
-        .find(|b| !b.is_ascii_whitespace())
-        .is_none_or(|&b| b == b'{')
-}
-
-/// Parses a JSON body, insisting on the JSON content type, with our error body on failure.
-pub(crate) fn json_body<T: DeserializeOwned>(
-    headers: &HeaderMap,
-    body: &[u8],
-) -> Result<T, ApiError> {
-    let ct = headers
-        .get(axum::http::header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("");
-    if !ct.starts_with("application/json") {
-        return Err(ApiError::new(
-            axum::http::StatusCode::UNSUPPORTED_MEDIA_TYPE,
-            "unsupported_media_type",
-            format!("expected Content-Type application/json, got {ct:?}"),
-        ));
-    }
-    if !starts_an_object(body) {
-        return Err(ApiError::bad_request(
-            "bad_json",
-            "invalid JSON body: expected a JSON object",
-        ));
-    }
-    serde_json::from_slice(body)
-        .map_err(|e| ApiError::bad_request("bad_json", format!("invalid JSON body: {e}")))
-}
-
 /// A task id from the path.
 /// A list's page as its query asked for it: pages counted from 1, `per_page` held to 1..=`max`.
 pub(crate) struct Page {
@@ -220,11 +185,6 @@ pub(crate) fn body_error(e: BytesRejection, what: &str, limit: usize) -> ApiErro
     } else {
         ApiError::new(e.status(), "bad_request", e.body_text())
     }
-}
-
-/// A JSON body, read within [`MAX_JSON_BODY_BYTES`] (the route's body limit, see [`crate::app`]).
-pub(crate) fn json_bytes(body: Result<Bytes, BytesRejection>) -> Result<Bytes, ApiError> {
-    body.map_err(|e| body_error(e, "JSON", MAX_JSON_BODY_BYTES))
 }
 
 /// Refuses a string of a request body that holds a NUL character, with 422 `code` naming the

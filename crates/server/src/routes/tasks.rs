@@ -1,13 +1,12 @@
 //! What workers call while rendering: fetch a scene, upload slices, give a lease back.
 
-use super::{json_body, json_bytes, no_nul, parse_id};
+use super::{no_nul, parse_id, JsonBody};
 use crate::auth::WorkerIdentity;
 use crate::connections::content_length;
 use crate::error::{ApiError, ApiResult};
 use crate::store::MergeOutcome;
 use crate::AppState;
-use axum::body::{Body, Bytes};
-use axum::extract::rejection::BytesRejection;
+use axum::body::Body;
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::IntoResponse;
@@ -218,11 +217,9 @@ pub async fn release(
     me: WorkerIdentity,
     State(state): State<AppState>,
     Path(id): Path<String>,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
+    JsonBody(r): JsonBody<Release>,
 ) -> ApiResult<StatusCode> {
     let task_id = parse_id(&id, "task")?;
-    let r: Release = json_body(&headers, &json_bytes(body)?)?;
     no_nul("invalid_release", &[("lease_token", &r.lease_token)])?;
     state
         .store

@@ -1,13 +1,11 @@
 //! Worker registration, heartbeats and leases.
 
-use super::{json_body, json_bytes, no_control, no_nul, Page};
+use super::{no_control, no_nul, JsonBody, OptionalJsonBody, Page};
 use crate::auth::{ReadAuth, WorkerAuth, WorkerIdentity};
 use crate::error::{ApiError, ApiResult};
 use crate::AppState;
-use axum::body::Bytes;
-use axum::extract::rejection::BytesRejection;
 use axum::extract::{Path, Query, State};
-use axum::http::{HeaderMap, StatusCode};
+use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use pathfarm_wire::api::{
@@ -17,10 +15,8 @@ use pathfarm_wire::api::{
 pub async fn register(
     _: WorkerAuth,
     State(state): State<AppState>,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
+    JsonBody(reg): JsonBody<WorkerRegistration>,
 ) -> ApiResult<(StatusCode, Json<WorkerRegistered>)> {
-    let reg: WorkerRegistration = json_body(&headers, &json_bytes(body)?)?;
     // Lengths in characters, as the contract's `maxLength` counts them.
     let chars = |s: &str| s.chars().count();
     if reg.name.is_empty()
@@ -95,16 +91,10 @@ pub async fn heartbeat(
     me: WorkerIdentity,
     State(state): State<AppState>,
     Path(id): Path<String>,
-    headers: HeaderMap,
-    body: Result<Bytes, BytesRejection>,
+    OptionalJsonBody(hb): OptionalJsonBody<Heartbeat>,
 ) -> ApiResult<Json<HeartbeatReply>> {
     me.must_be(&id)?;
-    let body = json_bytes(body)?;
-    let hb: Heartbeat = if body.is_empty() {
-        Heartbeat::default()
-    } else {
-        json_body(&headers, &body)?
-    };
+    let hb = hb.unwrap_or_default();
     let lease_ms = state.config.lease_duration.as_millis() as u64;
     let lease = match (hb.task_id, hb.lease_token.as_deref()) {
         (Some(t), Some(tok)) => {
