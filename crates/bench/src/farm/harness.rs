@@ -191,6 +191,34 @@ impl Server {
     }
 }
 
+/// The `p` quantile (0..=1) of latencies in seconds, in milliseconds (NaN when there are none).
+pub(crate) fn quantile_ms(seconds: &[f64], p: f64) -> f64 {
+    let mut v = seconds.to_vec();
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * p).round() as usize] * 1e3
+}
+
+/// A client registered as simulated worker `i` of `server`, and the worker's id.
+pub(crate) async fn simulated_worker_client(
+    server: &Server,
+    i: usize,
+) -> Result<(ApiClient, String), BenchError> {
+    let c = server.client()?;
+    let reg = c
+        .register(&pathfarm_wire::api::WorkerRegistration {
+            name: format!("sim-{i}"),
+            threads: 1,
+            version: "sim".into(),
+            host: "sim".into(),
+        })
+        .await
+        .map_err(|e| farm_err(format!("registering simulated worker {i}: {e}")))?;
+    Ok((c, reg.worker_id))
+}
+
 /// In-process worker daemons (`pathfarm_worker::run`), as `pathfarm up` starts them.
 pub(crate) struct Workers {
     stop: watch::Sender<bool>,

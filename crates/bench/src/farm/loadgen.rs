@@ -18,7 +18,7 @@ use crate::BenchError;
 use glam::Vec3;
 use pathfarm_server::ServerConfig;
 use pathfarm_tracer::Accumulation;
-use pathfarm_wire::api::{JobSettings, WorkerRegistration};
+use pathfarm_wire::api::JobSettings;
 use pathfarm_wire::{encode_slice, Slice};
 use pathfarm_worker::client::ApiClient;
 use serde::{Deserialize, Serialize};
@@ -152,15 +152,10 @@ impl Shared {
 
 /// The `p` quantile (0..=1) of `v`, in milliseconds (NaN when empty).
 fn quantile_ms(v: &Mutex<Vec<f64>>, p: f64) -> f64 {
-    let mut v = match v.lock() {
-        Ok(v) => v.clone(),
-        Err(p) => p.into_inner().clone(),
-    };
-    if v.is_empty() {
-        return f64::NAN;
+    match v.lock() {
+        Ok(v) => super::harness::quantile_ms(&v, p),
+        Err(poisoned) => super::harness::quantile_ms(&poisoned.into_inner(), p),
     }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * p).round() as usize] * 1e3
 }
 
 async fn simulated_worker(
@@ -274,17 +269,8 @@ async fn measure(
     let mut ids = Vec::with_capacity(cfg.workers);
     let mut clients = Vec::with_capacity(cfg.workers);
     for i in 0..cfg.workers {
-        let c = server.client()?;
-        let reg = c
-            .register(&WorkerRegistration {
-                name: format!("sim-{i}"),
-                threads: 1,
-                version: "sim".into(),
-                host: "sim".into(),
-            })
-            .await
-            .map_err(|e| farm_err(format!("loadgen: registering simulated worker {i}: {e}")))?;
-        ids.push(reg.worker_id);
+        let (c, id) = super::harness::simulated_worker_client(server, i).await?;
+        ids.push(id);
         clients.push(c);
     }
     let shared = Arc::new(Shared::default());

@@ -5,11 +5,11 @@
 //! transaction and in batches (`ServerConfig::submission_batch_rows`), on SQLite and, with a URL,
 //! PostgreSQL.
 
-use super::harness::{farm_err, unique_suffix, Server, StoreSpec};
+use super::harness::{farm_err, quantile_ms, unique_suffix, Server, StoreSpec};
 use crate::error::write_file;
 use crate::{BenchError, Machine};
 use pathfarm_server::ServerConfig;
-use pathfarm_wire::api::{JobSettings, WorkerRegistration};
+use pathfarm_wire::api::JobSettings;
 use pathfarm_worker::client::ApiClient;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -201,22 +201,8 @@ async fn leases_around_a_submission(
     let t0 = Instant::now();
     let mut handles = Vec::new();
     for i in 0..workers {
-        let c = server.client()?;
-        let reg = c
-            .register(&WorkerRegistration {
-                name: format!("sim-{i}"),
-                threads: 1,
-                version: "sim".into(),
-                host: "sim".into(),
-            })
-            .await
-            .map_err(|e| farm_err(format!("registering simulated worker {i}: {e}")))?;
-        handles.push(tokio::spawn(lease_loop(
-            c,
-            reg.worker_id,
-            probe.clone(),
-            t0,
-        )));
+        let (c, id) = super::harness::simulated_worker_client(server, i).await?;
+        handles.push(tokio::spawn(lease_loop(c, id, probe.clone(), t0)));
     }
     // A second of leases before, the submission, a second after.
     tokio::time::sleep(Duration::from_secs(2)).await;
@@ -264,16 +250,6 @@ async fn lease_loop(client: ApiClient, worker_id: String, probe: Arc<Probe>, t0:
             }
         }
     }
-}
-
-/// The `p` quantile (0..=1) of `v`, in milliseconds (NaN when empty).
-fn quantile_ms(v: &[f64], p: f64) -> f64 {
-    let mut v = v.to_vec();
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * p).round() as usize] * 1e3
 }
 
 fn report(r: &SubmissionResults) -> String {
