@@ -1,4 +1,4 @@
-//! The farm benchmark in quick mode, end to end: a real server and real workers in this process
+//! The farm benchmarks in quick mode, end to end: a real server and real workers in this process
 //! on SQLite, and on PostgreSQL when `PATHFARM_TEST_POSTGRES_URL` is set. Checks outcomes, not
 //! speeds: the farm's image is bit-identical to a direct render, every run made progress, every
 //! acknowledged upload was merged exactly once, and the report links charts that exist.
@@ -168,4 +168,44 @@ fn quick_farm_benchmark_measures_and_reports() {
 #[ignore = "several minutes; run by hand"]
 fn normal_farm_benchmark_measures_and_reports() {
     run_and_check(false);
+}
+
+/// `pathfarm bench submission --quick`, SQLite only: both ways of storing the plan store all of
+/// it, the simulated workers were served before and during the submission without an error, and
+/// the report is written.
+#[test]
+fn quick_submission_benchmark_measures_and_reports() {
+    use pathfarm_bench::farm::submission::{run, SubmissionOptions};
+    let out = temp_dir("submission");
+    let opts = SubmissionOptions {
+        out_dir: out.clone(),
+        scene_path: PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenes/cornell.gltf"
+        )),
+        work_dir: out.join("work"),
+        postgres_url: None,
+        workers: 4,
+        quick: true,
+        command_line: "test".into(),
+    };
+    let (r, markdown) = run(&opts).expect("the submission benchmark runs");
+    assert_eq!(r.rows.len(), 2, "{:?}", r.rows);
+    assert_eq!(
+        r.rows.iter().map(|row| row.batch_rows).collect::<Vec<_>>(),
+        [None, Some(pathfarm_server::store::ROWS_PER_TRANSACTION)]
+    );
+    for row in &r.rows {
+        // 512² in 16 px tiles, 28 tasks a tile.
+        assert_eq!(row.tasks, 1024 * 28, "{row:?}");
+        assert_eq!(row.errors, 0, "{row:?}");
+        assert!(row.before_leases > 0 && row.during_leases > 0, "{row:?}");
+        assert!(row.during_p99_ms >= row.during_p50_ms, "{row:?}");
+    }
+    assert!(
+        markdown.contains("| sqlite | 5000, the default |"),
+        "{markdown}"
+    );
+    assert!(out.join("submission.json").is_file() && out.join("submission.md").is_file());
+    let _ = std::fs::remove_dir_all(&out);
 }
