@@ -16,15 +16,8 @@ use serde_json::{json, Value};
 use std::time::Duration;
 
 async fn submit(state: &AppState, width: u32, height: u32, spp: u32, tile: u32) -> String {
-    let s = settings(width, height, spp, tile);
-    let (ct, body) = multipart(&cornell(), &serde_json::to_string(&s).unwrap());
-    let (status, job): (_, Value) = call(
-        state,
-        request("POST", "/api/v1/jobs", &[("content-type", &ct)], body),
-    )
-    .await;
-    assert_eq!(status, StatusCode::CREATED, "{job}");
-    job["id"].as_str().unwrap().to_string()
+    let s = serde_json::to_string(&settings(width, height, spp, tile)).unwrap();
+    submit_ok(state, None, &cornell(), &s).await
 }
 
 /// A registered worker: its id and its credential.

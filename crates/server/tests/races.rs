@@ -4,7 +4,6 @@
 
 mod common;
 
-use axum::http::StatusCode;
 use common::*;
 use pathfarm_server::store::ManualClock;
 use pathfarm_server::AppState;
@@ -16,14 +15,7 @@ use std::time::Duration;
 const SETTINGS: &str = r#"{"width":16,"height":16,"spp":4,"tile_size":8}"#;
 
 async fn submit(state: &AppState) -> String {
-    let (ct, body) = multipart(&cornell(), SETTINGS);
-    let (status, created): (_, Value) = call(
-        state,
-        request("POST", "/api/v1/jobs", &[("content-type", &ct)], body),
-    )
-    .await;
-    assert_eq!(status, StatusCode::CREATED, "{created}");
-    created["id"].as_str().unwrap().to_string()
+    submit_ok(state, None, &cornell(), SETTINGS).await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]

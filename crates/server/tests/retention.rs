@@ -19,24 +19,9 @@ use std::time::Duration;
 const DAY: Duration = Duration::from_secs(24 * 3600);
 
 async fn submit(state: &AppState, token: Option<&str>, scene: &[u8], settings: &str) -> Value {
-    let (status, body) = submit_raw(state, token, scene, settings).await;
+    let (status, body) = submit_in_process(state, token, scene, settings).await;
     assert_eq!(status, StatusCode::CREATED, "{body}");
     body
-}
-
-async fn submit_raw(
-    state: &AppState,
-    token: Option<&str>,
-    scene: &[u8],
-    settings: &str,
-) -> (StatusCode, Value) {
-    let (ct, body) = multipart(scene, settings);
-    let auth = token.map(|t| format!("Bearer {t}"));
-    let mut headers = vec![("content-type", ct.as_str())];
-    if let Some(a) = &auth {
-        headers.push(("authorization", a.as_str()));
-    }
-    call(state, request("POST", "/api/v1/jobs", &headers, body)).await
 }
 
 async fn cancel(state: &AppState, token: Option<&str>, id: &str) {
@@ -174,7 +159,7 @@ async fn each_client_token_is_held_to_its_quotas() {
         let state = AppState::open(c).await.unwrap();
         let first = submit(&state, Some("alice"), &cornell(), settings).await;
         submit(&state, Some("alice"), &cornell(), settings).await;
-        let (status, body) = submit_raw(&state, Some("alice"), &cornell(), settings).await;
+        let (status, body) = submit_in_process(&state, Some("alice"), &cornell(), settings).await;
         assert_eq!(status, StatusCode::TOO_MANY_REQUESTS, "{store}: {body}");
         assert_eq!(body["error"]["code"], "quota_exceeded", "{body}");
         let message = body["error"]["message"].as_str().unwrap();
@@ -206,7 +191,7 @@ async fn each_client_token_is_held_to_its_quotas() {
         let mut c = with_tokens(&url);
         c.quotas.max_stored_bytes = Some(one_job * 3 / 2);
         let state = AppState::open(c).await.unwrap();
-        let (status, body) = submit_raw(&state, Some("bob"), &cornell(), settings).await;
+        let (status, body) = submit_in_process(&state, Some("bob"), &cornell(), settings).await;
         assert_eq!(status, StatusCode::TOO_MANY_REQUESTS, "{store}: {body}");
         let message = body["error"]["message"].as_str().unwrap();
         assert!(message.contains("stored bytes"), "{message}");

@@ -169,9 +169,9 @@ pub async fn submit(
     let uploaded = environment_part(&state, &mut settings, environment)?;
     // The quotas, before the scene is loaded (the store checks them again as it stores the job).
     // A stored environment image named by hash is counted once it is read, by the store.
-    let stored_bytes = accumulation_bytes(&settings)
-        .saturating_add(scene.len() as u64)
-        .saturating_add(uploaded.as_ref().map_or(0, |(_, b)| b.len() as u64));
+    let job_bytes = accumulation_bytes(&settings).saturating_add(scene.len() as u64);
+    let stored_bytes =
+        job_bytes.saturating_add(uploaded.as_ref().map_or(0, |(_, b)| b.len() as u64));
     state
         .store
         .usage(&auth.owner)
@@ -265,9 +265,8 @@ pub async fn submit(
     let samples_planned =
         settings.width as u64 * settings.height as u64 * settings.spp as u64 * frame_count;
     let task_count = tasks.len() as u64;
-    let stored_bytes = accumulation_bytes(&settings)
-        .saturating_add(scene.len() as u64)
-        .saturating_add(environment.as_ref().map_or(0, |(_, b)| b.len() as u64));
+    let stored_bytes =
+        job_bytes.saturating_add(environment.as_ref().map_or(0, |(_, b)| b.len() as u64));
     state
         .store
         .create_job(

@@ -250,6 +250,35 @@ pub fn multipart(scene: &[u8], settings: &str) -> (String, Vec<u8>) {
     (format!("multipart/form-data; boundary={boundary}"), body)
 }
 
+/// `POST /api/v1/jobs` in process with this scene and settings JSON, as `token` (a bearer token)
+/// or without one: the status and the JSON answer.
+pub async fn submit_in_process(
+    state: &AppState,
+    token: Option<&str>,
+    scene: &[u8],
+    settings: &str,
+) -> (StatusCode, serde_json::Value) {
+    let (ct, body) = multipart(scene, settings);
+    let auth = token.map(|t| format!("Bearer {t}"));
+    let mut headers = vec![("content-type", ct.as_str())];
+    if let Some(a) = &auth {
+        headers.push(("authorization", a.as_str()));
+    }
+    call(state, request("POST", "/api/v1/jobs", &headers, body)).await
+}
+
+/// [`submit_in_process`] that must succeed: the new job's id.
+pub async fn submit_ok(
+    state: &AppState,
+    token: Option<&str>,
+    scene: &[u8],
+    settings: &str,
+) -> String {
+    let (status, created) = submit_in_process(state, token, scene, settings).await;
+    assert_eq!(status, StatusCode::CREATED, "{created}");
+    created["id"].as_str().expect("a job id").to_string()
+}
+
 /// A request with these headers and body.
 pub fn request(
     method: &str,
