@@ -4,7 +4,7 @@ use super::{no_nul, parse_id, JsonBody};
 use crate::auth::WorkerIdentity;
 use crate::connections::content_length;
 use crate::error::{ApiError, ApiResult};
-use crate::store::MergeOutcome;
+use crate::store::{AllInvalid, MergeOutcome};
 use crate::AppState;
 use axum::body::Body;
 use axum::extract::{Path, State};
@@ -87,6 +87,25 @@ pub async fn upload_slice(
         })?
         .to_string();
     match merge_upload(&state, &me.id, task_id, &token, &headers, body).await {
+        Ok(MergeOutcome {
+            all_invalid: Some(refused),
+            ..
+        }) => {
+            state
+                .metrics
+                .rejected_uploads
+                .fetch_add(1, Ordering::Relaxed);
+            let message = match refused {
+                AllInvalid::Requeued { task_id } => format!(
+                    "every sample of the slice is invalid: task {task_id} was not completed and \
+                     is queued again for another worker"
+                ),
+                AllInvalid::JobFailed { job_id, message } => {
+                    format!("job {job_id} failed: {message}")
+                }
+            };
+            Err(ApiError::unprocessable("all_invalid", message))
+        }
         Ok(out) => {
             if out.ack.duplicate {
                 state

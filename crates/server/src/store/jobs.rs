@@ -74,14 +74,17 @@ pub(crate) fn job_state(s: &str) -> Result<JobState, sqlx::Error> {
 
 /// Frees the workers busy with a job that ends or disappears. Called after the job row is
 /// written, keeping the lock order (tasks, tiles, jobs, workers).
-async fn free_job_workers(w: &mut super::WriteTx<'_>, job_id: &str) -> Result<(), sqlx::Error> {
+pub(super) async fn free_job_workers(
+    tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+    job_id: &str,
+) -> Result<(), sqlx::Error> {
     sqlx::query(sql!(
         "UPDATE workers SET current_task = NULL, current_job = NULL, state = {} \
          WHERE current_job = $1 AND state = 'busy'",
         super::worker_state_after(WorkerEvent::TaskTaken)
     ))
     .bind(job_id)
-    .execute(&mut *w.tx)
+    .execute(&mut **tx)
     .await?;
     Ok(())
 }
@@ -251,7 +254,7 @@ impl Store {
             .bind(id)
             .execute(&mut *w.tx)
             .await?;
-            free_job_workers(&mut w, id).await?;
+            free_job_workers(&mut w.tx, id).await?;
         } else {
             sqlx::query("UPDATE jobs SET state = $1 WHERE id = $2")
                 .bind(to.as_str())
@@ -298,7 +301,7 @@ impl Store {
         let Some(row) = row else {
             return Err(Error::not_found("job", id));
         };
-        free_job_workers(&mut w, id).await?;
+        free_job_workers(&mut w.tx, id).await?;
         let scene: String = row.try_get("scene_hash")?;
         let environment: Option<String> = row.try_get("environment_hash")?;
         w.commit().await?;

@@ -24,6 +24,18 @@ macro_rules! candidate_jobs {
     };
 }
 
+/// A task condition: not refused to the worker in parameter `$w` (its own slice of the task had
+/// every sample invalid: `all_invalid.rs`).
+macro_rules! not_refused_by {
+    ($w:literal) => {
+        concat!(
+            "(all_invalid_worker IS NULL OR all_invalid_worker <> ",
+            $w,
+            ")"
+        )
+    };
+}
+
 /// The chosen task: its row (`id`, `tile_index`, `done_end`, `sample_end`, `state`) and its
 /// tile's rectangle and frame with its job's row (`x0`…`height`, `frame`, `job_state`,
 /// `settings`, `scene_hash`),
@@ -189,7 +201,9 @@ async fn pick_sqlite(
          j.scene_hash, j.priority, j.leased_tasks, j.created_ms FROM (",
         candidate_jobs!(),
         ") j JOIN tasks t ON t.id = (SELECT id FROM tasks \
-         WHERE job_id = j.id AND state = 'queued' ORDER BY pass, id LIMIT 1) \
+         WHERE job_id = j.id AND state = 'queued' AND ",
+        not_refused_by!("$1"),
+        " ORDER BY pass, id LIMIT 1) \
          JOIN tiles ti ON ti.job_id = t.job_id AND ti.tile_index = t.tile_index) c ON 1 = 1 \
          WHERE w.id = $1 \
          ORDER BY c.priority DESC, c.leased_tasks ASC, c.created_ms ASC, c.job_id ASC LIMIT 1"
@@ -234,12 +248,14 @@ async fn pick_postgres(
         let Some(job_id) = cand.try_get::<Option<String>, _>("job_id")? else {
             continue;
         };
-        let task = sqlx::query(
+        let task = sqlx::query(concat!(
             "SELECT id, tile_index, done_end, sample_end, state FROM tasks \
-             WHERE job_id = $1 AND state = 'queued' ORDER BY pass, id LIMIT 1 \
-             FOR UPDATE SKIP LOCKED",
-        )
+             WHERE job_id = $1 AND state = 'queued' AND ",
+            not_refused_by!("$2"),
+            " ORDER BY pass, id LIMIT 1 FOR UPDATE SKIP LOCKED",
+        ))
         .bind(&job_id)
+        .bind(worker_id)
         .fetch_optional(&mut **tx)
         .await?;
         let Some(task) = task else { continue };

@@ -30,6 +30,7 @@ pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
         "0004_worker_identity.sql",
         "0005_frames.sql",
         "0006_retention_and_quotas.sql",
+        "0007_all_invalid_slices.sql",
     ))
 });
 
@@ -42,6 +43,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0004_worker_identity.sql",
         "0005_frames.sql",
         "0006_retention_and_quotas.sql",
+        "0007_all_invalid_slices.sql",
     ))
 });
 

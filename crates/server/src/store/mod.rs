@@ -17,6 +17,7 @@ macro_rules! sql {
 /// (a deferred read-then-write upgrade fails at once when another connection wrote in between).
 const SQLITE_BEGIN_WRITE: &str = "BEGIN IMMEDIATE";
 
+mod all_invalid;
 mod clock;
 mod convergence;
 mod error;
@@ -41,7 +42,7 @@ pub use images::{ImageReader, ImageSnapshot, TileMeta};
 pub use jobs::{JobRow, TileRow};
 pub use retention::JOBS_PER_STEP;
 pub use submission::{NewJob, Usage, ROWS_PER_TRANSACTION, SUBMISSION_TIMEOUT};
-pub use writes::MergeOutcome;
+pub use writes::{AllInvalid, MergeOutcome};
 
 use sqlx::any::{AnyPoolOptions, AnyRow};
 use sqlx::{Any, AnyPool, Executor, Row, Transaction};

@@ -135,7 +135,7 @@ impl Store {
         let task = if joined {
             sqlx::query(
                 "SELECT t.job_id, t.tile_index, t.sample_begin, t.sample_end, t.done_end, t.state, \
-                 t.lease_token, t.worker_id, ti.x0, ti.y0, ti.width, ti.height, ti.samples, \
+                 t.lease_token, t.worker_id, t.all_invalid_worker, ti.x0, ti.y0, ti.width, ti.height, ti.samples, \
                  ti.accum FROM tasks t JOIN tiles ti \
                  ON ti.job_id = t.job_id AND ti.tile_index = t.tile_index WHERE t.id = $1",
             )
@@ -145,7 +145,7 @@ impl Store {
         } else {
             sqlx::query(
                 "SELECT job_id, tile_index, sample_begin, sample_end, done_end, state, \
-                 lease_token, worker_id FROM tasks WHERE id = $1 FOR UPDATE",
+                 lease_token, worker_id, all_invalid_worker FROM tasks WHERE id = $1 FOR UPDATE",
             )
             .bind(task_id)
             .fetch_optional(&mut **tx)
@@ -162,6 +162,7 @@ impl Store {
         let state = task_state(&task.try_get::<String, _>("state")?)?;
         let lease_token: Option<String> = task.try_get("lease_token")?;
         let worker_id: Option<String> = task.try_get("worker_id")?;
+        let all_invalid_worker: Option<String> = task.try_get("all_invalid_worker")?;
         if lease_token.as_deref() != Some(token) {
             return Err(stale_lease(task_id));
         }
@@ -181,6 +182,7 @@ impl Store {
                 },
                 samples: 0,
                 job_completed: false,
+                all_invalid: None,
             });
         }
         if state != TaskState::Leased {
@@ -231,6 +233,14 @@ impl Store {
             return Err(Error::SliceValues(format!(
                 "slice holds {counted} samples, its shape needs {expected}"
             )));
+        }
+        if expected > 0 && a.invalid_count == expected {
+            let slice = format!(
+                "task {task_id}'s slice of samples [{s_begin}, {s_end}) of tile {tile_index}"
+            );
+            return self
+                .refuse_all_invalid(tx, task_id, &job_id, worker_id, all_invalid_worker, slice)
+                .await;
         }
         let tile_samples = g("samples")? as u64;
         let accum: Option<Vec<u8>> = tile.try_get("accum")?;
@@ -342,6 +352,7 @@ impl Store {
             },
             samples,
             job_completed,
+            all_invalid: None,
         })
     }
 
@@ -425,7 +436,7 @@ impl Store {
         }
         if state == TaskState::Leased {
             let job_id: String = task.try_get("job_id")?;
-            self.requeue(&mut w, &[(task_id, job_id, worker_id)])
+            self.requeue(&mut w.tx, &[(task_id, job_id, worker_id)])
                 .await?;
         }
         w.commit().await?;
@@ -438,7 +449,7 @@ impl Store {
     /// monitors expiring leases at once) lock them in the same order, so they cannot deadlock.
     pub(super) async fn requeue(
         &self,
-        w: &mut super::WriteTx<'_>,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
         leases: &[(i64, String, Option<String>)],
     ) -> StoreResult<()> {
         let to = task_transition(TaskState::Leased, TaskEvent::Requeue).map_err(Error::internal)?;
@@ -451,7 +462,7 @@ impl Store {
             )
             .bind(to.as_str())
             .bind(task_id)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
         }
         let mut jobs = std::collections::BTreeMap::<&str, i64>::new();
@@ -465,7 +476,7 @@ impl Store {
             )
             .bind(n)
             .bind(job_id)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
         }
         let mut workers: Vec<(&str, i64)> = leases
@@ -481,7 +492,7 @@ impl Store {
             ))
             .bind(worker)
             .bind(task_id)
-            .execute(&mut *w.tx)
+            .execute(&mut **tx)
             .await?;
         }
         Ok(())
@@ -508,7 +519,7 @@ impl Store {
             tracing::info!(task = id, job = %job_id, worker = ?worker_id, "lease expired; unmerged samples queued again");
             leases.push((id, job_id, worker_id));
         }
-        self.requeue(&mut w, &leases).await?;
+        self.requeue(&mut w.tx, &leases).await?;
         w.commit().await?;
         Ok(n)
     }

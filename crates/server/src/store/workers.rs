@@ -106,7 +106,7 @@ impl Store {
             tracing::info!(task, job = %job_id, worker = ?worker, "worker registration expired; its lease is queued again");
             requeued.push((task, job_id, worker));
         }
-        self.requeue(&mut w, &requeued).await?;
+        self.requeue(&mut w.tx, &requeued).await?;
         // The cutoff is compared again by the delete itself: a worker seen meanwhile stays.
         let n = sqlx::query(sql!(
             "DELETE FROM workers WHERE id IN (SELECT id FROM workers WHERE last_seen_ms < $1 \

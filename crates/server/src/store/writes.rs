@@ -31,4 +31,17 @@ pub struct MergeOutcome {
     pub ack: SliceAck,
     pub samples: u64,
     pub job_completed: bool,
+    /// Set when every sample of the slice was invalid: nothing was merged, and the route answers
+    /// 422 (after the transaction that requeued the task, or failed its job, committed).
+    pub all_invalid: Option<AllInvalid>,
+}
+
+/// What a slice whose every sample is invalid did (see `Store::merge_slice`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum AllInvalid {
+    /// Its task was queued again, for any worker but this one.
+    Requeued { task_id: i64 },
+    /// A second worker's slice of the same task was all invalid too: the job failed with this
+    /// message.
+    JobFailed { job_id: String, message: String },
 }
