@@ -165,7 +165,13 @@ pub async fn refresh_estimate(
             (job.rel_error_version + 1).clamp(1, job.version)
         };
         let img = state.images.get_at_least(store, job, wanted).await?;
-        (img.version, img.relative_error, img.total_samples)
+        // A frame job's image (its first frame's) carries the frame's version; it was read
+        // after `job`, so it is current as of the job's version at least.
+        let version = match job.settings.frames {
+            Some(_) => job.version,
+            None => img.version,
+        };
+        (version, img.relative_error, img.total_samples)
     };
     let target_reached = matches!((job.settings.noise_target, err), (Some(t), Some(e)) if e <= t);
     let estimate = Estimate {

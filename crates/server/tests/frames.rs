@@ -493,3 +493,111 @@ async fn all_frames_download_as_a_tar_of_exrs_and_as_an_animated_png() {
         server.stop().await;
     }
 }
+
+/// A slice of `lease`'s whole sample range with the same valid value in every sample (what it
+/// shows does not matter here, only that it is merged).
+fn flat_slice(lease: &pathfarm_wire::api::Lease) -> Vec<u8> {
+    let t = &lease.tile;
+    let mut acc = pathfarm_tracer::Accumulation::new(t.x0, t.y0, t.width, t.height);
+    for p in &mut acc.pixels {
+        for _ in lease.sample_begin..lease.sample_end {
+            p.add_sample(glam::Vec3::splat(0.5));
+        }
+    }
+    pathfarm_wire::encode_slice(&pathfarm_wire::Slice {
+        sample_begin: lease.sample_begin,
+        sample_end: lease.sample_end,
+        acc,
+    })
+}
+
+/// `GET path` with `If-None-Match: tag` when given: status and ETag.
+async fn image_tag(server: &TestServer, path: &str, tag: Option<&str>) -> (StatusCode, String) {
+    use tower::ServiceExt;
+    let headers: Vec<(&str, &str)> = tag.map(|t| ("If-None-Match", t)).into_iter().collect();
+    let resp = pathfarm_server::app(server.state.clone())
+        .oneshot(request("GET", path, &headers, ""))
+        .await
+        .unwrap();
+    let etag = resp.headers()["etag"].to_str().unwrap().to_string();
+    (resp.status(), etag)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_merge_into_one_frame_leaves_the_other_frames_images_current() {
+    for (store, url) in stores("frames-versions").await {
+        let mut c = config(&url);
+        c.max_leases_per_worker = 1000;
+        c.min_frame_task_samples = 1;
+        let server = TestServer::start(c).await;
+        let client = server.client(None);
+        // One tile a frame (tile 0 is frame 1's, tile 1 frame 2's).
+        let job = client
+            .submit(animated(), "animated.glb", &frame_settings("1,2", None, 32))
+            .await
+            .unwrap();
+        let worker = client
+            .register(&WorkerRegistration {
+                name: "w".into(),
+                threads: 1,
+                version: "test".into(),
+                host: "test".into(),
+            })
+            .await
+            .unwrap()
+            .worker_id;
+        let mut leases = Vec::new();
+        while let Some(l) = client.lease(&worker).await.unwrap() {
+            leases.push(l);
+        }
+        let of_frame = |f: i64| {
+            leases
+                .iter()
+                .filter(move |l| l.frame == Some(f))
+                .collect::<Vec<_>>()
+        };
+        let (one, two) = (of_frame(1), of_frame(2));
+        assert!(
+            one.len() >= 2 && two.len() >= 2,
+            "{store}: passes per frame"
+        );
+        let upload = |l: &pathfarm_wire::api::Lease| {
+            let (id, token, body) = (l.task_id, l.lease_token.clone(), flat_slice(l));
+            let client = &client;
+            async move { client.upload_slice(id, &token, body).await }
+        };
+        upload(one[0]).await.unwrap();
+        let frame1 = format!("/api/v1/jobs/{}/image.exr?frame=1", job.id);
+        let frame2 = format!("/api/v1/jobs/{}/image.exr?frame=2", job.id);
+        let (status, tag1) = image_tag(&server, &frame1, None).await;
+        assert_eq!(status, StatusCode::OK, "{store}");
+        let (_, empty2) = image_tag(&server, &frame2, None).await;
+        assert_eq!(empty2, "\"v0\"", "{store}: frame 2 has nothing merged yet");
+        let builds = server.state.images.builds();
+        // Merges into frame 2 change neither frame 1's image nor its tag: no build, 304.
+        upload(two[0]).await.unwrap();
+        upload(two[1]).await.unwrap();
+        assert_eq!(image_tag(&server, &frame1, None).await.1, tag1, "{store}");
+        assert_eq!(
+            image_tag(&server, &frame1, Some(&tag1)).await.0,
+            StatusCode::NOT_MODIFIED,
+            "{store}"
+        );
+        assert_eq!(
+            server.state.images.builds(),
+            builds,
+            "{store}: frame 1 rebuilt"
+        );
+        // Frame 2's own image moved on; a merge into frame 1 moves frame 1's.
+        let (_, tag2) = image_tag(&server, &frame2, None).await;
+        assert_eq!(tag2, "\"v2\"", "{store}");
+        upload(one[1]).await.unwrap();
+        let (status, newer1) = image_tag(&server, &frame1, Some(&tag1)).await;
+        assert_eq!(
+            (status, newer1.as_str()),
+            (StatusCode::OK, "\"v2\""),
+            "{store}"
+        );
+        server.stop().await;
+    }
+}

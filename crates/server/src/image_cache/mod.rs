@@ -316,14 +316,6 @@ impl ImageCache {
     ) -> ApiResult<Arc<JobImage>> {
         let (width, height) = (job.settings.width, job.settings.height);
         let key = image_key(&job.id, slot);
-        if let Some(img) = self.kept(&key, wanted) {
-            return Ok(img);
-        }
-        if job.version == 0 {
-            let img = Arc::new(JobImage::empty(0, width, height));
-            self.keep(&key, &img);
-            return Ok(img);
-        }
         let tile = job.settings.tile_size;
         // A frame's tiles are a run of the job's: `slot × tiles per frame` on.
         let tiles = slot.map(|slot| {
@@ -332,7 +324,22 @@ impl ImageCache {
             let first = i64::from(slot) * per_frame;
             (first, first + per_frame - 1)
         });
-        let (cache, reader, id, k) = (self.clone(), store.image_reader(), job.id.clone(), key);
+        let reader = store.image_reader();
+        // A frame's image has versions of its own (the slices merged into the frame), so that
+        // merges into other frames leave it current: the frame's version now is what is wanted.
+        let wanted = match tiles {
+            Some(range) => reader.frame_version(&job.id, range).await?,
+            None => wanted,
+        };
+        if let Some(img) = self.kept(&key, wanted) {
+            return Ok(img);
+        }
+        if job.version == 0 || (tiles.is_some() && wanted == 0) {
+            let img = Arc::new(JobImage::empty(0, width, height));
+            self.keep(&key, &img);
+            return Ok(img);
+        }
+        let (cache, id, k) = (self.clone(), job.id.clone(), key);
         self.shared
             .images
             .run(

@@ -28,6 +28,7 @@ pub struct ImageReader {
 pub struct ImageSnapshot {
     tx: Transaction<'static, Any>,
     job_id: String,
+    /// The job's version, or a frame's ([`ImageReader::frame_version`]) for a frame's tiles.
     pub version: i64,
     pub tiles: Vec<TileMeta>,
 }
@@ -43,12 +44,13 @@ impl Store {
 
 impl ImageReader {
     /// The job's version and tiles (those of `tiles`, an index range with both ends included:
-    /// a frame's; `None`: all); 404 when the job is gone.
+    /// a frame's, and then the frame's version; `None`: all); 404 when the job is gone.
     pub async fn snapshot(
         &self,
         job_id: &str,
         tiles: Option<(i64, i64)>,
     ) -> StoreResult<ImageSnapshot> {
+        let frame = tiles.is_some();
         let mut tx = self.pool.begin().await?;
         if self.dialect == Dialect::Postgres {
             sqlx::query("SET TRANSACTION ISOLATION LEVEL REPEATABLE READ, READ ONLY")
@@ -64,8 +66,8 @@ impl ImageReader {
             None => return Err(Error::not_found("job", job_id)),
         };
         let rows = sqlx::query(
-            "SELECT tile_index, samples, CAST(COALESCE(length(accum), 0) AS BIGINT) AS stored \
-             FROM tiles WHERE job_id = $1 AND tile_index >= $2 AND tile_index <= $3 \
+            "SELECT tile_index, samples, merges, \
+             CAST(COALESCE(length(accum), 0) AS BIGINT) AS stored FROM tiles WHERE job_id = $1 AND tile_index >= $2 AND tile_index <= $3 \
              ORDER BY tile_index",
         )
         .bind(job_id)
@@ -83,12 +85,37 @@ impl ImageReader {
                 })
             })
             .collect::<Result<Vec<_>, sqlx::Error>>()?;
+        let version = if frame {
+            rows.iter()
+                .map(|r| r.try_get::<i64, _>("merges"))
+                .sum::<Result<i64, sqlx::Error>>()?
+        } else {
+            version
+        };
         Ok(ImageSnapshot {
             tx,
             job_id: job_id.to_string(),
             version,
             tiles,
         })
+    }
+}
+
+impl ImageReader {
+    /// The version of a frame's image: the slices merged into its tiles (`tiles`, an index range
+    /// with both ends included), so that it changes only when the frame does. 0 before its first
+    /// slice (and for a job that is gone).
+    pub async fn frame_version(&self, job_id: &str, (first, last): (i64, i64)) -> StoreResult<i64> {
+        let row = sqlx::query(
+            "SELECT CAST(COALESCE(SUM(merges), 0) AS BIGINT) AS v FROM tiles \
+             WHERE job_id = $1 AND tile_index >= $2 AND tile_index <= $3",
+        )
+        .bind(job_id)
+        .bind(first)
+        .bind(last)
+        .fetch_one(&self.pool)
+        .await?;
+        Ok(row.try_get("v")?)
     }
 }
 

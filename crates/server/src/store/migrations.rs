@@ -31,6 +31,7 @@ pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
         "0005_frames.sql",
         "0006_retention_and_quotas.sql",
         "0007_all_invalid_slices.sql",
+        "0008_frame_versions.sql",
     ))
 });
 
@@ -44,6 +45,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0005_frames.sql",
         "0006_retention_and_quotas.sql",
         "0007_all_invalid_slices.sql",
+        "0008_frame_versions.sql",
     ))
 });
 

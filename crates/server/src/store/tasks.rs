@@ -284,7 +284,8 @@ impl Store {
         let mut writes = Statements::new(self.dialect());
         writes
             .push(
-                "UPDATE tiles SET samples = $1, accum = $2 WHERE job_id = $3 AND tile_index = $4",
+                "UPDATE tiles SET samples = $1, accum = $2, merges = merges + 1 \
+                 WHERE job_id = $3 AND tile_index = $4",
                 vec![
                     (new_samples as i64).into(),
                     encoded.into(),
