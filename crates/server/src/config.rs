@@ -190,6 +190,12 @@ pub struct ServerConfig {
     pub quotas: Quotas,
     /// SQLite's durability (PostgreSQL's is its own `synchronous_commit`).
     pub sqlite_synchronous: SqliteSynchronous,
+    /// The fraction of tasks (0 to 1, chosen by a hash of the job and task) that another worker
+    /// renders again to check the first one's result bit for bit; a third worker decides a
+    /// disagreement, and a worker found wrong is given no more work and the tiles it merged into
+    /// are rendered again (`store/verification.rs`). 0: no verification (the default: a farm of
+    /// workers one trusts).
+    pub verify_fraction: f64,
     /// Rows (tiles or tasks) a submission stores per transaction; `None`: the store's default
     /// ([`crate::store::Store::default_batch_rows`]: batches on SQLite, whose one writer makes
     /// every other write wait for a submission, the whole plan at once on PostgreSQL, where
@@ -241,6 +247,7 @@ impl ServerConfig {
             job_retention: Some(DEFAULT_JOB_RETENTION),
             quotas: Quotas::default(),
             sqlite_synchronous: SqliteSynchronous::Full,
+            verify_fraction: 0.0,
             submission_batch_rows: None,
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,

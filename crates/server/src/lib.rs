@@ -64,7 +64,8 @@ impl AppState {
             config.clock.clone(),
             config.sqlite_synchronous,
         )
-        .await?;
+        .await?
+        .with_verify_fraction(config.verify_fraction);
         let scene_checks = tokio::sync::Semaphore::new(config.limits.scene_checks.max(1));
         let images = image_cache::ImageCache::new(config.image_cache_bytes, config.image_wait);
         Ok(AppState(Arc::new(Inner {

@@ -17,6 +17,9 @@ pub enum JobEvent {
     /// Every planned sample merged, or the noise target or time limit reached.
     Complete,
     Fail,
+    /// A completed job's tiles hold work of a worker since found wrong (`store/verification.rs`):
+    /// they are rendered again.
+    Reopen,
 }
 
 /// The state a job moves to, or `Err` with a message when the event is not allowed in `from`.
@@ -32,6 +35,8 @@ pub fn job_transition(from: JobState, event: JobEvent) -> Result<JobState, Strin
         // A paused job can complete: its leased tasks may finish their last slices.
         (S::Queued | S::Running | S::Paused, E::Complete) => S::Completed,
         (S::Queued | S::Running | S::Paused, E::Fail) => S::Failed,
+        (S::Completed, E::Reopen) => S::Running,
+        (S::Queued | S::Running | S::Paused, E::Reopen) => from,
         _ => {
             return Err(format!(
                 "a {} job cannot {}",
@@ -43,6 +48,7 @@ pub fn job_transition(from: JobState, event: JobEvent) -> Result<JobState, Strin
                     E::Cancel => "be cancelled",
                     E::Complete => "complete",
                     E::Fail => "fail",
+                    E::Reopen => "be reopened",
                 }
             ))
         }

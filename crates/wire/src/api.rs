@@ -533,6 +533,10 @@ pub struct WorkerView {
     pub samples_per_second: f64,
     pub registered_at_ms: i64,
     pub last_heartbeat_ms: i64,
+    /// Caught merging a result other workers' renders of the same samples refuted (the server's
+    /// `--verify-fraction` checks): it is given no more work.
+    #[serde(default)]
+    pub untrusted: bool,
 }
 
 /// A page of workers: active first, then newest.

@@ -93,6 +93,11 @@ pub struct ServerArgs {
     /// tiles and its scene once no job uses it; 0 keeps finished jobs until deleted.
     #[arg(long, env = "PATHFARM_JOB_RETENTION_DAYS", default_value_t = 30.0)]
     pub job_retention_days: f64,
+    /// Fraction of tasks (0 to 1) another worker renders again to check the first result bit for
+    /// bit; a worker found wrong gets no more work and the tiles it merged into are rendered
+    /// again. 0: no checks (workers one trusts).
+    #[arg(long, env = "PATHFARM_VERIFY_FRACTION", default_value_t = 0.0)]
+    pub verify_fraction: f64,
     /// Most unfinished jobs (queued, running, paused) one client token may have; 0: no limit.
     #[arg(
         long,
@@ -174,6 +179,10 @@ impl ServerArgs {
         }
         c.job_retention = (self.job_retention_days > 0.0)
             .then(|| Duration::from_secs_f64(self.job_retention_days * 86_400.0));
+        if !(0.0..=1.0).contains(&self.verify_fraction) {
+            bail!("--verify-fraction must be between 0 (no checks) and 1 (every task)");
+        }
+        c.verify_fraction = self.verify_fraction;
         c.quotas.max_unfinished_jobs =
             (self.max_unfinished_jobs_per_token > 0).then_some(self.max_unfinished_jobs_per_token);
         if !(self.max_stored_gib_per_token.is_finite()

@@ -111,6 +111,9 @@ impl From<crate::store::Error> for ApiError {
             E::NotFound { .. } => ApiError::new(StatusCode::NOT_FOUND, "not_found", message),
             E::StaleLease { .. } => ApiError::conflict("stale_lease", message),
             E::NotLessee { .. } => ApiError::new(StatusCode::FORBIDDEN, "not_your_lease", message),
+            E::Untrusted { .. } => {
+                ApiError::new(StatusCode::FORBIDDEN, "untrusted_worker", message)
+            }
             E::TooManyLeases { .. } => {
                 ApiError::new(StatusCode::TOO_MANY_REQUESTS, "too_many_leases", message)
             }

@@ -27,6 +27,12 @@ pub enum Error {
          release one first"
     )]
     TooManyLeases { worker_id: String, held: u64 },
+    /// The worker was caught merging a wrong result (verification): it is given no more work.
+    #[error(
+        "worker {worker_id} merged a result that other workers' renders of the same samples \
+         refuted; it is given no more work"
+    )]
+    Untrusted { worker_id: String },
     /// A submission would take its client token past one of its quotas ([`crate::Quotas`]).
     #[error(
         "quota exceeded: {what} would be {would_be}, over this client token's limit of {limit}; \

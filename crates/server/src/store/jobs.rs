@@ -293,6 +293,10 @@ impl Store {
             .bind(id)
             .execute(&mut *w.tx)
             .await?;
+        sqlx::query("DELETE FROM tile_workers WHERE job_id = $1")
+            .bind(id)
+            .execute(&mut *w.tx)
+            .await?;
         let row =
             sqlx::query("DELETE FROM jobs WHERE id = $1 RETURNING scene_hash, environment_hash")
                 .bind(id)

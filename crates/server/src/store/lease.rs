@@ -24,14 +24,17 @@ macro_rules! candidate_jobs {
     };
 }
 
-/// A task condition: not refused to the worker in parameter `$w` (its own slice of the task had
-/// every sample invalid: `all_invalid.rs`).
+/// A task condition: not refused to the worker in parameter `$w`: its own slice of the task had
+/// every sample invalid (`all_invalid.rs`), or it gave its result for the task a verification
+/// task checks (`verification.rs`).
 macro_rules! not_refused_by {
     ($w:literal) => {
         concat!(
             "(all_invalid_worker IS NULL OR all_invalid_worker <> ",
             $w,
-            ")"
+            ") AND (not_for IS NULL OR (' ' || not_for || ' ') NOT LIKE ('% ' || ",
+            $w,
+            " || ' %'))"
         )
     };
 }
@@ -86,13 +89,20 @@ impl Store {
         // The cap, before anything is picked or written (a refusal, so a batch goes on). On
         // PostgreSQL two leases of one worker racing on two servers may both pass it; the worker
         // daemon asks for one lease at a time, and a worker that races itself gains one lease.
-        let held: i64 = sqlx::query(
-            "SELECT COUNT(*) AS n FROM tasks WHERE worker_id = $1 AND state = 'leased'",
+        let row = sqlx::query(
+            "SELECT COUNT(*) AS n, (SELECT untrusted FROM workers WHERE id = $1) AS untrusted \
+             FROM tasks WHERE worker_id = $1 AND state = 'leased'",
         )
         .bind(worker_id)
         .fetch_one(&mut **tx)
-        .await?
-        .try_get("n")?;
+        .await?;
+        let held: i64 = row.try_get("n")?;
+        // Caught merging a wrong result (`verification.rs`): no more work.
+        if row.try_get::<Option<i64>, _>("untrusted")? == Some(1) {
+            return Err(Error::Untrusted {
+                worker_id: worker_id.to_string(),
+            });
+        }
         if held >= i64::from(max_leases) {
             return Err(Error::TooManyLeases {
                 worker_id: worker_id.to_string(),

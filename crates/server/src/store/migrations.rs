@@ -32,6 +32,7 @@ pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
         "0006_retention_and_quotas.sql",
         "0007_all_invalid_slices.sql",
         "0008_frame_versions.sql",
+        "0009_verification.sql",
     ))
 });
 
@@ -46,6 +47,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0006_retention_and_quotas.sql",
         "0007_all_invalid_slices.sql",
         "0008_frame_versions.sql",
+        "0009_verification.sql",
     ))
 });
 

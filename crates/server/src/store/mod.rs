@@ -32,6 +32,7 @@ mod retention;
 mod statements;
 mod submission;
 mod tasks;
+mod verification;
 mod workers;
 mod writes;
 
@@ -102,6 +103,9 @@ pub struct Store {
     write_queue: Option<std::sync::Arc<group_commit::WriteQueue>>,
     /// The time of every timestamp ([`Store::now_ms`]).
     clock: std::sync::Arc<dyn Clock>,
+    /// The fraction of tasks rendered again by another worker to check them
+    /// ([`crate::ServerConfig::verify_fraction`], `verification.rs`).
+    verify_fraction: f64,
 }
 
 /// A write transaction; on SQLite it also holds the process's writer lock until it ends.
@@ -226,7 +230,15 @@ impl Store {
             sqlite_writer: (dialect == Dialect::Sqlite)
                 .then(|| std::sync::Arc::new(Mutex::new(()))),
             write_queue: (dialect == Dialect::Sqlite).then(Default::default),
+            verify_fraction: 0.0,
         })
+    }
+
+    /// The store, checking this fraction of tasks (0 to 1) by rendering them again on another
+    /// worker (see `verification.rs`).
+    pub fn with_verify_fraction(mut self, fraction: f64) -> Store {
+        self.verify_fraction = fraction.clamp(0.0, 1.0);
+        self
     }
 
     pub fn dialect(&self) -> Dialect {

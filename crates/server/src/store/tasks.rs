@@ -135,7 +135,7 @@ impl Store {
         let task = if joined {
             sqlx::query(
                 "SELECT t.job_id, t.tile_index, t.sample_begin, t.sample_end, t.done_end, t.state, \
-                 t.lease_token, t.worker_id, t.all_invalid_worker, ti.x0, ti.y0, ti.width, ti.height, ti.samples, \
+                 t.lease_token, t.worker_id, t.all_invalid_worker, t.verifies, ti.x0, ti.y0, ti.width, ti.height, ti.samples, \
                  ti.accum FROM tasks t JOIN tiles ti \
                  ON ti.job_id = t.job_id AND ti.tile_index = t.tile_index WHERE t.id = $1",
             )
@@ -145,7 +145,8 @@ impl Store {
         } else {
             sqlx::query(
                 "SELECT job_id, tile_index, sample_begin, sample_end, done_end, state, \
-                 lease_token, worker_id, all_invalid_worker FROM tasks WHERE id = $1 FOR UPDATE",
+                 lease_token, worker_id, all_invalid_worker, verifies FROM tasks \
+                 WHERE id = $1 FOR UPDATE",
             )
             .bind(task_id)
             .fetch_optional(&mut **tx)
@@ -163,6 +164,8 @@ impl Store {
         let lease_token: Option<String> = task.try_get("lease_token")?;
         let worker_id: Option<String> = task.try_get("worker_id")?;
         let all_invalid_worker: Option<String> = task.try_get("all_invalid_worker")?;
+        // A verification task: the task whose result it renders again (`verification.rs`).
+        let verifies: Option<i64> = task.try_get("verifies")?;
         if lease_token.as_deref() != Some(token) {
             return Err(stale_lease(task_id));
         }
@@ -242,48 +245,43 @@ impl Store {
                 .refuse_all_invalid(tx, task_id, &job_id, worker_id, all_invalid_worker, slice)
                 .await;
         }
-        let tile_samples = g("samples")? as u64;
-        let accum: Option<Vec<u8>> = tile.try_get("accum")?;
-        let mut merged = match accum {
-            Some(bytes) => {
-                decode_slice(
-                    &bytes,
-                    &SliceLimits {
-                        max_pixels: u64::MAX,
-                    },
-                )
-                .map_err(|e| Error::internal(format!("stored tile accumulation: {e}")))?
-                .acc
-            }
-            None => Accumulation::new(x0, y0, tw, th),
-        };
-        // Checked: an overflow refuses this slice (before any write, so a batch goes on) and
-        // leaves the tile as it was, so honest slices still merge into it.
-        merged.merge(a).map_err(|e| match e {
-            MergeError::Shape { .. } => Error::internal(format!("merge: {e}")),
-            e => Error::SliceValues(format!(
-                "slice refused: merging it into task {task_id}'s tile: {e}"
-            )),
-        })?;
-        let new_samples = tile_samples + n as u64;
-        // The stored tile is the union of sample ranges that may not be contiguous yet (a later
-        // pass can be merged before an earlier one), so its recorded invalid samples can lie beyond
-        // `new_samples`: it is stored as covering every sample index. Its count is in `samples`.
-        let encoded = encode_slice(&Slice {
-            sample_begin: 0,
-            sample_end: u32::MAX,
-            acc: merged,
-        });
         let complete = s_end == t_end;
         let to = task_transition(state, TaskEvent::Merged { complete }).map_err(Error::internal)?;
         let samples = n as u64 * a.pixels.len() as u64;
         let now = self.now_ms();
+        // A verification task's slices go into its own accumulation, never into the image; an
+        // ordinary task's into its tile (and, while verification is on, into its own when it is
+        // checked). `judged` and `opened`: verification tasks judged and queued by this merge.
+        let (tile_update, judged, opened) = match verifies {
+            Some(checked) => {
+                let (judged, opened) = self
+                    .merge_verification(tx, &job_id, task_id, checked, a, complete)
+                    .await?;
+                (None, judged, opened)
+            }
+            None => {
+                let update = merged_tile(&tile, a, task_id, n)?;
+                let opened = self
+                    .track_for_verification(
+                        tx,
+                        &job_id,
+                        task_id,
+                        tile_index,
+                        worker_id.as_deref(),
+                        a,
+                        complete,
+                    )
+                    .await?;
+                (Some(update), 0, opened)
+            }
+        };
+        let image_samples = if tile_update.is_some() { samples } else { 0 };
         // The writes in lock order (tiles, tasks, jobs, workers), in one round trip on SQLite. The
         // job's update returns what decides completion; its state changes (one more statement)
         // only on the job's last merge.
         let mut writes = Statements::new(self.dialect());
-        writes
-            .push(
+        if let Some((new_samples, encoded)) = tile_update {
+            writes.push(
                 "UPDATE tiles SET samples = $1, accum = $2, merges = merges + 1 \
                  WHERE job_id = $3 AND tile_index = $4",
                 vec![
@@ -292,18 +290,24 @@ impl Store {
                     job_id.as_str().into(),
                     tile_index.into(),
                 ],
-            )
+            );
+        }
+        writes
             .push(
                 "UPDATE tasks SET done_end = $1, state = $2 WHERE id = $3",
                 vec![(s_end as i64).into(), to.as_str().into(), task_id.into()],
             )
             .push(
-                "UPDATE jobs SET samples_done = samples_done + $1, version = version + 1, \
-                 leased_tasks = leased_tasks - $2 WHERE id = $3 \
-                 RETURNING state, samples_done, samples_planned",
+                "UPDATE jobs SET samples_done = samples_done + $1, version = version + $2, \
+                 leased_tasks = leased_tasks - $3, queued_tasks = queued_tasks + $4, \
+                 verifying = verifying + $5 WHERE id = $6 \
+                 RETURNING state, samples_done, samples_planned, verifying",
                 vec![
-                    (samples as i64).into(),
+                    (image_samples as i64).into(),
+                    i64::from(image_samples > 0).into(),
                     (complete as i64).into(),
+                    opened.into(),
+                    (opened - judged).into(),
                     job_id.as_str().into(),
                 ],
             );
@@ -331,7 +335,8 @@ impl Store {
         let current = job_state(&job.try_get::<String, _>("state")?)?;
         let done = job.try_get::<i64, _>("samples_done")? as u64;
         let planned = job.try_get::<i64, _>("samples_planned")? as u64;
-        let job_completed = done >= planned;
+        // Every sample merged, and every verification judged.
+        let job_completed = done >= planned && job.try_get::<i64, _>("verifying")? <= 0;
         let new_state = if job_completed {
             let to = job_transition(current, JobEvent::Complete).map_err(Error::internal)?;
             sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3")
@@ -351,7 +356,7 @@ impl Store {
                 task_complete: complete,
                 keep_going: !complete && new_state == JobState::Running,
             },
-            samples,
+            samples: image_samples,
             job_completed,
             all_invalid: None,
         })
@@ -524,4 +529,46 @@ impl Store {
         w.commit().await?;
         Ok(n)
     }
+}
+
+/// The tile (its row `tile`: samples, accumulation) with slice `a` of task `task_id` (`n` samples
+/// a pixel) merged in: its new sample count and stored accumulation. Checked: an overflow refuses
+/// the slice (before any write, so a batch goes on) and leaves the tile as it was, so honest
+/// slices still merge into it.
+fn merged_tile(
+    tile: &sqlx::any::AnyRow,
+    a: &Accumulation,
+    task_id: i64,
+    n: u32,
+) -> StoreResult<(u64, Vec<u8>)> {
+    let tile_samples = tile.try_get::<i64, _>("samples")? as u64;
+    let accum: Option<Vec<u8>> = tile.try_get("accum")?;
+    let mut merged = match accum {
+        Some(bytes) => {
+            decode_slice(
+                &bytes,
+                &SliceLimits {
+                    max_pixels: u64::MAX,
+                },
+            )
+            .map_err(|e| Error::internal(format!("stored tile accumulation: {e}")))?
+            .acc
+        }
+        None => Accumulation::new(a.x0, a.y0, a.width, a.height),
+    };
+    merged.merge(a).map_err(|e| match e {
+        MergeError::Shape { .. } => Error::internal(format!("merge: {e}")),
+        e => Error::SliceValues(format!(
+            "slice refused: merging it into task {task_id}'s tile: {e}"
+        )),
+    })?;
+    // The stored tile is the union of sample ranges that may not be contiguous yet (a later pass
+    // can be merged before an earlier one), so its recorded invalid samples can lie beyond its
+    // sample count: it is stored as covering every sample index. Its count is in `samples`.
+    let encoded = encode_slice(&Slice {
+        sample_begin: 0,
+        sample_end: u32::MAX,
+        acc: merged,
+    });
+    Ok((tile_samples + u64::from(n), encoded))
 }

@@ -185,7 +185,7 @@ impl Store {
             .try_get("n")?;
         let rows = sqlx::query(
             "SELECT id, name, host, threads, version, state, registered_ms, last_seen_ms, \
-             current_task, current_job, samples_done FROM workers \
+             current_task, current_job, samples_done, untrusted FROM workers \
              ORDER BY CASE WHEN state = 'offline' THEN 1 ELSE 0 END, registered_ms DESC, id ASC \
              LIMIT $1 OFFSET $2",
         )
@@ -217,6 +217,7 @@ impl Store {
                     samples_per_second: samples as f64 / alive_s,
                     registered_at_ms: registered,
                     last_heartbeat_ms: last,
+                    untrusted: r.try_get::<i64, _>("untrusted")? != 0,
                 })
             })
             .collect::<Result<Vec<_>, sqlx::Error>>()
