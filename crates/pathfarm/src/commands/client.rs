@@ -690,10 +690,15 @@ pub struct WorkersArgs {
 }
 
 fn print_worker(w: &WorkerView) {
+    let state = if w.untrusted {
+        format!("{}!", w.state.as_str())
+    } else {
+        w.state.as_str().to_string()
+    };
     println!(
         "{:<24} {:<8} {:>7} {:>10.2} {:>13}  {}",
         w.name,
-        w.state.as_str(),
+        state,
         w.threads,
         w.samples_per_second / 1e6,
         w.samples_done,
@@ -719,6 +724,9 @@ pub async fn workers(args: WorkersArgs) -> Result<()> {
         print_worker(w);
     }
     println!("{} workers", list.workers.len());
+    if list.workers.iter().any(|w| w.untrusted) {
+        println!("!: untrusted (merged a result other workers refuted; given no more work)");
+    }
     Ok(())
 }
 

@@ -87,10 +87,13 @@ function fillRow(row, w) {
   const q = (id) => row.querySelector(`[data-testid="${id}"]`);
   row.dataset.state = w.state;
   const badge = q('worker-state');
-  setText(badge, w.state);
-  badge.className = `badge worker-${w.state}`;
-  // A lost worker is the one thing here that needs attention: say so in words, not only colour.
-  badge.title = w.state === 'lost' ? 'No heartbeat for longer than a lease' : '';
+  // An untrusted worker (caught merging a wrong result) and a lost one need attention: say so in
+  // words, not only colour.
+  setText(badge, w.untrusted ? `${w.state}, untrusted` : w.state);
+  badge.className = `badge worker-${w.untrusted ? 'untrusted' : w.state}`;
+  badge.title = w.untrusted
+    ? 'Merged a result other workers refuted: given no more work; its tiles are rendered again'
+    : w.state === 'lost' ? 'No heartbeat for longer than a lease' : '';
   setText(q('worker-host'), w.host);
   setText(q('worker-threads'), String(w.threads));
   const task = q('worker-task');
