@@ -24,3 +24,5 @@ CREATE TABLE tile_workers (
     PRIMARY KEY (job_id, tile_index, worker_id)
 );
 CREATE INDEX tile_workers_by_worker ON tile_workers(worker_id);
+-- The monitor looks for verification tasks no worker may take.
+CREATE INDEX tasks_verifications ON tasks(verifies) WHERE verifies IS NOT NULL;

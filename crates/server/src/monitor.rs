@@ -86,6 +86,13 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
     if lost > 0 {
         tracing::warn!(workers = lost, "workers lost (no heartbeat)");
     }
+    let stranded = store.drop_stranded_verifications().await?;
+    if stranded > 0 {
+        tracing::warn!(
+            tasks = stranded,
+            "verifications no worker may take were dropped"
+        );
+    }
     let collected = store
         .collect_idle_workers(state.config.worker_expiry.as_millis() as u64)
         .await?;

@@ -118,3 +118,28 @@ async fn a_lying_worker_is_caught_and_its_work_rendered_again() {
         server.stop().await;
     }
 }
+
+/// With one worker no verification can run (none is for the worker that rendered the task): the
+/// monitor leaves the tasks unverified, and the job completes, bit-identical.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_farm_of_one_worker_completes_with_verification_on() {
+    let bytes = cornell();
+    let s = settings(16, 16, 4, 8);
+    let expected = exr(&local_render(&bytes, &s));
+    for (store, url) in stores("verification-alone").await {
+        let mut config = config(&url);
+        config.verify_fraction = 1.0;
+        let server = TestServer::start(config).await;
+        let c = server.client(None);
+        let job = c.submit(bytes.clone(), "c.gltf", &s).await.unwrap();
+        let worker = TestWorker::spawn(&server.url, None, None);
+        let j = wait_final(&c, &job.id, std::time::Duration::from_secs(60)).await;
+        assert_completed(&j);
+        assert!(
+            c.image_exr(&job.id, false).await.unwrap() == expected,
+            "{store}: the image differs from the local render"
+        );
+        worker.stop().await;
+        server.stop().await;
+    }
+}

@@ -336,6 +336,84 @@ impl Store {
         }
     }
 
+    /// Cancels queued verification tasks that no worker may take: no trusted worker that is alive
+    /// (idle or busy) outside their `not_for` — a farm of one worker, or of two that disagree.
+    /// The checked task keeps its result, `unverified` (or `inconclusive` after a dispute); a job
+    /// that waited only for them completes. Returns how many were cancelled (a bounded number a
+    /// call: the monitor calls it every step).
+    pub async fn drop_stranded_verifications(&self) -> StoreResult<u64> {
+        let mut w = self.write().await?;
+        let rows = sqlx::query(sql!(
+            "SELECT id, job_id, verifies, not_for FROM tasks \
+             WHERE verifies IS NOT NULL AND state = 'queued' ORDER BY id LIMIT 64{}",
+            self.dialect().skip_locked()
+        ))
+        .fetch_all(&mut *w.tx)
+        .await?;
+        let mut dropped = 0;
+        for r in rows {
+            let not_for: String = r
+                .try_get::<Option<String>, _>("not_for")?
+                .unwrap_or_default();
+            let eligible: i64 = sqlx::query(
+                "SELECT COUNT(*) AS n FROM workers WHERE untrusted = 0 \
+                 AND state IN ('idle', 'busy') AND (' ' || $1 || ' ') NOT LIKE ('% ' || id || ' %')",
+            )
+            .bind(&not_for)
+            .fetch_one(&mut *w.tx)
+            .await?
+            .try_get("n")?;
+            if eligible > 0 {
+                continue;
+            }
+            let (id, job_id, checked): (i64, String, i64) = (
+                r.try_get("id")?,
+                r.try_get("job_id")?,
+                r.try_get("verifies")?,
+            );
+            sqlx::query(sql!(
+                "UPDATE tasks SET state = '{}', accum = NULL WHERE id = $1",
+                TaskState::Cancelled.as_str()
+            ))
+            .bind(id)
+            .execute(&mut *w.tx)
+            .await?;
+            sqlx::query(
+                "UPDATE tasks SET verify_state = CASE WHEN verify_state = 'disputed' \
+                 THEN 'inconclusive' ELSE 'unverified' END, accum = NULL WHERE id = $1",
+            )
+            .bind(checked)
+            .execute(&mut *w.tx)
+            .await?;
+            sqlx::query("UPDATE tasks SET accum = NULL WHERE verifies = $1")
+                .bind(checked)
+                .execute(&mut *w.tx)
+                .await?;
+            let job = sqlx::query(
+                "UPDATE jobs SET queued_tasks = queued_tasks - 1, verifying = verifying - 1 \
+                 WHERE id = $1 RETURNING state, samples_done, samples_planned, verifying",
+            )
+            .bind(&job_id)
+            .fetch_one(&mut *w.tx)
+            .await?;
+            let state = job_state(&job.try_get::<String, _>("state")?)?;
+            let done = job.try_get::<i64, _>("samples_done")? >= job.try_get("samples_planned")?;
+            if done && job.try_get::<i64, _>("verifying")? <= 0 && !state.is_final() {
+                let to = job_transition(state, JobEvent::Complete).map_err(Error::internal)?;
+                sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3")
+                    .bind(to.as_str())
+                    .bind(self.now_ms())
+                    .bind(&job_id)
+                    .execute(&mut *w.tx)
+                    .await?;
+            }
+            tracing::warn!(job = %job_id, task = checked, "no other worker can verify the task: left unverified");
+            dropped += 1;
+        }
+        w.commit().await?;
+        Ok(dropped)
+    }
+
     /// Marks `worker` untrusted, takes its leases back, and renders every tile it merged into
     /// again from nothing (see the module documentation).
     async fn untrust(&self, tx: &mut Tx, worker: &str) -> StoreResult<()> {
