@@ -404,3 +404,51 @@ async fn the_worker_daemon_registers_again_after_its_registration_expired() {
     daemon.stop().await;
     server.stop().await;
 }
+
+/// Two servers on one PostgreSQL: a worker racing many leases through both never holds more than
+/// its cap (each server's count would see only committed leases without the worker's lease lock).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_lease_cap_holds_across_two_postgres_servers() {
+    let Ok(base) = std::env::var("PATHFARM_TEST_POSTGRES_URL") else {
+        eprintln!("SKIPPED: two servers on PostgreSQL (PATHFARM_TEST_POSTGRES_URL is not set)");
+        return;
+    };
+    let url = fresh_postgres(&base).await;
+    let mut cfg = with_tokens(&url);
+    cfg.max_leases_per_worker = 1;
+    let (s1, s2) = (
+        TestServer::start(cfg.clone()).await,
+        TestServer::start(cfg).await,
+    );
+    s1.client(Some(CLIENT))
+        .submit(cornell(), "c.gltf", &settings(64, 64, 1, 8))
+        .await
+        .unwrap();
+    let (c1, reg) = worker(&s1, "racer").await;
+    let c2 = s2.client(Some(WORKER));
+    c2.set_worker_credential(
+        &reg.worker_id,
+        &c1.worker_credential(&reg.worker_id).unwrap(),
+    );
+    for round in 0..10 {
+        let tries = (0..8).map(|k| {
+            let c = if k % 2 == 0 { &c1 } else { &c2 };
+            c.lease(&reg.worker_id)
+        });
+        let results = futures_util::future::join_all(tries).await;
+        let got: Vec<_> = results
+            .into_iter()
+            .filter_map(|r| r.ok().flatten())
+            .collect();
+        assert!(
+            got.len() <= 1,
+            "round {round}: {} leases at once",
+            got.len()
+        );
+        for l in got {
+            c1.release(l.task_id, &l.lease_token).await.unwrap();
+        }
+    }
+    s1.stop().await;
+    s2.stop().await;
+}

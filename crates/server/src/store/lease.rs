@@ -87,8 +87,16 @@ impl Store {
         max_leases: u32,
     ) -> StoreResult<Option<Lease>> {
         // The cap, before anything is picked or written (a refusal, so a batch goes on). On
-        // PostgreSQL two leases of one worker racing on two servers may both pass it; the worker
-        // daemon asks for one lease at a time, and a worker that races itself gains one lease.
+        // PostgreSQL, where servers lease concurrently, one worker's leases are taken one at a time
+        // (a transaction-scoped advisory lock on the worker): two racing on two servers would
+        // otherwise both count the same held leases and both pass. Only leases take it, first,
+        // so it adds no cycle to the row locks' order.
+        if self.dialect() == Dialect::Postgres {
+            sqlx::query("SELECT pg_advisory_xact_lock($1)")
+                .bind(lease_lock_key(worker_id))
+                .execute(&mut **tx)
+                .await?;
+        }
         let row = sqlx::query(
             "SELECT COUNT(*) AS n, (SELECT untrusted FROM workers WHERE id = $1) AS untrusted \
              FROM tasks WHERE worker_id = $1 AND state = 'leased'",
@@ -195,6 +203,19 @@ impl Store {
             frame: job.try_get("frame")?,
         }))
     }
+}
+
+/// The advisory lock key of `worker_id`'s leases: the leading 64 bits of its SHA-256 (a key
+/// shared by two workers only makes their leases wait for each other).
+fn lease_lock_key(worker_id: &str) -> i64 {
+    use sha2::{Digest, Sha256};
+    let digest = Sha256::new()
+        .chain_update(b"pathfarm lease ")
+        .chain_update(worker_id.as_bytes())
+        .finalize();
+    let mut lead = [0u8; 8];
+    lead.copy_from_slice(&digest[..8]);
+    i64::from_be_bytes(lead)
 }
 
 /// SQLite, with its one writer (nothing else can claim a task meanwhile): the worker's existence,
