@@ -100,6 +100,12 @@ pub struct Limits {
     /// counted, checked before any geometry is read. A loaded triangle takes 40–170 bytes, so this
     /// bounds the memory of a scene check.
     pub max_scene_triangles: u64,
+    /// Most bytes of submission and slice bodies held in memory at once ([`crate::body_budget`]):
+    /// each reserves its declared length (its limit when it declares none) before it is read.
+    pub body_budget_bytes: u64,
+    /// How long a body waits for room in that budget before it is refused (503 `busy` with
+    /// `Retry-After`), unread.
+    pub body_wait: Duration,
 }
 
 impl Default for Limits {
@@ -114,6 +120,8 @@ impl Default for Limits {
             max_slice_bytes: 256 << 20,
             scene_checks: 2,
             max_scene_triangles: 20_000_000,
+            body_budget_bytes: 1 << 30,
+            body_wait: Duration::from_secs(10),
         }
     }
 }

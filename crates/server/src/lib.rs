@@ -6,6 +6,7 @@
 //! several servers can share one PostgreSQL database and serve one farm.
 
 pub mod auth;
+pub mod body_budget;
 mod compression;
 pub mod config;
 pub mod connections;
@@ -47,6 +48,8 @@ pub struct Inner {
     pub metrics: metrics::Metrics,
     /// Permits to validate a submitted scene ([`config::Limits::scene_checks`]).
     pub scene_checks: tokio::sync::Semaphore,
+    /// The bodies held in memory at once ([`config::Limits::body_budget_bytes`]).
+    pub bodies: body_budget::BodyBudget,
 }
 
 impl std::ops::Deref for AppState {
@@ -67,10 +70,13 @@ impl AppState {
         .await?
         .with_verify_fraction(config.verify_fraction);
         let scene_checks = tokio::sync::Semaphore::new(config.limits.scene_checks.max(1));
+        let bodies =
+            body_budget::BodyBudget::new(config.limits.body_budget_bytes, config.limits.body_wait);
         let images = image_cache::ImageCache::new(config.image_cache_bytes, config.image_wait);
         Ok(AppState(Arc::new(Inner {
             store,
             scene_checks,
+            bodies,
             config,
             images,
             metrics: Default::default(),

@@ -398,3 +398,28 @@ async fn a_client_that_sends_a_refused_body_whole_still_reads_the_answer() {
     assert_eq!((status, error_code(&body).as_str()), (413, "too_large"));
     server.stop().await;
 }
+
+/// Bodies wait for room in the server's body budget before they are read: with the budget taken,
+/// a submission is answered 503 `busy` with `Retry-After` after the wait, and goes through once
+/// there is room again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bodies_wait_for_room_in_the_body_budget() {
+    let mut c = config("body-budget");
+    c.limits.body_budget_bytes = 4 << 20;
+    c.limits.body_wait = Duration::from_millis(200);
+    let state = pathfarm_server::AppState::open(c).await.unwrap();
+    let settings = serde_json::to_string(&settings(16, 16, 1, 16)).unwrap();
+    let taken = state.bodies.reserve(4 << 20, "the test").await.unwrap();
+    let started = Instant::now();
+    let (status, body) = common::submit_in_process(&state, None, &cornell(), &settings).await;
+    assert_eq!(status.as_u16(), 503, "{body}");
+    assert_eq!(body["error"]["code"], "busy");
+    assert!(started.elapsed() >= Duration::from_millis(200));
+    drop(taken);
+    common::submit_ok(&state, None, &cornell(), &settings).await;
+    assert_eq!(
+        state.bodies.available(),
+        4 << 20,
+        "every reservation returned"
+    );
+}

@@ -64,6 +64,10 @@ pub struct ServerArgs {
     /// image work that finds no room within 30 s is answered 503.
     #[arg(long, env = "PATHFARM_IMAGE_CACHE_MIB", default_value_t = 1024)]
     pub image_cache_mib: usize,
+    /// Submission and slice bodies held in memory at once, in MiB: each reserves its declared
+    /// length before it is read; one that finds no room within 10 s is answered 503 `busy`.
+    #[arg(long, env = "PATHFARM_BODY_BUDGET_MIB", default_value_t = 1024)]
+    pub body_budget_mib: u64,
     /// Seconds a request's header may take from its first byte (from the accept, for a
     /// connection's first request); a client slower than this is disconnected.
     #[arg(long, env = "PATHFARM_HEADER_TIMEOUT_SECONDS", default_value_t = 10.0)]
@@ -149,6 +153,7 @@ impl ServerArgs {
         c.limits.scene_checks = usize::from(self.scene_checks.get());
         c.limits.max_scene_triangles = self.max_scene_triangles;
         c.image_cache_bytes = self.image_cache_mib.saturating_mul(1 << 20);
+        c.limits.body_budget_bytes = self.body_budget_mib.max(1).saturating_mul(1 << 20);
         let seconds = |flag: &str, v: f64| {
             if (0.001..=1e6).contains(&v) {
                 Ok(Duration::from_secs_f64(v))

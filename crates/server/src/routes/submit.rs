@@ -98,8 +98,18 @@ enum CheckError {
 pub async fn submit(
     auth: ClientAuth,
     State(state): State<AppState>,
+    headers: axum::http::HeaderMap,
     multipart: Result<Multipart, MultipartRejection>,
 ) -> ApiResult<(StatusCode, Json<JobCreated>)> {
+    // Room for the body in the server's budget before a byte of it is read: its declared length,
+    // else the most a submission may send.
+    let most = super::body_limit(
+        &axum::http::Method::POST,
+        "/api/v1/jobs",
+        &state.config.limits,
+    ) as u64;
+    let need = crate::connections::content_length(&headers).map_or(most, |n| n.min(most));
+    let _room = state.bodies.reserve(need, "a submission").await?;
     let mut multipart = multipart.map_err(|e| {
         ApiError::new(
             StatusCode::UNSUPPORTED_MEDIA_TYPE,

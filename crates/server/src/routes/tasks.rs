@@ -179,6 +179,9 @@ async fn merge_upload(
     if let Some(n) = declared.filter(|&n| n > limit as u64) {
         return Err(too_large(format!("the slice body's declared {n} bytes")));
     }
+    // Room for it in the server's budget of bodies held in memory, before it is read.
+    let need = declared.map_or(limit as u64, |n| n.min(limit as u64));
+    let _room = state.bodies.reserve(need, "a slice upload").await?;
     let body = read_body(body, limit, declared)
         .await?
         .ok_or_else(|| too_large("the slice body".to_string()))?;
