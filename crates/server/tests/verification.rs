@@ -115,6 +115,7 @@ async fn a_lying_worker_is_caught_and_its_work_rendered_again() {
             "{store}: the image differs from the local render: a lie was kept"
         );
         assert_eq!(j.samples_done, 16 * 16 * 4, "{store}");
+        assert_eq!(j.leased_tasks, 0, "{store}: every lease counted once");
         server.stop().await;
     }
 }
