@@ -114,16 +114,7 @@ async fn lease_order(url: &str, order: Option<FrameOrder>) -> Vec<(i64, u32)> {
     s.height = 8;
     s.spp = 8;
     client.submit(animated(), "animated.glb", &s).await.unwrap();
-    let worker = client
-        .register(&WorkerRegistration {
-            name: "w".into(),
-            threads: 1,
-            version: "test".into(),
-            host: "test".into(),
-        })
-        .await
-        .unwrap()
-        .worker_id;
+    let worker = register(&client, "w").await;
     let mut got = Vec::new();
     while let Some(l) = client.lease(&worker).await.unwrap() {
         got.push((
@@ -536,16 +527,7 @@ async fn a_merge_into_one_frame_leaves_the_other_frames_images_current() {
             .submit(animated(), "animated.glb", &frame_settings("1,2", None, 32))
             .await
             .unwrap();
-        let worker = client
-            .register(&WorkerRegistration {
-                name: "w".into(),
-                threads: 1,
-                version: "test".into(),
-                host: "test".into(),
-            })
-            .await
-            .unwrap()
-            .worker_id;
+        let worker = register(&client, "w").await;
         let mut leases = Vec::new();
         while let Some(l) = client.lease(&worker).await.unwrap() {
             leases.push(l);

@@ -5,9 +5,9 @@ mod common;
 use common::*;
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::{render_tile, Scene, Tile};
-use pathfarm_wire::api::{JobState, Lease, WorkerRegistration, WorkerState};
+use pathfarm_wire::api::{JobState, Lease, WorkerState};
 use pathfarm_wire::{encode_slice, Slice};
-use pathfarm_worker::client::{ApiClient, ClientError};
+use pathfarm_worker::client::ClientError;
 use reqwest::StatusCode;
 use std::time::Duration;
 
@@ -28,18 +28,6 @@ fn slice_body(scene: &Scene, lease: &Lease, begin: u32, end: u32) -> Vec<u8> {
         sample_end: end,
         acc,
     })
-}
-
-async fn register(c: &ApiClient, name: &str) -> String {
-    c.register(&WorkerRegistration {
-        name: name.into(),
-        threads: 1,
-        version: "test".into(),
-        host: "test".into(),
-    })
-    .await
-    .unwrap()
-    .worker_id
 }
 
 fn code(e: &ClientError) -> (StatusCode, String) {

@@ -7,9 +7,9 @@ mod common;
 use common::*;
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::{render_tile, Scene, Tile};
-use pathfarm_wire::api::{JobState, Lease, WorkerRegistration};
+use pathfarm_wire::api::{JobState, Lease};
 use pathfarm_wire::{encode_slice, Slice};
-use pathfarm_worker::client::{ApiClient, ClientError};
+use pathfarm_worker::client::ClientError;
 use reqwest::StatusCode;
 
 /// The slice of `lease`'s samples; a liar's has one pixel's red sum off by one unit (valid,
@@ -32,18 +32,6 @@ fn slice(scene: &Scene, lease: &Lease, lie: bool) -> Vec<u8> {
         sample_end: lease.sample_end,
         acc,
     })
-}
-
-async fn register(c: &ApiClient, name: &str) -> String {
-    c.register(&WorkerRegistration {
-        name: name.into(),
-        threads: 1,
-        version: "test".into(),
-        host: "test".into(),
-    })
-    .await
-    .unwrap()
-    .worker_id
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]

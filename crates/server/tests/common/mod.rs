@@ -9,7 +9,7 @@ use pathfarm_server::{app, AppState, ServerConfig};
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::output::{encode_exr, ExrChannels};
 use pathfarm_tracer::{render_image, Accumulation};
-use pathfarm_wire::api::{JobSettings, JobState, JobView};
+use pathfarm_wire::api::{JobSettings, JobState, JobView, WorkerRegistration};
 use pathfarm_worker::client::ApiClient;
 use pathfarm_worker::{WorkerConfig, WorkerReport};
 use serde::de::DeserializeOwned;
@@ -277,6 +277,19 @@ pub async fn submit_ok(
     let (status, created) = submit_in_process(state, token, scene, settings).await;
     assert_eq!(status, StatusCode::CREATED, "{created}");
     created["id"].as_str().expect("a job id").to_string()
+}
+
+/// Registers a worker named `name` through `c` (one thread, version and host "test"): its id.
+pub async fn register(c: &ApiClient, name: &str) -> String {
+    c.register(&WorkerRegistration {
+        name: name.into(),
+        threads: 1,
+        version: "test".into(),
+        host: "test".into(),
+    })
+    .await
+    .unwrap()
+    .worker_id
 }
 
 /// A request with these headers and body.
