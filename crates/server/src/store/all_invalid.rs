@@ -8,13 +8,12 @@
 //! produces no valid value there, and the job fails with a message that says where. Nothing is
 //! merged either way, so the tile keeps exactly what honest slices gave it.
 
-use super::error::{Error, StoreResult};
-use super::jobs::{free_job_workers, job_state};
+use super::error::StoreResult;
+use super::jobs::free_job_workers;
 use super::writes::{AllInvalid, MergeOutcome};
 use super::Store;
-use crate::states::{job_transition, JobEvent, TaskState};
+use crate::states::{JobEvent, TaskState};
 use pathfarm_wire::api::SliceAck;
-use sqlx::Row;
 
 impl Store {
     /// Refuses the all-invalid `slice` (a description, for the job's message) of leased task
@@ -85,15 +84,7 @@ impl Store {
         .bind(job_id)
         .execute(&mut **tx)
         .await?;
-        let row = sqlx::query(sql!(
-            "SELECT state FROM jobs WHERE id = $1{}",
-            self.dialect().for_update()
-        ))
-        .bind(job_id)
-        .fetch_one(&mut **tx)
-        .await?;
-        let from = job_state(&row.try_get::<String, _>("state")?)?;
-        let to = job_transition(from, JobEvent::Fail).map_err(Error::internal)?;
+        let (_, to) = self.locked_transition(tx, job_id, JobEvent::Fail).await?;
         sqlx::query(
             "UPDATE jobs SET state = $1, finished_ms = $2, queued_tasks = 0, leased_tasks = 0, \
              version = version + 1, message = $3 WHERE id = $4",

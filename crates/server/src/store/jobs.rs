@@ -202,6 +202,26 @@ impl Store {
             .collect::<Result<Vec<_>, _>>()?)
     }
 
+    /// The state job `job_id` is in, read under lock in `tx`, and the one `event` moves it to (a
+    /// transition the state machine refuses is a bug of the caller's: internal).
+    pub(super) async fn locked_transition(
+        &self,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+        job_id: &str,
+        event: JobEvent,
+    ) -> StoreResult<(JobState, JobState)> {
+        let row = sqlx::query(sql!(
+            "SELECT state FROM jobs WHERE id = $1{}",
+            self.dialect().for_update()
+        ))
+        .bind(job_id)
+        .fetch_one(&mut **tx)
+        .await?;
+        let from = job_state(&row.try_get::<String, _>("state")?)?;
+        let to = job_transition(from, event).map_err(Error::internal)?;
+        Ok((from, to))
+    }
+
     /// Applies a state-machine event to a job, with its effect on the job's tasks.
     pub async fn job_event(
         &self,

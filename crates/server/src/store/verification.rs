@@ -562,18 +562,7 @@ impl Store {
             .bind(tile_index)
             .execute(&mut **tx)
             .await?;
-        let job = sqlx::query(sql!(
-            "SELECT state FROM jobs WHERE id = $1{}",
-            self.dialect().for_update()
-        ))
-        .bind(job_id)
-        .fetch_one(&mut **tx)
-        .await?;
-        let to = job_transition(
-            job_state(&job.try_get::<String, _>("state")?)?,
-            JobEvent::Reopen,
-        )
-        .map_err(Error::internal)?;
+        let (_, to) = self.locked_transition(tx, job_id, JobEvent::Reopen).await?;
         sqlx::query(
             "UPDATE jobs SET state = $1, finished_ms = NULL, samples_done = samples_done - $2, \
              queued_tasks = queued_tasks + $3, leased_tasks = leased_tasks + $4, \
