@@ -117,8 +117,30 @@ pub struct JobImage {
     /// The room the planes hold in the server's image budget, for as long as the image lives.
     pub(crate) reserved: Reservation,
     /// Held while the image is encoded: one encoding of an image at a time (see
-    /// [`crate::image_cache`]).
-    pub(crate) encoding: tokio::sync::Mutex<()>,
+    /// [`crate::image_cache`]). It holds the last encoding the cache could not keep, so that the
+    /// requests sharing an image the cache let go share its encoding too.
+    pub(crate) encoding: tokio::sync::Mutex<UnkeptEncoding>,
+}
+
+/// The last encoding of an image that the cache did not keep (its key, its bytes and the room
+/// they hold in the image budget, less than their size when the image itself holds the budget):
+/// it lives, and holds its room, as long as the image does.
+#[derive(Default)]
+pub(crate) struct UnkeptEncoding(Option<(String, axum::body::Bytes, Reservation)>);
+
+impl UnkeptEncoding {
+    /// The bytes of the encoding named `key`, if it is the one held.
+    pub(crate) fn get(&self, key: &str) -> Option<axum::body::Bytes> {
+        self.0
+            .as_ref()
+            .filter(|(k, _, _)| k == key)
+            .map(|(_, b, _)| b.clone())
+    }
+
+    /// Holds `bytes` as the encoding named `key`, letting the one held before go.
+    pub(crate) fn set(&mut self, key: &str, bytes: axum::body::Bytes, room: Reservation) {
+        self.0 = Some((key.to_string(), bytes, room));
+    }
 }
 
 impl JobImage {
@@ -134,7 +156,7 @@ impl JobImage {
             total_samples: 0,
             relative_error: None,
             reserved: Reservation::none(),
-            encoding: tokio::sync::Mutex::new(()),
+            encoding: tokio::sync::Mutex::default(),
         }
     }
 
@@ -161,7 +183,7 @@ impl JobImage {
                 None
             },
             reserved: Reservation::none(),
-            encoding: tokio::sync::Mutex::new(()),
+            encoding: tokio::sync::Mutex::default(),
         }
     }
 

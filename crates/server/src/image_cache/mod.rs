@@ -5,7 +5,9 @@
 //! - **Single flight.** Concurrent requests for a job's image wait for one build
 //!   ([`crate::single_flight`]): a request joins a build under way unless that build already read
 //!   an older version than the request saw. Encodings are shared the same way, per (job,
-//!   version, kind), and one image is encoded by one piece of work at a time.
+//!   version, kind), and one image is encoded by one piece of work at a time. An image too large
+//!   to keep carries its last encoding while requests hold it, so the requests that shared its
+//!   build share that encoding however late they wake.
 //! - **Nothing before the first sample.** A job whose version is 0 has no merged slice: its image
 //!   is [`JobImage::empty`], made without reading the store or allocating pixels.
 //! - **One budget.** Every build and encoding reserves its memory in the [`ImageBudget`] before it
@@ -469,13 +471,16 @@ impl ImageCache {
     ) -> ApiResult<Bytes> {
         let deadline = Instant::now() + self.shared.budget.wait;
         // One encoding of an image at a time, so that the rule below lets at most one run.
-        let Ok(_one) = tokio::time::timeout_at(deadline, img.encoding.lock()).await else {
+        let Ok(mut unkept) = tokio::time::timeout_at(deadline, img.encoding.lock()).await else {
             return Err(ApiError::busy(
                 "the image is being encoded in other forms; try again",
                 RETRY_AFTER_SECONDS,
             ));
         };
-        if let Some(b) = self.kept_encoding(job_id, img, key) {
+        if let Some(b) = self
+            .kept_encoding(job_id, img, key)
+            .or_else(|| unkept.get(key))
+        {
             return Ok(b);
         }
         // The image's own room is not asked for twice: the encoding of an image that holds most
@@ -497,8 +502,14 @@ impl ImageCache {
             ms = started.elapsed().as_millis() as u64,
             "job image encoded"
         );
-        if let Some(part) = room.split(bytes.len()) {
-            self.keep_encoding(job_id, img, key, &bytes, part);
+        let kept = match room.split(bytes.len()) {
+            Some(part) => self.keep_encoding(job_id, img, key, &bytes, part),
+            // Less room than bytes: the image holds (nearly) the whole budget, so the cache does
+            // not keep it, and the image and its encoding are the one piece of work over budget.
+            None => Err(std::mem::take(&mut room)),
+        };
+        if let Err(part) = kept {
+            unkept.set(key, bytes.clone(), part);
         }
         Ok(bytes)
     }
@@ -516,7 +527,8 @@ impl ImageCache {
         Some(bytes)
     }
 
-    /// Keeps `bytes` with `img` if `img` is the job's kept image, with `room` reserved for them.
+    /// Keeps `bytes` with `img` if `img` is the job's kept image, with `room` reserved for them;
+    /// else gives the room back.
     fn keep_encoding(
         &self,
         job_id: &str,
@@ -524,15 +536,15 @@ impl ImageCache {
         key: &str,
         bytes: &Bytes,
         room: Reservation,
-    ) {
+    ) -> Result<(), Reservation> {
         let mut resident = lock(&self.shared.resident);
         let Some(e) = resident
             .jobs
             .get_mut(job_id)
             .filter(|e| Arc::ptr_eq(&e.img, img))
         else {
-            // Replaced by a newer version, let go, or never kept: served, not kept.
-            return;
+            // Replaced by a newer version, let go, or never kept: not kept in the cache.
+            return Err(room);
         };
         let dropped = if e.encoded.len() >= ENCODINGS_PER_IMAGE {
             e.encoded.clear();
@@ -546,6 +558,7 @@ impl ImageCache {
         resident.touch(job_id);
         drop(resident);
         drop(dropped);
+        Ok(())
     }
 
     /// Lets the job's images go (the job was deleted): its own and its frames'.

@@ -100,7 +100,7 @@ fn versions_and_images_over_the_budget() {
 }
 
 /// Encodings are made once per image and key, count against the budget and are kept while their
-/// image is; one made for an image the cache does not hold is served, not kept.
+/// image is; one made for an image the cache does not hold is carried by that image alone.
 #[tokio::test]
 async fn encodings_are_made_once_and_kept_with_their_image() {
     let cache = cache(1 << 20);
@@ -130,18 +130,36 @@ async fn encodings_are_made_once_and_kept_with_their_image() {
         .await
         .unwrap();
     assert_eq!(made.load(Ordering::Relaxed), 1);
-    // Not kept: made every time, its room given back.
+    // Not kept in the cache: the image carries it (and its room) for whoever holds the image.
+    for _ in 0..2 {
+        cache
+            .encoded("b", &b, "k", 1 << 16, encode(10))
+            .await
+            .unwrap();
+    }
+    assert_eq!(made.load(Ordering::Relaxed), 2);
+    assert_eq!(cache.reserved_bytes(), before + 5 * UNIT + UNIT);
+    let other = cache
+        .encoded("b", &b, "other", 1 << 16, encode(20))
+        .await
+        .unwrap();
+    assert_eq!(other.len(), 20, "one encoding carried: the last");
+    assert_eq!(cache.reserved_bytes(), before + 5 * UNIT + UNIT);
+    let b_room = b.reserved.bytes();
+    drop(b);
+    assert_eq!(
+        cache.reserved_bytes(),
+        before + 5 * UNIT - b_room,
+        "the carried encoding's room goes with the image"
+    );
+    // A new image of the same version is a new build: encoded again.
+    let b = image(&cache, 1, 16, 16);
     cache
         .encoded("b", &b, "k", 1 << 16, encode(10))
         .await
         .unwrap();
-    cache
-        .encoded("b", &b, "k", 1 << 16, encode(10))
-        .await
-        .unwrap();
-    assert_eq!(made.load(Ordering::Relaxed), 3);
-    assert_eq!(cache.reserved_bytes(), before + 5 * UNIT);
-    assert_eq!(cache.encodings(), 3);
+    assert_eq!(made.load(Ordering::Relaxed), 4);
+    assert_eq!(cache.encodings(), 4);
     assert_eq!(cache.resident_bytes(), counted(&cache));
     drop((a, b));
     cache.forget("a");
@@ -221,4 +239,28 @@ async fn a_panicking_encoder_is_an_internal_error() {
         .unwrap();
     assert_eq!(&bytes[..], [1, 2, 3]);
     assert_eq!(cache.resident_bytes(), counted(&cache));
+}
+
+/// An image larger than the whole budget is not kept and leaves no room for its encoding: the
+/// encoding is still made once for everyone who holds the image, and goes with it.
+#[tokio::test]
+async fn an_image_over_the_budget_carries_its_encoding() {
+    let cache = cache(4 * UNIT);
+    let mut img = JobImage::of_accumulation(1, &Accumulation::new(0, 0, 64, 64));
+    assert!(img.pixel_bytes() > cache.budget());
+    img.reserved = cache.hold(cache.budget()).unwrap();
+    let img = Arc::new(img);
+    cache.keep("big", &img);
+    assert!(cache.peek("big").is_none(), "too large to keep");
+    for _ in 0..3 {
+        let bytes = cache
+            .encoded("big", &img, "png", 10 * UNIT, |_| Ok(vec![1; 3 * UNIT]))
+            .await
+            .unwrap();
+        assert_eq!(bytes.len(), 3 * UNIT);
+    }
+    assert_eq!(cache.encodings(), 1);
+    assert_eq!(cache.reserved_bytes(), cache.budget());
+    drop(img);
+    assert_eq!(cache.reserved_bytes(), 0);
 }
