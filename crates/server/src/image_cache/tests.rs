@@ -42,7 +42,8 @@ fn an_entry_counts_its_pixels_and_encodings() {
     let base = std::mem::size_of::<JobImage>() + 200 * 20 + 3;
     assert_eq!(cache.resident_bytes(), base);
     let room = cache.hold(1000).unwrap();
-    cache.keep_encoding("job", &img, "png@0", &Bytes::from(vec![0; 1000]), room);
+    let kept = cache.keep_encoding("job", &img, "png@0", &Bytes::from(vec![0; 1000]), room);
+    assert!(kept.is_ok());
     assert_eq!(cache.resident_bytes(), base + 5 + 1000);
     assert_eq!(cache.resident_bytes(), counted(&cache));
 }
