@@ -204,6 +204,11 @@ pub struct ServerConfig {
     /// are rendered again (`store/verification.rs`). 0: no verification (the default: a farm of
     /// workers one trusts).
     pub verify_fraction: f64,
+    /// Back-pressure: the share (0 to 1) of the store's measured write capacity that the
+    /// workers' uploads and leases should take; the server asks for slices long enough to keep
+    /// them there ([`crate::pacing`]). The rest is headroom for bursts, heartbeats, submissions
+    /// and readers. The default is 0.5.
+    pub target_write_load: f64,
     /// Rows (tiles or tasks) a submission stores per transaction; `None`: the store's default
     /// ([`crate::store::Store::default_batch_rows`]: batches on SQLite, whose one writer makes
     /// every other write wait for a submission, the whole plan at once on PostgreSQL, where
@@ -256,6 +261,7 @@ impl ServerConfig {
             quotas: Quotas::default(),
             sqlite_synchronous: SqliteSynchronous::Full,
             verify_fraction: 0.0,
+            target_write_load: 0.5,
             submission_batch_rows: None,
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,

@@ -19,6 +19,7 @@ pub mod job_image;
 pub mod metrics;
 pub mod monitor;
 pub mod origin;
+pub mod pacing;
 mod process_metrics;
 pub mod routes;
 pub mod scheduler;
@@ -50,6 +51,8 @@ pub struct Inner {
     pub scene_checks: tokio::sync::Semaphore,
     /// The bodies held in memory at once ([`config::Limits::body_budget_bytes`]).
     pub bodies: body_budget::BodyBudget,
+    /// The slice length asked of workers ([`ServerConfig::target_write_load`]).
+    pub pacing: pacing::Pacing,
 }
 
 impl std::ops::Deref for AppState {
@@ -73,8 +76,10 @@ impl AppState {
         let bodies =
             body_budget::BodyBudget::new(config.limits.body_budget_bytes, config.limits.body_wait);
         let images = image_cache::ImageCache::new(config.image_cache_bytes, config.image_wait);
+        let pacing = pacing::Pacing::new(config.target_write_load);
         Ok(AppState(Arc::new(Inner {
             store,
+            pacing,
             scene_checks,
             bodies,
             config,

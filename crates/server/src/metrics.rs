@@ -63,6 +63,8 @@ pub struct Gauges {
     pub jobs: Vec<(&'static str, u64)>,
     pub tasks: Vec<(&'static str, u64)>,
     pub workers: Vec<(&'static str, u64)>,
+    /// The back-pressure estimate ([`crate::pacing`]).
+    pub pacing: crate::pacing::PacingView,
 }
 
 impl Metrics {
@@ -173,6 +175,19 @@ impl Metrics {
             "pathfarm_workers",
             "Workers by state.",
             &gauges.workers,
+        );
+        let p = &gauges.pacing;
+        let _ = writeln!(
+            out,
+            "# HELP pathfarm_pacing_slice_seconds Slice length asked of workers (back-pressure).\n\
+             # TYPE pathfarm_pacing_slice_seconds gauge\npathfarm_pacing_slice_seconds {}\n\
+             # HELP pathfarm_pacing_write_capacity Store writes per busy second, as measured.\n\
+             # TYPE pathfarm_pacing_write_capacity gauge\npathfarm_pacing_write_capacity {}\n\
+             # HELP pathfarm_pacing_active_workers Workers that leased or uploaded lately.\n\
+             # TYPE pathfarm_pacing_active_workers gauge\npathfarm_pacing_active_workers {}",
+            p.slice_seconds,
+            p.capacity.unwrap_or(0.0),
+            p.active_workers
         );
 
         let name = "pathfarm_http_request_duration_seconds";

@@ -10,71 +10,12 @@ use common::*;
 use pathfarm_server::{monitor, AppState, ServerConfig};
 use pathfarm_tracer::output::{encode_exr, encode_png, ExrChannels};
 use pathfarm_tracer::Accumulation;
-use pathfarm_wire::api::Lease;
-use pathfarm_wire::{encode_slice, Slice};
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::time::Duration;
 
 async fn submit(state: &AppState, width: u32, height: u32, spp: u32, tile: u32) -> String {
     let s = serde_json::to_string(&settings(width, height, spp, tile)).unwrap();
     submit_ok(state, None, &cornell(), &s).await
-}
-
-/// A registered worker: its id and its credential.
-async fn register(state: &AppState) -> (String, String) {
-    let registration = json!({"name": "w", "threads": 1, "version": "t", "host": "h"});
-    let (status, worker): (_, Value) = call(
-        state,
-        request(
-            "POST",
-            "/api/v1/workers",
-            &[("content-type", "application/json")],
-            registration.to_string(),
-        ),
-    )
-    .await;
-    assert_eq!(status, StatusCode::CREATED, "{worker}");
-    (
-        worker["worker_id"].as_str().unwrap().to_string(),
-        worker["credential"].as_str().unwrap().to_string(),
-    )
-}
-
-/// Leases `tasks` tasks and uploads each whole, every sample of every pixel the same grey.
-async fn render_by_hand(state: &AppState, (worker, cred): &(String, String), tasks: usize) {
-    let uri = format!("/api/v1/workers/{worker}/lease");
-    let as_worker = ("pathfarm-worker-credential", cred.as_str());
-    for _ in 0..tasks {
-        let (status, lease): (_, Option<Lease>) =
-            call(state, request("POST", &uri, &[as_worker], "")).await;
-        let l = lease.unwrap_or_else(|| panic!("no task to lease ({status})"));
-        let mut acc = Accumulation::new(l.tile.x0, l.tile.y0, l.tile.width, l.tile.height);
-        for (i, p) in acc.pixels.iter_mut().enumerate() {
-            for s in l.sample_begin..l.sample_end {
-                p.add_sample(glam::Vec3::splat(0.25 + (i as u32 % 7 + s) as f32 * 0.1));
-            }
-        }
-        let slice = Slice {
-            sample_begin: l.sample_begin,
-            sample_end: l.sample_end,
-            acc,
-        };
-        let (status, ack): (_, Value) = call(
-            state,
-            request(
-                "POST",
-                &format!("/api/v1/tasks/{}/slices", l.task_id),
-                &[
-                    ("content-type", "application/x-pathfarm-slice"),
-                    ("pathfarm-lease-token", &l.lease_token),
-                    as_worker,
-                ],
-                encode_slice(&slice),
-            ),
-        )
-        .await;
-        assert_eq!(status, StatusCode::OK, "{ack}");
-    }
 }
 
 /// `GET` of one of the job's images: status, headers and body.
@@ -154,7 +95,7 @@ async fn nothing_is_built_before_the_first_sample() {
         );
 
         // The first slice: one build, for the request and the monitor both.
-        let worker = register(&state).await;
+        let worker = register_in_process(&state).await;
         render_by_hand(&state, &worker, 1).await;
         let (status, headers, _) = get(&state, &small, "preview.png").await;
         assert_eq!(status, StatusCode::OK, "{store}");
@@ -184,7 +125,7 @@ async fn concurrent_requests_share_one_build() {
             .await
             .unwrap();
         let id = submit(&state, 256, 256, 1, 64).await;
-        let worker = register(&state).await;
+        let worker = register_in_process(&state).await;
         render_by_hand(&state, &worker, 16).await;
         // Hold the whole budget, so that the first request's build waits and the others find it
         // under way.
@@ -251,7 +192,7 @@ async fn work_over_the_budget_gets_503_with_retry_after() {
             .await
             .unwrap();
         let id = submit(&state, 64, 64, 1, 64).await;
-        let worker = register(&state).await;
+        let worker = register_in_process(&state).await;
         render_by_hand(&state, &worker, 1).await;
         let held = state.images.hold(usize::MAX).expect("the budget is free");
         for path in ["preview.png", "image.exr"] {

@@ -566,6 +566,11 @@ pub struct Lease {
     /// The frame to render the scene at (time = frame / `settings.fps`); absent for a still job.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frame: Option<i64>,
+    /// Back-pressure: the server asks for slices at least this long (seconds), so that its
+    /// store keeps up with every worker's uploads; a worker renders slices of the longer of this
+    /// and its own length. Absent from older servers: the worker's own length.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slice_seconds: Option<f64>,
 }
 
 /// `POST /api/v1/workers/{id}/heartbeat`: the worker is alive, and extends its current lease.
@@ -596,6 +601,9 @@ pub struct SliceAck {
     pub task_complete: bool,
     /// False when the job was paused: release the lease instead of rendering more.
     pub keep_going: bool,
+    /// The server's slice length now ([`Lease::slice_seconds`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slice_seconds: Option<f64>,
 }
 
 /// `POST /api/v1/tasks/{id}/release`: give a lease back before its end.

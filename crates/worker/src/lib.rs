@@ -468,7 +468,9 @@ async fn work_on(
         height: lease.tile.height,
     };
     let mut begin = lease.sample_begin;
-    tracing::debug!(task = lease.task_id, job = %lease.job_id, samples = ?(begin..lease.sample_end), "task leased");
+    // Back-pressure: the server's slice length when it asks for longer slices than ours.
+    let mut slice_seconds = paced(config.slice_seconds, lease.slice_seconds);
+    tracing::debug!(task = lease.task_id, job = %lease.job_id, samples = ?(begin..lease.sample_end), slice_seconds, "task leased");
     while begin < lease.sample_end {
         if lease_lost.load(std::sync::atomic::Ordering::SeqCst) {
             return Err(TaskError::LeaseLost);
@@ -476,11 +478,7 @@ async fn work_on(
         let n = config
             .slice_samples
             .unwrap_or_else(|| {
-                rate.slice_spp(
-                    config.slice_seconds,
-                    tile.pixel_count(),
-                    lease.sample_end - begin,
-                )
+                rate.slice_spp(slice_seconds, tile.pixel_count(), lease.sample_end - begin)
             })
             .clamp(1, lease.sample_end - begin);
         let range = begin..begin + n;
@@ -513,6 +511,7 @@ async fn work_on(
         };
         report.slices += 1;
         report.samples += samples;
+        slice_seconds = paced(config.slice_seconds, ack.slice_seconds);
         begin = ack.task_samples_done.max(range.end);
         if ack.task_complete {
             return Ok(());
@@ -525,6 +524,18 @@ async fn work_on(
     }
     Ok(())
 }
+
+/// The slice length to render: `own`, or the server's when it asks for longer ones
+/// (back-pressure), at most [`MAX_SERVER_SLICE_SECONDS`].
+fn paced(own: f64, server: Option<f64>) -> f64 {
+    match server {
+        Some(s) if s.is_finite() && s > own => s.min(MAX_SERVER_SLICE_SECONDS),
+        _ => own,
+    }
+}
+
+/// The longest slice a server can ask for (the server's own cap, `pacing::MAX_SLICE_SECONDS`).
+const MAX_SERVER_SLICE_SECONDS: f64 = 60.0;
 
 /// Uploads a slice, retrying while the server cannot be reached, for as long as the lease can
 /// still be valid. A retry after a lost answer is harmless: the server counts a slice once.
@@ -559,6 +570,17 @@ mod tests {
     use std::collections::BTreeMap;
     use std::io::{BufRead, BufReader, Read, Write};
     use std::net::{TcpListener, TcpStream};
+
+    #[test]
+    fn the_server_may_lengthen_slices_but_not_shorten_them() {
+        assert_eq!(paced(1.5, None), 1.5, "an older server");
+        assert_eq!(paced(1.5, Some(0.0)), 1.5);
+        assert_eq!(paced(1.5, Some(0.4)), 1.5, "never shorter than ours");
+        assert_eq!(paced(1.5, Some(12.0)), 12.0);
+        assert_eq!(paced(1.5, Some(1e9)), MAX_SERVER_SLICE_SECONDS);
+        assert_eq!(paced(1.5, Some(f64::NAN)), 1.5);
+        assert_eq!(paced(1.5, Some(f64::INFINITY)), 1.5);
+    }
 
     #[test]
     fn only_failures_of_the_workers_own_make_it_wait() {
@@ -676,6 +698,7 @@ mod tests {
                             sample_begin: 0,
                             sample_end: 4,
                             frame: None,
+                            slice_seconds: None,
                         };
                         ("200 OK", serde_json::to_string(&lease).unwrap())
                     }

@@ -10,7 +10,8 @@ use axum::response::{IntoResponse, Response};
 use std::time::Instant;
 
 pub async fn metrics(_: ReadAuth, State(state): State<AppState>) -> ApiResult<Response> {
-    let gauges = state.store.gauges().await?;
+    let mut gauges = state.store.gauges().await?;
+    gauges.pacing = state.pacing.view();
     Ok((
         [(
             header::CONTENT_TYPE,

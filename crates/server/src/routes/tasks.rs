@@ -4,6 +4,7 @@ use super::{no_nul, parse_id, JsonBody};
 use crate::auth::WorkerIdentity;
 use crate::connections::content_length;
 use crate::error::{ApiError, ApiResult};
+use crate::pacing::Write;
 use crate::store::{AllInvalid, MergeOutcome};
 use crate::AppState;
 use axum::body::Body;
@@ -106,7 +107,9 @@ pub async fn upload_slice(
             };
             Err(ApiError::unprocessable("all_invalid", message))
         }
-        Ok(out) => {
+        Ok(mut out) => {
+            state.pacing.seen(&me.id);
+            out.ack.slice_seconds = Some(state.pacing.slice_seconds());
             if out.ack.duplicate {
                 state
                     .metrics
@@ -208,6 +211,7 @@ async fn merge_upload(
         max_pixels: tile.pixel_count().min(state.config.limits.max_pixels),
     };
     let slice = decode_slice(&body, &limits).map_err(slice_error)?;
+    let _write = state.pacing.begin(Write::Upload);
     Ok(state.store.merge_slice(task_id, token, slice).await?)
 }
 

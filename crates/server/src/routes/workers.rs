@@ -3,6 +3,7 @@
 use super::{no_control, no_nul, JsonBody, OptionalJsonBody, Page};
 use crate::auth::{ReadAuth, WorkerAuth, WorkerIdentity};
 use crate::error::{ApiError, ApiResult};
+use crate::pacing::Write;
 use crate::AppState;
 use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
@@ -126,13 +127,19 @@ pub async fn lease(
     me.must_be(&id)?;
     let lease_ms = state.config.lease_duration.as_millis() as u64;
     let started = std::time::Instant::now();
+    let write = state.pacing.begin(Write::Lease);
     let lease = state
         .store
         .lease(&id, lease_ms, state.config.max_leases_per_worker)
         .await?;
+    drop(write);
     state.metrics.observe_lease(started.elapsed());
     Ok(match lease {
-        Some(l) => Json(l).into_response(),
+        Some(mut l) => {
+            state.pacing.seen(&id);
+            l.slice_seconds = Some(state.pacing.slice_seconds());
+            Json(l).into_response()
+        }
         None => StatusCode::NO_CONTENT.into_response(),
     })
 }

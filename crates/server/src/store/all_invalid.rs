@@ -61,6 +61,7 @@ impl Store {
                 task_samples_done: 0,
                 task_complete: false,
                 keep_going: false,
+                slice_seconds: None,
             },
             samples: 0,
             job_completed: false,

@@ -42,6 +42,7 @@ impl Store {
             jobs: pick(&jobs, &job_names),
             tasks: pick(&tasks, &task_names),
             workers: pick(&workers, &worker_names),
+            pacing: Default::default(),
         })
     }
 

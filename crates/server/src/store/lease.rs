@@ -201,6 +201,7 @@ impl Store {
             sample_begin: begin as u32,
             sample_end: end as u32,
             frame: job.try_get("frame")?,
+            slice_seconds: None,
         }))
     }
 }

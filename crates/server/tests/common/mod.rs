@@ -9,7 +9,8 @@ use pathfarm_server::{app, AppState, ServerConfig};
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::output::{encode_exr, ExrChannels};
 use pathfarm_tracer::{render_image, Accumulation};
-use pathfarm_wire::api::{JobSettings, JobState, JobView, WorkerRegistration};
+use pathfarm_wire::api::{JobSettings, JobState, JobView, Lease, SliceAck, WorkerRegistration};
+use pathfarm_wire::{encode_slice, Slice};
 use pathfarm_worker::client::ApiClient;
 use pathfarm_worker::{WorkerConfig, WorkerReport};
 use serde::de::DeserializeOwned;
@@ -335,4 +336,84 @@ pub async fn call<T: DeserializeOwned>(state: &AppState, req: Request<Body>) -> 
     let json: &[u8] = if bytes.is_empty() { b"null" } else { &bytes };
     let body = serde_json::from_slice(json).unwrap_or_else(|e| panic!("{status}: {e}: {}", text()));
     (status, body)
+}
+
+/// A worker registered in process (through the router): its id and its credential.
+pub type InProcessWorker = (String, String);
+
+/// Registers a worker through the router.
+pub async fn register_in_process(state: &AppState) -> InProcessWorker {
+    let registration = serde_json::json!({"name": "w", "threads": 1, "version": "t", "host": "h"});
+    let (status, worker): (_, serde_json::Value) = call(
+        state,
+        request(
+            "POST",
+            "/api/v1/workers",
+            &[("content-type", "application/json")],
+            registration.to_string(),
+        ),
+    )
+    .await;
+    assert_eq!(status, StatusCode::CREATED, "{worker}");
+    (
+        worker["worker_id"].as_str().unwrap().to_string(),
+        worker["credential"].as_str().unwrap().to_string(),
+    )
+}
+
+/// A lease for `worker` through the router (`None`: nothing to lease).
+pub async fn lease_in_process(state: &AppState, (worker, cred): &InProcessWorker) -> Option<Lease> {
+    let uri = format!("/api/v1/workers/{worker}/lease");
+    let as_worker = ("pathfarm-worker-credential", cred.as_str());
+    let (status, lease): (_, Option<Lease>) =
+        call(state, request("POST", &uri, &[as_worker], "")).await;
+    assert!(status.is_success(), "lease: {status}");
+    lease
+}
+
+/// Uploads samples `begin..end` of `lease`'s tile, every sample of every pixel a grey of its own,
+/// through the router: the acknowledgement.
+pub async fn upload_grey(
+    state: &AppState,
+    (_, cred): &InProcessWorker,
+    l: &Lease,
+    (begin, end): (u32, u32),
+) -> SliceAck {
+    let mut acc = Accumulation::new(l.tile.x0, l.tile.y0, l.tile.width, l.tile.height);
+    for (i, p) in acc.pixels.iter_mut().enumerate() {
+        for s in begin..end {
+            p.add_sample(glam::Vec3::splat(0.25 + (i as u32 % 7 + s) as f32 * 0.1));
+        }
+    }
+    let slice = Slice {
+        sample_begin: begin,
+        sample_end: end,
+        acc,
+    };
+    let (status, ack): (_, serde_json::Value) = call(
+        state,
+        request(
+            "POST",
+            &format!("/api/v1/tasks/{}/slices", l.task_id),
+            &[
+                ("content-type", "application/x-pathfarm-slice"),
+                ("pathfarm-lease-token", &l.lease_token),
+                ("pathfarm-worker-credential", cred.as_str()),
+            ],
+            encode_slice(&slice),
+        ),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{ack}");
+    serde_json::from_value(ack).unwrap()
+}
+
+/// Leases `tasks` tasks for `worker` and uploads each whole ([`upload_grey`]).
+pub async fn render_by_hand(state: &AppState, worker: &InProcessWorker, tasks: usize) {
+    for _ in 0..tasks {
+        let l = lease_in_process(state, worker)
+            .await
+            .expect("a task to lease");
+        upload_grey(state, worker, &l, (l.sample_begin, l.sample_end)).await;
+    }
 }

@@ -1,0 +1,318 @@
+//! Back-pressure: how long the workers' slices should be, so that the farm's writes (slice merges
+//! and leases) stay under what this server's store can take however many workers there are.
+//!
+//! Each active worker uploads a slice every `S` seconds and leases a task every so many uploads
+//! (`r` leases per upload, measured), so `N` active workers write `N (1 + r) / S` times a second.
+//! The store takes `C` writes a second, measured here rather than configured: writes completed per
+//! second during which at least one write was under way (below saturation this reads low, so the
+//! slices it asks for err long). The server asks for
+//!
+//! `S = N (1 + r) / (u C)`, with `u` = [`crate::ServerConfig::target_write_load`],
+//!
+//! and hands it to every worker with each lease and upload acknowledgement
+//! ([`pathfarm_wire::api::Lease::slice_seconds`]); a worker renders slices of the longer of its
+//! own slice length and this. A slice cannot be longer than its task, so a farm whose tasks are
+//! shorter than `S` still leases faster than this allows: `ServerConfig::max_task_samples` is the
+//! operator's lever there (docs/benchmarks.md, "back-pressure").
+//!
+//! The estimate is redone at most once per [`WINDOW`], by whichever write ends after the window
+//! closes; between those a write costs two uncontended lock operations.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+
+/// How often the estimate is redone.
+pub const WINDOW: Duration = Duration::from_secs(1);
+/// The longest slice the server asks for: past it a worker's lost slice costs too much work.
+pub const MAX_SLICE_SECONDS: f64 = 60.0;
+/// A worker counts as active for this long after its last lease or upload (or for two slice
+/// lengths, when that is longer).
+const ACTIVE_FOR: Duration = Duration::from_secs(30);
+/// Weight of a new window's capacity in the running estimate.
+const SMOOTHING: f64 = 0.3;
+/// Windows busier than this long (of writes in flight) measure the capacity; quieter ones say
+/// too little about it.
+const MIN_BUSY: Duration = Duration::from_millis(20);
+
+/// What a write was.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Write {
+    Upload,
+    Lease,
+}
+
+/// The estimate as it stands.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PacingView {
+    /// Slice length asked of workers, in seconds (0 before anything was measured).
+    pub slice_seconds: f64,
+    /// Writes per busy second of the store, smoothed (`None` before a busy window).
+    pub capacity: Option<f64>,
+    /// Workers that leased or uploaded lately.
+    pub active_workers: usize,
+    /// Leases per upload over the last window with uploads.
+    pub leases_per_upload: f64,
+}
+
+pub struct Pacing {
+    target_load: f64,
+    state: Mutex<State>,
+    /// [`PacingView::slice_seconds`] as `f64` bits, read without the lock.
+    slice_bits: AtomicU64,
+}
+
+struct State {
+    in_flight: u32,
+    /// When the write now under way with none before it began.
+    busy_since: Option<Instant>,
+    window_start: Instant,
+    busy: Duration,
+    uploads: u64,
+    leases: u64,
+    view: PacingView,
+    seen: HashMap<String, Instant>,
+}
+
+/// A write under way; dropping it ends it.
+pub struct WriteGuard<'a> {
+    pacing: &'a Pacing,
+    kind: Write,
+}
+
+impl Drop for WriteGuard<'_> {
+    fn drop(&mut self) {
+        self.pacing.end(self.kind, Instant::now());
+    }
+}
+
+impl Pacing {
+    /// `target_load`: the share of the measured capacity the workers' writes should take (the
+    /// rest is headroom for bursts, heartbeats, submissions and readers).
+    pub fn new(target_load: f64) -> Pacing {
+        let target_load = if target_load.is_finite() && target_load > 0.0 {
+            target_load.min(1.0)
+        } else {
+            0.5
+        };
+        Pacing {
+            target_load,
+            state: Mutex::new(State {
+                in_flight: 0,
+                busy_since: None,
+                window_start: Instant::now(),
+                busy: Duration::ZERO,
+                uploads: 0,
+                leases: 0,
+                view: PacingView::default(),
+                seen: HashMap::new(),
+            }),
+            slice_bits: AtomicU64::new(0f64.to_bits()),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // Nothing here panics while holding the lock.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The slice length to ask of workers now, in seconds (0: no more than their own).
+    pub fn slice_seconds(&self) -> f64 {
+        f64::from_bits(self.slice_bits.load(Ordering::Relaxed))
+    }
+
+    /// The estimate as it stands (for metrics and tests).
+    pub fn view(&self) -> PacingView {
+        self.lock().view
+    }
+
+    /// Starts a write of `kind` by `worker`; it ends when the guard is dropped.
+    pub fn begin(&self, kind: Write) -> WriteGuard<'_> {
+        self.start(Instant::now());
+        WriteGuard { pacing: self, kind }
+    }
+
+    /// Notes `worker` as active (it was granted a lease or had a slice merged).
+    pub fn seen(&self, worker: &str) {
+        let now = Instant::now();
+        let mut s = self.lock();
+        match s.seen.get_mut(worker) {
+            Some(t) => *t = now,
+            None => {
+                s.seen.insert(worker.to_string(), now);
+            }
+        }
+    }
+
+    fn start(&self, now: Instant) {
+        let mut s = self.lock();
+        if s.in_flight == 0 {
+            s.busy_since = Some(now);
+        }
+        s.in_flight += 1;
+    }
+
+    fn end(&self, kind: Write, now: Instant) {
+        let mut s = self.lock();
+        s.in_flight = s.in_flight.saturating_sub(1);
+        if s.in_flight == 0 {
+            if let Some(since) = s.busy_since.take() {
+                s.busy += now.saturating_duration_since(since);
+            }
+        }
+        match kind {
+            Write::Upload => s.uploads += 1,
+            Write::Lease => s.leases += 1,
+        }
+        if now.saturating_duration_since(s.window_start) >= WINDOW {
+            self.estimate(&mut s, now);
+        }
+    }
+
+    /// Closes the window: a new capacity sample, the lease share, the active workers, the slice.
+    fn estimate(&self, s: &mut State, now: Instant) {
+        // A write still under way counts its time so far in this window, the rest in the next.
+        if let Some(since) = s.busy_since.as_mut() {
+            s.busy += now.saturating_duration_since(*since);
+            *since = now;
+        }
+        let writes = s.uploads + s.leases;
+        if s.busy >= MIN_BUSY && writes > 0 {
+            let sample = writes as f64 / s.busy.as_secs_f64();
+            s.view.capacity = Some(match s.view.capacity {
+                Some(c) => c + SMOOTHING * (sample - c),
+                None => sample,
+            });
+        }
+        if s.uploads > 0 {
+            s.view.leases_per_upload = s.leases as f64 / s.uploads as f64;
+        }
+        let horizon = ACTIVE_FOR.max(Duration::from_secs_f64(2.0 * s.view.slice_seconds));
+        s.seen
+            .retain(|_, t| now.saturating_duration_since(*t) <= horizon);
+        s.view.active_workers = s.seen.len();
+        s.view.slice_seconds = match s.view.capacity {
+            Some(c) if c > 0.0 => (s.view.active_workers as f64 * (1.0 + s.view.leases_per_upload)
+                / (self.target_load * c))
+                .min(MAX_SLICE_SECONDS),
+            _ => 0.0,
+        };
+        self.slice_bits
+            .store(s.view.slice_seconds.to_bits(), Ordering::Relaxed);
+        s.window_start = now;
+        s.busy = Duration::ZERO;
+        s.uploads = 0;
+        s.leases = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Runs `writes` writes of `each` one after another from `t`, returning the time after.
+    fn serial(p: &Pacing, t: Instant, writes: u32, each: Duration, kind: Write) -> Instant {
+        let mut t = t;
+        for _ in 0..writes {
+            p.start(t);
+            t += each;
+            p.end(kind, t);
+        }
+        t
+    }
+
+    #[test]
+    fn the_slice_grows_with_the_workers_and_the_cost_of_a_write() {
+        let p = Pacing::new(0.5);
+        assert_eq!(p.slice_seconds(), 0.0, "nothing measured");
+        for i in 0..100 {
+            p.seen(&format!("w{i}"));
+        }
+        let t0 = p.lock().window_start;
+        // 1 ms a write, back to back: 1,000 writes a second; one lease per four uploads.
+        let t = serial(&p, t0, 800, Duration::from_millis(1), Write::Upload);
+        let t = serial(&p, t, 200, Duration::from_millis(1), Write::Lease);
+        let v = p.view();
+        let c = v.capacity.expect("a busy window");
+        assert!((c - 1000.0).abs() < 1.0, "{c}");
+        assert!((v.leases_per_upload - 0.25).abs() < 1e-9);
+        assert_eq!(v.active_workers, 100);
+        // 100 workers × 1.25 writes a slice / (0.5 × 1,000 a second) = 0.25 s.
+        assert!(
+            (p.slice_seconds() - 0.25).abs() < 1e-3,
+            "{}",
+            p.slice_seconds()
+        );
+
+        // Ten times the workers, writes twice as dear: twenty times the slice.
+        for i in 100..1000 {
+            p.seen(&format!("w{i}"));
+        }
+        let mut t = t;
+        for _ in 0..20 {
+            t = serial(&p, t, 400, Duration::from_millis(2), Write::Upload);
+            t = serial(&p, t, 100, Duration::from_millis(2), Write::Lease);
+        }
+        let s = p.slice_seconds();
+        assert!((s - 5.0).abs() < 0.05, "{s}");
+    }
+
+    #[test]
+    fn overlapping_writes_count_their_busy_time_once_and_the_slice_is_capped() {
+        let p = Pacing::new(0.5);
+        for i in 0..100_000 {
+            p.seen(&format!("w{i}"));
+        }
+        let t0 = p.lock().window_start;
+        // Ten writes at once, each 100 ms, over one second of busy time: 100 a second.
+        let mut t = t0;
+        for _ in 0..10 {
+            for _ in 0..10 {
+                p.start(t);
+            }
+            t += Duration::from_millis(100);
+            for _ in 0..10 {
+                p.end(Write::Upload, t);
+            }
+        }
+        // (The window closes as the last ten end, with nine still counted as under way.)
+        let c = p.view().capacity.unwrap();
+        assert!((c - 100.0).abs() < 10.0, "{c}");
+        assert_eq!(p.slice_seconds(), MAX_SLICE_SECONDS);
+    }
+
+    #[test]
+    fn quiet_windows_keep_the_estimate_and_idle_workers_drop_out() {
+        let p = Pacing::new(0.5);
+        p.seen("a");
+        let t0 = p.lock().window_start;
+        let t = serial(&p, t0, 100, Duration::from_millis(10), Write::Upload);
+        let before = p.view().capacity.unwrap();
+        // One short write in a long window: too little busy time to say anything.
+        let t = serial(
+            &p,
+            t + Duration::from_secs(5),
+            1,
+            Duration::from_millis(1),
+            Write::Upload,
+        );
+        assert_eq!(p.view().capacity, Some(before));
+        // Long after the worker's last write it is no longer counted.
+        {
+            let mut s = p.lock();
+            for v in s.seen.values_mut() {
+                *v = t0;
+            }
+        }
+        serial(
+            &p,
+            t + ACTIVE_FOR * 2,
+            1,
+            Duration::from_millis(1),
+            Write::Lease,
+        );
+        assert_eq!(p.view().active_workers, 0);
+        assert_eq!(p.slice_seconds(), 0.0);
+    }
+}
