@@ -207,8 +207,9 @@ pub struct ServerConfig {
     /// Back-pressure: the share (0 to 1) of the store's measured write capacity that the
     /// workers' uploads and leases should take; the server asks for slices long enough to keep
     /// them there ([`crate::pacing`]). The rest is headroom for bursts, heartbeats, submissions
-    /// and readers. The default is 0.5.
-    pub target_write_load: f64,
+    /// and readers. The default is 0.5; `None`: no back-pressure (workers slice as they like
+    /// and lease as fast as the store answers, as when measuring the store's capacity).
+    pub target_write_load: Option<f64>,
     /// Rows (tiles or tasks) a submission stores per transaction; `None`: the store's default
     /// ([`crate::store::Store::default_batch_rows`]: batches on SQLite, whose one writer makes
     /// every other write wait for a submission, the whole plan at once on PostgreSQL, where
@@ -261,7 +262,7 @@ impl ServerConfig {
             quotas: Quotas::default(),
             sqlite_synchronous: SqliteSynchronous::Full,
             verify_fraction: 0.0,
-            target_write_load: 0.5,
+            target_write_load: Some(0.5),
             submission_batch_rows: None,
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             image_wait: DEFAULT_IMAGE_WAIT,

@@ -53,6 +53,21 @@ impl ApiError {
             ..Self::new(StatusCode::SERVICE_UNAVAILABLE, "busy", message)
         }
     }
+    /// 429 `slow_down`: the farm's writes are at the rate its store can take
+    /// ([`crate::pacing`]); lease again after `retry_after` seconds.
+    pub fn slow_down(retry_after: u32) -> Self {
+        ApiError {
+            retry_after: Some(retry_after),
+            ..Self::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                "slow_down",
+                format!(
+                    "the farm's workers lease and upload as fast as the server's store can take; \
+                     lease again in {retry_after} s"
+                ),
+            )
+        }
+    }
     pub fn forbidden(code: &'static str, message: impl Into<String>) -> Self {
         Self::new(StatusCode::FORBIDDEN, code, message)
     }

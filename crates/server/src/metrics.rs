@@ -184,10 +184,14 @@ impl Metrics {
              # HELP pathfarm_pacing_write_capacity Store writes per busy second, as measured.\n\
              # TYPE pathfarm_pacing_write_capacity gauge\npathfarm_pacing_write_capacity {}\n\
              # HELP pathfarm_pacing_active_workers Workers that leased or uploaded lately.\n\
-             # TYPE pathfarm_pacing_active_workers gauge\npathfarm_pacing_active_workers {}",
+             # TYPE pathfarm_pacing_active_workers gauge\npathfarm_pacing_active_workers {}\n\
+             # HELP pathfarm_pacing_leases_refused_total Leases answered 429 slow_down.\n\
+             # TYPE pathfarm_pacing_leases_refused_total counter\n\
+             pathfarm_pacing_leases_refused_total {}",
             p.slice_seconds,
             p.capacity.unwrap_or(0.0),
-            p.active_workers
+            p.active_workers,
+            p.leases_refused
         );
 
         let name = "pathfarm_http_request_duration_seconds";

@@ -15,6 +15,13 @@
 //! shorter than `S` still leases faster than this allows: `ServerConfig::max_task_samples` is the
 //! operator's lever there (docs/benchmarks.md, "back-pressure").
 //!
+//! Slices cannot be longer than their tasks, and a farm's first passes are tasks of one sample a
+//! pixel: many workers finishing short tasks lease faster than any slice length helps. So leases
+//! are also admitted at `u C` a second (a token bucket that uploads draw on too, holding half a
+//! second of writes): a lease beyond it is answered 429 `slow_down` with a `Retry-After` long
+//! enough for every active worker to have had its turn, spread so that they do not come back
+//! together. Uploads are never refused: they carry finished work.
+//!
 //! The estimate is redone at most once per [`WINDOW`], by whichever write ends after the window
 //! closes; between those a write costs two uncontended lock operations.
 
@@ -30,6 +37,8 @@ pub const MAX_SLICE_SECONDS: f64 = 60.0;
 /// A worker counts as active for this long after its last lease or upload (or for two slice
 /// lengths, when that is longer).
 const ACTIVE_FOR: Duration = Duration::from_secs(30);
+/// The admission bucket holds this many seconds of admitted writes.
+const BURST_SECONDS: f64 = 0.5;
 /// Weight of a new window's capacity in the running estimate.
 const SMOOTHING: f64 = 0.3;
 /// Windows busier than this long (of writes in flight) measure the capacity; quieter ones say
@@ -54,10 +63,13 @@ pub struct PacingView {
     pub active_workers: usize,
     /// Leases per upload over the last window with uploads.
     pub leases_per_upload: f64,
+    /// Leases refused so far (429 `slow_down`).
+    pub leases_refused: u64,
 }
 
 pub struct Pacing {
-    target_load: f64,
+    /// `None`: no back-pressure (the capacity is still measured, for the metrics).
+    target_load: Option<f64>,
     state: Mutex<State>,
     /// [`PacingView::slice_seconds`] as `f64` bits, read without the lock.
     slice_bits: AtomicU64,
@@ -73,6 +85,17 @@ struct State {
     leases: u64,
     view: PacingView,
     seen: HashMap<String, Instant>,
+    /// The admission bucket: writes that may start now without exceeding `u C` a second.
+    tokens: f64,
+    refilled: Instant,
+    /// Leases refused so far.
+    refused: u64,
+}
+
+/// A lease refused for now: try again after this many seconds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SlowDown {
+    pub retry_after_seconds: u32,
 }
 
 /// A write under way; dropping it ends it.
@@ -89,13 +112,12 @@ impl Drop for WriteGuard<'_> {
 
 impl Pacing {
     /// `target_load`: the share of the measured capacity the workers' writes should take (the
-    /// rest is headroom for bursts, heartbeats, submissions and readers).
-    pub fn new(target_load: f64) -> Pacing {
-        let target_load = if target_load.is_finite() && target_load > 0.0 {
-            target_load.min(1.0)
-        } else {
-            0.5
-        };
+    /// rest is headroom for bursts, heartbeats, submissions and readers); `None` or a share that
+    /// is not above 0: no back-pressure.
+    pub fn new(target_load: Option<f64>) -> Pacing {
+        let target_load = target_load
+            .filter(|t| t.is_finite() && *t > 0.0)
+            .map(|t| t.min(1.0));
         Pacing {
             target_load,
             state: Mutex::new(State {
@@ -107,6 +129,9 @@ impl Pacing {
                 leases: 0,
                 view: PacingView::default(),
                 seen: HashMap::new(),
+                tokens: 0.0,
+                refilled: Instant::now(),
+                refused: 0,
             }),
             slice_bits: AtomicU64::new(0f64.to_bits()),
         }
@@ -124,13 +149,62 @@ impl Pacing {
 
     /// The estimate as it stands (for metrics and tests).
     pub fn view(&self) -> PacingView {
-        self.lock().view
+        let s = self.lock();
+        PacingView {
+            leases_refused: s.refused,
+            ..s.view
+        }
     }
 
-    /// Starts a write of `kind` by `worker`; it ends when the guard is dropped.
-    pub fn begin(&self, kind: Write) -> WriteGuard<'_> {
-        self.start(Instant::now());
-        WriteGuard { pacing: self, kind }
+    /// Starts a write of `kind`; it ends when the guard is dropped. A lease beyond the admitted
+    /// rate is refused instead (uploads always start).
+    pub fn begin(&self, kind: Write) -> Result<WriteGuard<'_>, SlowDown> {
+        self.admit(kind, Instant::now())?;
+        Ok(WriteGuard { pacing: self, kind })
+    }
+
+    /// Leases refused so far.
+    pub fn refused(&self) -> u64 {
+        self.lock().refused
+    }
+
+    fn admit(&self, kind: Write, now: Instant) -> Result<(), SlowDown> {
+        let mut s = self.lock();
+        let rate = match s.view.capacity {
+            Some(c) if c > 0.0 && s.view.slice_seconds > 0.0 => {
+                self.target_load.map_or(f64::INFINITY, |u| u * c)
+            }
+            // Nothing measured yet, or no back-pressure: nothing to hold to.
+            _ => f64::INFINITY,
+        };
+        if rate.is_finite() {
+            let burst = (rate * BURST_SECONDS).max(1.0);
+            let elapsed = now.saturating_duration_since(s.refilled).as_secs_f64();
+            s.tokens = (s.tokens + elapsed * rate).min(burst);
+            s.refilled = now;
+            if kind == Write::Lease && s.tokens < 1.0 {
+                s.refused += 1;
+                // Long enough for every active worker to have had a turn, spread over ±50 %.
+                let turn =
+                    (s.view.active_workers.max(1) as f64 / rate).clamp(1.0, MAX_SLICE_SECONDS);
+                let spread = 0.5
+                    + (s.refused.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 11) as f64
+                        / (1u64 << 53) as f64;
+                return Err(SlowDown {
+                    retry_after_seconds: (turn * spread).ceil().max(1.0) as u32,
+                });
+            }
+            s.tokens -= 1.0;
+        }
+        Self::started(&mut s, now);
+        Ok(())
+    }
+
+    fn started(s: &mut State, now: Instant) {
+        if s.in_flight == 0 {
+            s.busy_since = Some(now);
+        }
+        s.in_flight += 1;
     }
 
     /// Notes `worker` as active (it was granted a lease or had a slice merged).
@@ -143,14 +217,6 @@ impl Pacing {
                 s.seen.insert(worker.to_string(), now);
             }
         }
-    }
-
-    fn start(&self, now: Instant) {
-        let mut s = self.lock();
-        if s.in_flight == 0 {
-            s.busy_since = Some(now);
-        }
-        s.in_flight += 1;
     }
 
     fn end(&self, kind: Write, now: Instant) {
@@ -192,10 +258,11 @@ impl Pacing {
         s.seen
             .retain(|_, t| now.saturating_duration_since(*t) <= horizon);
         s.view.active_workers = s.seen.len();
-        s.view.slice_seconds = match s.view.capacity {
-            Some(c) if c > 0.0 => (s.view.active_workers as f64 * (1.0 + s.view.leases_per_upload)
-                / (self.target_load * c))
-                .min(MAX_SLICE_SECONDS),
+        s.view.slice_seconds = match (s.view.capacity, self.target_load) {
+            (Some(c), Some(u)) if c > 0.0 => {
+                (s.view.active_workers as f64 * (1.0 + s.view.leases_per_upload) / (u * c))
+                    .min(MAX_SLICE_SECONDS)
+            }
             _ => 0.0,
         };
         self.slice_bits
@@ -215,7 +282,7 @@ mod tests {
     fn serial(p: &Pacing, t: Instant, writes: u32, each: Duration, kind: Write) -> Instant {
         let mut t = t;
         for _ in 0..writes {
-            p.start(t);
+            Pacing::started(&mut p.lock(), t);
             t += each;
             p.end(kind, t);
         }
@@ -224,7 +291,7 @@ mod tests {
 
     #[test]
     fn the_slice_grows_with_the_workers_and_the_cost_of_a_write() {
-        let p = Pacing::new(0.5);
+        let p = Pacing::new(Some(0.5));
         assert_eq!(p.slice_seconds(), 0.0, "nothing measured");
         for i in 0..100 {
             p.seen(&format!("w{i}"));
@@ -260,7 +327,7 @@ mod tests {
 
     #[test]
     fn overlapping_writes_count_their_busy_time_once_and_the_slice_is_capped() {
-        let p = Pacing::new(0.5);
+        let p = Pacing::new(Some(0.5));
         for i in 0..100_000 {
             p.seen(&format!("w{i}"));
         }
@@ -269,7 +336,7 @@ mod tests {
         let mut t = t0;
         for _ in 0..10 {
             for _ in 0..10 {
-                p.start(t);
+                Pacing::started(&mut p.lock(), t);
             }
             t += Duration::from_millis(100);
             for _ in 0..10 {
@@ -282,9 +349,78 @@ mod tests {
         assert_eq!(p.slice_seconds(), MAX_SLICE_SECONDS);
     }
 
+    /// Once a capacity is measured, leases are admitted at the target share of it (uploads draw
+    /// on the same bucket but are never refused), and a refused lease is told to come back after
+    /// every active worker had a turn.
+    #[test]
+    fn leases_beyond_the_target_rate_are_told_to_come_back_later() {
+        let fresh = Pacing::new(Some(0.5));
+        let t0 = fresh.lock().window_start;
+        for _ in 0..50 {
+            assert!(
+                fresh.admit(Write::Lease, t0).is_ok(),
+                "nothing measured: no limit"
+            );
+        }
+        let p = Pacing::new(Some(0.5));
+        let t0 = p.lock().window_start;
+        for i in 0..2000 {
+            p.seen(&format!("w{i}"));
+        }
+        // 1,000 writes a second measured: 500 a second admitted, a burst of 250.
+        let t = serial(&p, t0, 1000, Duration::from_millis(1), Write::Upload);
+        assert!(p.slice_seconds() > 0.0);
+        let t = t + Duration::from_secs(1);
+        let mut admitted = 0;
+        let mut refused = Vec::new();
+        for _ in 0..1000 {
+            match p.admit(Write::Lease, t) {
+                Ok(()) => {
+                    admitted += 1;
+                    p.end(Write::Lease, t);
+                }
+                Err(slow) => refused.push(slow.retry_after_seconds),
+            }
+        }
+        assert_eq!(admitted, 250, "the burst");
+        assert_eq!(refused.len(), 750);
+        assert_eq!(p.refused(), 750);
+        // 2,000 workers at 500 a second: a turn is 4 s, spread over 2–6 s.
+        assert!(refused.iter().all(|&s| (2..=6).contains(&s)), "{refused:?}");
+        assert!(refused.iter().any(|&s| s <= 3) && refused.iter().any(|&s| s >= 5));
+        // Uploads are never refused, but they use up what leases would have had.
+        assert!(p.admit(Write::Upload, t).is_ok());
+        p.end(Write::Upload, t);
+        let later = t + Duration::from_millis(100);
+        for _ in 0..10 {
+            assert!(p.admit(Write::Upload, later).is_ok());
+            p.end(Write::Upload, later);
+        }
+        // 50 tokens came back in 100 ms; 11 uploads took them.
+        let leases = (0..100)
+            .filter(|_| p.admit(Write::Lease, later).is_ok())
+            .count();
+        assert_eq!(leases, 39);
+    }
+
+    #[test]
+    fn without_a_target_nothing_is_asked_or_refused() {
+        let p = Pacing::new(None);
+        for i in 0..1000 {
+            p.seen(&format!("w{i}"));
+        }
+        let t0 = p.lock().window_start;
+        let t = serial(&p, t0, 1000, Duration::from_millis(1), Write::Upload);
+        assert!(p.view().capacity.is_some(), "still measured");
+        assert_eq!(p.slice_seconds(), 0.0);
+        for _ in 0..1000 {
+            assert!(p.admit(Write::Lease, t).is_ok());
+        }
+    }
+
     #[test]
     fn quiet_windows_keep_the_estimate_and_idle_workers_drop_out() {
-        let p = Pacing::new(0.5);
+        let p = Pacing::new(Some(0.5));
         p.seen("a");
         let t0 = p.lock().window_start;
         let t = serial(&p, t0, 100, Duration::from_millis(10), Write::Upload);

@@ -8,13 +8,18 @@ mod common;
 
 use axum::http::StatusCode;
 use common::*;
-use pathfarm_server::AppState;
+use http_body_util::BodyExt;
+use pathfarm_server::{app, AppState};
 use std::time::Duration;
+use tower::ServiceExt;
 
 #[tokio::test]
 async fn leases_and_acks_carry_a_slice_length_that_follows_the_workers() {
     for (store, url) in stores("pacing").await {
-        let state = AppState::open(config(&url)).await.unwrap();
+        // The whole capacity: one request at a time never goes past it, so nothing is refused.
+        let mut cfg = config(&url);
+        cfg.target_write_load = Some(1.0);
+        let state = AppState::open(cfg).await.unwrap();
         let s = serde_json::to_string(&settings(64, 64, 8, 8)).unwrap();
         submit_ok(&state, None, &cornell(), &s).await;
         let mut workers = Vec::new();
@@ -42,8 +47,8 @@ async fn leases_and_acks_carry_a_slice_length_that_follows_the_workers() {
         assert_eq!(view.active_workers, 30, "{store}: {view:?}");
         let capacity = view.capacity.expect("a busy window was measured");
         assert!(capacity > 0.0, "{store}: {view:?}");
-        // 30 workers' writes at half the measured capacity.
-        let expected = 30.0 * (1.0 + view.leases_per_upload) / (0.5 * capacity);
+        // 30 workers' writes at the measured capacity.
+        let expected = 30.0 * (1.0 + view.leases_per_upload) / capacity;
         assert!(
             (view.slice_seconds - expected).abs() <= 1e-9 * expected,
             "{store}: {view:?}"
@@ -59,6 +64,97 @@ async fn leases_and_acks_carry_a_slice_length_that_follows_the_workers() {
             "{store}"
         );
         assert!(text.contains("\npathfarm_pacing_slice_seconds "), "{store}");
+        state.store.close().await;
+    }
+}
+
+/// Leasing faster than the target share of the measured capacity is answered 429 `slow_down` with a
+/// `Retry-After`, while uploads go on being merged.
+#[tokio::test]
+async fn leases_beyond_the_store_s_pace_are_told_to_come_back_later() {
+    for (store, url) in stores("pacing-admission").await {
+        // A twentieth of the store's capacity for the workers: the burst below is well past it.
+        let mut cfg = config(&url);
+        cfg.target_write_load = Some(0.05);
+        let state = AppState::open(cfg).await.unwrap();
+        let s = serde_json::to_string(&settings(128, 128, 64, 8)).unwrap();
+        submit_ok(&state, None, &cornell(), &s).await;
+        let mut workers = Vec::new();
+        for _ in 0..100 {
+            workers.push(register_in_process(&state).await);
+        }
+        // A measured window: a task each for a few workers, then the window closes.
+        for w in &workers[..10] {
+            let l = lease_in_process(&state, w).await.expect("a task");
+            upload_grey(&state, w, &l, (l.sample_begin, l.sample_end)).await;
+        }
+        tokio::time::sleep(pathfarm_server::pacing::WINDOW + Duration::from_millis(50)).await;
+        let late = lease_in_process(&state, &workers[10])
+            .await
+            .expect("a task");
+        assert!(late.slice_seconds.unwrap() > 0.0, "{store}: measured");
+        // Every worker leases three times, all at once: more than the store takes.
+        let tries: Vec<_> = workers
+            .iter()
+            .cloned()
+            .map(|(id, cred)| {
+                let state = state.clone();
+                tokio::spawn(async move {
+                    let mut answers = Vec::new();
+                    for _ in 0..3 {
+                        let uri = format!("/api/v1/workers/{id}/lease");
+                        let resp = app(state.clone())
+                            .oneshot(request(
+                                "POST",
+                                &uri,
+                                &[("pathfarm-worker-credential", cred.as_str())],
+                                "",
+                            ))
+                            .await
+                            .unwrap();
+                        let status = resp.status();
+                        let retry_after = resp
+                            .headers()
+                            .get("retry-after")
+                            .map(|v| v.to_str().unwrap().parse::<u32>().unwrap());
+                        let body = resp.into_body().collect().await.unwrap().to_bytes();
+                        answers.push((status, retry_after, body));
+                    }
+                    answers
+                })
+            })
+            .collect();
+        let t0 = std::time::Instant::now();
+        let (mut granted, mut refused) = (0, 0);
+        for t in tries {
+            for (status, retry_after, body) in t.await.unwrap() {
+                if status.is_success() {
+                    granted += 1;
+                    continue;
+                }
+                assert_eq!(status, StatusCode::TOO_MANY_REQUESTS, "{store}");
+                let err: serde_json::Value = serde_json::from_slice(&body).unwrap();
+                assert_eq!(err["error"]["code"], "slow_down", "{store}: {err}");
+                let after = retry_after.expect("Retry-After");
+                assert!((1..=60).contains(&after), "{store}: {after}");
+                refused += 1;
+            }
+        }
+        assert!(
+            granted > 0 && refused > 0,
+            "{store}: {granted} granted, {refused} refused in {:?}; {:?}",
+            t0.elapsed(),
+            state.pacing.view()
+        );
+        assert_eq!(state.pacing.view().leases_refused, refused, "{store}");
+        // Uploads are never refused.
+        upload_grey(
+            &state,
+            &workers[10],
+            &late,
+            (late.sample_begin, late.sample_end),
+        )
+        .await;
         state.store.close().await;
     }
 }

@@ -222,14 +222,15 @@ pub async fn run(
                 continue;
             }
             Err(e) if e.status() == Some(reqwest::StatusCode::TOO_MANY_REQUESTS) => {
-                // Leases this worker lost track of still count against its cap until they
-                // expire: wait for that rather than give up.
-                tracing::warn!(error = %e, "lease refused; retrying");
-                wait(
-                    &mut stop,
+                // The farm is leasing as fast as the server's store can take (back-pressure:
+                // its `Retry-After` says when), or leases this worker lost track of still count
+                // against its cap until they expire: wait for that rather than give up.
+                let after = e.retry_after().map_or(
                     session.lease_duration.max(Duration::from_millis(100)) / 4,
-                )
-                .await;
+                    |asked| asked.min(retry::RETRY_AFTER_MAX),
+                );
+                tracing::info!(error = %e, retry_in = ?after, "lease refused; waiting");
+                wait(&mut stop, after).await;
                 continue;
             }
             Err(e) => {

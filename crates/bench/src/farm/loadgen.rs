@@ -42,6 +42,15 @@ pub struct LoadgenConfig {
     pub tile_size: u32,
     /// A SQLite store's durability (the server's default unless a run compares them).
     pub sqlite_synchronous: pathfarm_server::SqliteSynchronous,
+    /// Back-pressure on (the server's default target): each simulated worker renders slices of
+    /// the longer of `pace` and the server's slice length (`pace` a sample) and waits out a
+    /// `slow_down` as `pathfarm worker` does. Off: the server measures and asks nothing, and the
+    /// workers upload one sample per `pace` (the store's capacity, with a pace of 0).
+    pub back_pressure: bool,
+    /// HTTP clients (connection pools) the simulated workers share, round robin; 0: one each.
+    pub clients: usize,
+    /// The server's `max_task_samples` (its default when `None`).
+    pub max_task_samples: Option<u64>,
 }
 
 impl LoadgenConfig {
@@ -57,6 +66,9 @@ impl LoadgenConfig {
             spp: 64,
             tile_size: 8,
             sqlite_synchronous: Default::default(),
+            back_pressure: false,
+            clients: 0,
+            max_task_samples: None,
         }
     }
 }
@@ -87,12 +99,32 @@ pub struct LoadgenRun {
     pub accepted_uploads: u64,
     /// Uploads the server counted as merged (its `merged_uploads` counter).
     pub merged_uploads: u64,
-    /// Uploads the store holds: the job's merged samples divided by the pixels of a tile.
+    /// Tile samples the store holds (the job's merged samples divided by the pixels of a tile):
+    /// the uploads, when each is one sample.
     pub store_merged_uploads: u64,
+    /// Tile samples in the uploads acknowledged as new.
+    #[serde(default)]
+    pub accepted_tile_samples: u64,
     /// Uploads acknowledged as `duplicate` (none expected: every slice is sent once).
     pub duplicate_uploads: u64,
     /// Requests that failed (each stops its simulated worker).
     pub errors: u64,
+    /// Of them, answers 500–599.
+    #[serde(default)]
+    pub server_errors: u64,
+    /// Leases answered 429 `slow_down` (back-pressure; the worker waited and went on).
+    #[serde(default)]
+    pub slow_downs: u64,
+    /// Samples per acknowledged upload.
+    #[serde(default)]
+    pub samples_per_upload: f64,
+    /// The server's slice length when the window closed (seconds; 0 without back-pressure).
+    #[serde(default)]
+    pub slice_seconds_at_end: f64,
+    /// Seconds from the start until every tile had a sample (the first complete preview);
+    /// `None`: not within the window.
+    #[serde(default)]
+    pub first_pass_seconds: Option<f64>,
     /// The first failure, if any.
     pub first_error: Option<String>,
 }
@@ -101,7 +133,7 @@ impl LoadgenRun {
     /// Every acknowledged upload merged exactly once, and nothing failed.
     pub fn consistent(&self) -> bool {
         self.accepted_uploads == self.merged_uploads
-            && self.merged_uploads == self.store_merged_uploads
+            && self.accepted_tile_samples == self.store_merged_uploads
             && self.duplicate_uploads == 0
     }
 }
@@ -125,6 +157,10 @@ pub(crate) fn synthetic(x0: u32, y0: u32, w: u32, h: u32, begin: u32, end: u32) 
 struct Shared {
     /// Acknowledged new uploads (all, and within the window).
     accepted: AtomicU64,
+    /// Samples in the acknowledged new uploads.
+    accepted_samples: AtomicU64,
+    server_errors: AtomicU64,
+    slow_downs: AtomicU64,
     window_uploads: AtomicU64,
     window_leases: AtomicU64,
     duplicates: AtomicU64,
@@ -137,6 +173,12 @@ struct Shared {
 }
 
 impl Shared {
+    fn fail_with(&self, e: &pathfarm_worker::client::ClientError, what: String) {
+        if e.status().is_some_and(|s| s.is_server_error()) {
+            self.server_errors.fetch_add(1, Ordering::Relaxed);
+        }
+        self.fail(what);
+    }
     fn fail(&self, what: String) {
         self.errors.fetch_add(1, Ordering::Relaxed);
         if let Ok(mut e) = self.first_error.lock() {
@@ -174,6 +216,7 @@ async fn simulated_worker(
     if offset > 0.0 {
         tokio::time::sleep(Duration::from_secs_f64(offset)).await;
     }
+    let mut asked = 0.0f64;
     while !shared.stop.load(Ordering::Relaxed) {
         let t = Instant::now();
         let lease = match client.lease(&worker_id).await {
@@ -182,8 +225,17 @@ async fn simulated_worker(
                 shared.fail(format!("sim-{i}: the queue ran dry"));
                 return;
             }
+            Err(e)
+                if cfg.back_pressure
+                    && e.status() == Some(reqwest::StatusCode::TOO_MANY_REQUESTS) =>
+            {
+                shared.slow_downs.fetch_add(1, Ordering::Relaxed);
+                let after = e.retry_after().unwrap_or(Duration::from_secs(1));
+                tokio::time::sleep(after.min(Duration::from_secs(60))).await;
+                continue;
+            }
             Err(e) => {
-                shared.fail(format!("sim-{i}: lease: {e}"));
+                shared.fail_with(&e, format!("sim-{i}: lease: {e}"));
                 return;
             }
         };
@@ -191,12 +243,21 @@ async fn simulated_worker(
         if !shared.stop.load(Ordering::Relaxed) {
             shared.window_leases.fetch_add(1, Ordering::Relaxed);
         }
+        asked = lease.slice_seconds.unwrap_or(asked);
         let tile = lease.tile;
-        for b in lease.sample_begin..lease.sample_end {
-            if cfg.pace > 0.0 {
-                tokio::time::sleep(Duration::from_secs_f64(cfg.pace)).await;
+        let mut b = lease.sample_begin;
+        while b < lease.sample_end {
+            // One sample takes `pace`; a slice is the longer of that and what the server asks.
+            let n = if cfg.back_pressure && cfg.pace > 0.0 {
+                ((asked / cfg.pace).floor() as u32).max(1)
+            } else {
+                1
             }
-            let body = synthetic(tile.x0, tile.y0, tile.width, tile.height, b, b + 1);
+            .min(lease.sample_end - b);
+            if cfg.pace > 0.0 {
+                tokio::time::sleep(Duration::from_secs_f64(cfg.pace * f64::from(n))).await;
+            }
+            let body = synthetic(tile.x0, tile.y0, tile.width, tile.height, b, b + n);
             let t = Instant::now();
             match client
                 .upload_slice(lease.task_id, &lease.lease_token, body)
@@ -205,23 +266,50 @@ async fn simulated_worker(
                 Ok(ack) if ack.duplicate => {
                     shared.duplicates.fetch_add(1, Ordering::Relaxed);
                 }
-                Ok(_) => {
+                Ok(ack) => {
                     Shared::record(&shared.upload_lat, t.elapsed().as_secs_f64());
                     shared.accepted.fetch_add(1, Ordering::Relaxed);
+                    shared
+                        .accepted_samples
+                        .fetch_add(u64::from(n), Ordering::Relaxed);
                     if !shared.stop.load(Ordering::Relaxed) {
                         shared.window_uploads.fetch_add(1, Ordering::Relaxed);
                     }
+                    asked = ack.slice_seconds.unwrap_or(asked);
                 }
                 Err(e) => {
-                    shared.fail(format!("sim-{i}: upload to task {}: {e}", lease.task_id));
+                    shared.fail_with(
+                        &e,
+                        format!("sim-{i}: upload to task {}: {e}", lease.task_id),
+                    );
                     return;
                 }
             }
+            b += n;
             if shared.stop.load(Ordering::Relaxed) {
                 return;
             }
         }
     }
+}
+
+/// Polls the job until every tile has a sample: the seconds from `t0` (`None`: stopped first).
+async fn first_pass(
+    client: ApiClient,
+    job_id: String,
+    t0: Instant,
+    shared: Arc<Shared>,
+) -> Option<f64> {
+    while !shared.stop.load(Ordering::Relaxed) {
+        if let Ok(view) = client.job(&job_id).await {
+            let tiles = view.tiles.unwrap_or_default();
+            if !tiles.is_empty() && tiles.iter().all(|t| t.samples_per_pixel >= 1) {
+                return Some(t0.elapsed().as_secs_f64());
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+    None
 }
 
 /// Runs one measurement against a fresh in-process server on the store `db_url`.
@@ -241,6 +329,14 @@ pub async fn run(
     }
     let mut config = ServerConfig::new(db_url);
     config.sqlite_synchronous = cfg.sqlite_synchronous;
+    if !cfg.back_pressure {
+        config.target_write_load = None;
+    }
+    if let Some(n) = cfg.max_task_samples {
+        config.max_task_samples = n;
+    }
+    // Every simulated worker may hold a connection of its own.
+    config.connections.max_connections = config.connections.max_connections.max(cfg.workers + 64);
     // Nothing may expire during a run: the simulated workers send no heartbeats.
     config.lease_duration = Duration::from_secs(600);
     let server = Server::start(config).await?;
@@ -265,13 +361,44 @@ async fn measure(
         .await
         .map_err(|e| farm_err(format!("loadgen: submitting the job: {e}")))?;
 
-    // Register everyone first, so the window measures the steady state, not the registrations.
+    // Register everyone first, so the window measures the steady state, not the registrations;
+    // 64 at a time, on the shared clients when there are fewer clients than workers.
+    let pools = match cfg.clients {
+        0 => cfg.workers,
+        n => n.min(cfg.workers),
+    };
+    let mut pool_clients = Vec::with_capacity(pools);
+    for _ in 0..pools {
+        pool_clients.push(server.client()?);
+    }
     let mut ids = Vec::with_capacity(cfg.workers);
     let mut clients = Vec::with_capacity(cfg.workers);
-    for i in 0..cfg.workers {
-        let (c, id) = super::harness::simulated_worker_client(server, i).await?;
-        ids.push(id);
-        clients.push(c);
+    for chunk in (0..cfg.workers).collect::<Vec<_>>().chunks(64) {
+        let mut set = tokio::task::JoinSet::new();
+        for &i in chunk {
+            let c = pool_clients[i % pools].clone();
+            set.spawn(async move {
+                let reg = c
+                    .register(&pathfarm_wire::api::WorkerRegistration {
+                        name: format!("sim-{i}"),
+                        threads: 1,
+                        version: "sim".into(),
+                        host: "sim".into(),
+                    })
+                    .await
+                    .map_err(|e| farm_err(format!("registering simulated worker {i}: {e}")))?;
+                Ok::<_, BenchError>((i, c, reg.worker_id))
+            });
+        }
+        let mut done = Vec::with_capacity(chunk.len());
+        while let Some(r) = set.join_next().await {
+            done.push(r.map_err(|e| farm_err(format!("registration task: {e}")))??);
+        }
+        done.sort_by_key(|(i, _, _)| *i);
+        for (_, c, id) in done {
+            clients.push(c);
+            ids.push(id);
+        }
     }
     let shared = Arc::new(Shared::default());
     let (start_tx, start_rx) = tokio::sync::watch::channel(false);
@@ -293,9 +420,17 @@ async fn measure(
     let merged_before = server.state.metrics.merged_uploads.load(Ordering::Relaxed);
     let t0 = Instant::now();
     let _ = start_tx.send(true);
+    let first = tokio::spawn(first_pass(
+        client.clone(),
+        job.id.clone(),
+        t0,
+        shared.clone(),
+    ));
     tokio::time::sleep(Duration::from_secs_f64(cfg.seconds)).await;
     shared.stop.store(true, Ordering::Relaxed);
     let seconds = t0.elapsed().as_secs_f64();
+    let slice_seconds_at_end = server.state.pacing.slice_seconds();
+    let first_pass_seconds = first.await.ok().flatten();
     for h in handles {
         if let Err(e) = h.await {
             shared.fail(format!("simulated worker task: {e}"));
@@ -330,6 +465,13 @@ async fn measure(
         store_merged_uploads: view.samples_done / tile_pixels,
         duplicate_uploads: shared.duplicates.load(Ordering::Relaxed),
         errors: shared.errors.load(Ordering::Relaxed),
+        server_errors: shared.server_errors.load(Ordering::Relaxed),
+        slow_downs: shared.slow_downs.load(Ordering::Relaxed),
+        accepted_tile_samples: shared.accepted_samples.load(Ordering::Relaxed),
+        samples_per_upload: shared.accepted_samples.load(Ordering::Relaxed) as f64
+            / shared.accepted.load(Ordering::Relaxed).max(1) as f64,
+        slice_seconds_at_end,
+        first_pass_seconds,
         first_error,
     })
 }

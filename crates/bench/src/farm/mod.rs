@@ -18,6 +18,7 @@
 pub mod frames;
 mod harness;
 pub mod loadgen;
+pub mod pressure;
 mod report;
 pub mod scaling;
 pub mod soak;

@@ -145,6 +145,9 @@ async fn measure(
     let mut config = ServerConfig::new(spec.url());
     config.lease_duration = Duration::from_secs(600);
     config.submission_batch_rows = Some(batch_rows.unwrap_or(usize::MAX));
+    // The probe leases as fast as it is answered: what a submission costs the store is measured,
+    // not the farm's back-pressure.
+    config.target_write_load = None;
     let server = Server::start(config).await?;
     let result = leases_around_a_submission(&server, scene, (width, height, tile, spp), workers)
         .await

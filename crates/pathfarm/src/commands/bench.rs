@@ -38,6 +38,12 @@ pub enum Suite {
     /// their ratio, and the time until every frame has its first pass. Writes frames.md and
     /// frames.json. Not part of `all`.
     Frames,
+    /// Back-pressure: 10,000 simulated workers (1,000 with --quick) register over real HTTP and
+    /// render open loop (--pace seconds a sample), with the server's back-pressure and without,
+    /// for --seconds each, on SQLite (and PostgreSQL with --postgres): uploads and leases a
+    /// second, latencies, 5xx, slow_down answers, the first complete pass, exactness. Writes
+    /// pressure.md and pressure.json. Not part of `all`.
+    Pressure,
     /// A huge submission (2048², tile 16, 240,000 spp: 458,752 tasks; 512² with --quick) while 16
     /// simulated workers lease and give back tasks in a closed loop, over real HTTP: lease
     /// latency before and during it, the plan stored in one transaction and in batches, on
@@ -87,9 +93,12 @@ pub struct BenchArgs {
     /// runs each case in a process of its own).
     #[arg(long, hide = true)]
     pub case: Option<String>,
-    /// The soak's window per store, in seconds (`soak` only).
+    /// The soak's window per store, in seconds (`soak` and `pressure` only).
     #[arg(long, default_value_t = 120.0)]
     pub seconds: f64,
+    /// Seconds a simulated worker takes per sample of its tile (`pressure` only).
+    #[arg(long, default_value_t = 1.5)]
+    pub pace: f64,
     /// Output directory: report.md, results.json, charts/, images/ (speed.md and speed.json for
     /// `speed`).
     #[arg(long)]
@@ -247,8 +256,38 @@ fn submission(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn pressure(args: BenchArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.seconds > 0.0 && args.seconds.is_finite() && args.pace > 0.0 && args.pace.is_finite(),
+        "--seconds and --pace must be positive numbers"
+    );
+    let scene_path = args.scenes_dir.join("cornell.gltf");
+    anyhow::ensure!(
+        scene_path.is_file(),
+        "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
+        args.scenes_dir.display()
+    );
+    let opts = pathfarm_bench::farm::pressure::PressureOptions {
+        out_dir: args.out.clone(),
+        scene_path,
+        work_dir: args.out.join("pressure-work"),
+        postgres_url: args.postgres,
+        workers: if args.quick { 1_000 } else { 10_000 },
+        seconds: args.seconds,
+        pace: args.pace,
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let (_, markdown) =
+        pathfarm_bench::farm::pressure::run(&opts).context("pressure benchmark failed")?;
+    let _ = std::fs::remove_dir_all(&opts.work_dir);
+    println!("{markdown}");
+    eprintln!("report in {}", args.out.join("pressure.md").display());
+    Ok(())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.suite {
+        Suite::Pressure => return pressure(args),
         Suite::Submission => return submission(args),
         Suite::Frames => return frames(args),
         Suite::Soak => return soak(args),

@@ -102,6 +102,11 @@ pub struct ServerArgs {
     /// again. 0: no checks (workers one trusts).
     #[arg(long, env = "PATHFARM_VERIFY_FRACTION", default_value_t = 0.0)]
     pub verify_fraction: f64,
+    /// Back-pressure: the share (0 to 1] of the store's measured write capacity the workers'
+    /// uploads and leases may take. The server asks for slices long enough to stay under it and
+    /// answers leases beyond it with 429 `slow_down` and a `Retry-After`. 0: no back-pressure.
+    #[arg(long, env = "PATHFARM_TARGET_WRITE_LOAD", default_value_t = 0.5)]
+    pub target_write_load: f64,
     /// Most unfinished jobs (queued, running, paused) one client token may have; 0: no limit.
     #[arg(
         long,
@@ -188,6 +193,10 @@ impl ServerArgs {
             bail!("--verify-fraction must be between 0 (no checks) and 1 (every task)");
         }
         c.verify_fraction = self.verify_fraction;
+        if !(0.0..=1.0).contains(&self.target_write_load) {
+            bail!("--target-write-load must be between 0 (no back-pressure) and 1");
+        }
+        c.target_write_load = (self.target_write_load > 0.0).then_some(self.target_write_load);
         c.quotas.max_unfinished_jobs =
             (self.max_unfinished_jobs_per_token > 0).then_some(self.max_unfinished_jobs_per_token);
         if !(self.max_stored_gib_per_token.is_finite()

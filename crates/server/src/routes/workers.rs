@@ -127,7 +127,10 @@ pub async fn lease(
     me.must_be(&id)?;
     let lease_ms = state.config.lease_duration.as_millis() as u64;
     let started = std::time::Instant::now();
-    let write = state.pacing.begin(Write::Lease);
+    let write = state
+        .pacing
+        .begin(Write::Lease)
+        .map_err(|slow| ApiError::slow_down(slow.retry_after_seconds))?;
     let lease = state
         .store
         .lease(&id, lease_ms, state.config.max_leases_per_worker)

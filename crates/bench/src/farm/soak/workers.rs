@@ -65,6 +65,12 @@ impl SimWorker {
                         nap(&mut stop, idle).await;
                         idle = (idle * 2).min(Duration::from_millis(500));
                     }
+                    Err(e) if e.status() == Some(reqwest::StatusCode::TOO_MANY_REQUESTS) => {
+                        // Back-pressure: `pathfarm worker` waits as the server says.
+                        shared.rec.observe(Kind::Lease, t, "429");
+                        let after = e.retry_after().unwrap_or(Duration::from_secs(1));
+                        nap(&mut stop, after.min(Duration::from_secs(60))).await;
+                    }
                     Err(e) => {
                         shared.rec.observe(Kind::Lease, t, &status_key(&e));
                         shared
