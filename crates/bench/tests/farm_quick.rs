@@ -209,3 +209,46 @@ fn quick_submission_benchmark_measures_and_reports() {
     assert!(out.join("submission.json").is_file() && out.join("submission.md").is_file());
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// `pathfarm bench pressure` in small, SQLite only: 300 simulated workers that would each upload
+/// a sample every 50 ms (far past what the store takes). With back-pressure the server asks for
+/// longer slices and they are rendered, nothing fails, and every acknowledged sample is merged
+/// exactly once; without it, too, exactness holds.
+#[test]
+fn the_pressure_benchmark_holds_a_crowd_to_the_store_s_pace() {
+    use pathfarm_bench::farm::pressure::{run, PressureOptions};
+    let out = temp_dir("pressure");
+    let opts = PressureOptions {
+        out_dir: out.clone(),
+        scene_path: PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenes/cornell.gltf"
+        )),
+        work_dir: out.join("work"),
+        postgres_url: None,
+        workers: 300,
+        seconds: 6.0,
+        pace: 0.05,
+        // 256 tiles, passes of 1, 1, 2, 4, … samples: the window reaches tasks of several.
+        job: (128, 128, 8, 256),
+        command_line: "test".into(),
+    };
+    let (r, markdown) = run(&opts).expect("the pressure benchmark runs");
+    assert_eq!(r.rows.len(), 2, "{markdown}");
+    for row in &r.rows {
+        let x = &row.run;
+        assert!(x.consistent(), "{markdown}");
+        assert!(x.uploads > 0 && x.leases > 0, "{markdown}");
+        if row.back_pressure {
+            assert_eq!((x.errors, x.server_errors), (0, 0), "{markdown}");
+            assert!(x.slice_seconds_at_end > opts.pace, "{markdown}");
+            // The workers rendered the longer slices, or waited to lease, or both.
+            assert!(x.samples_per_upload > 1.0 || x.slow_downs > 0, "{markdown}");
+        } else {
+            assert_eq!(x.slice_seconds_at_end, 0.0, "{markdown}");
+            assert_eq!(x.slow_downs, 0, "{markdown}");
+        }
+    }
+    assert!(out.join("pressure.json").is_file() && out.join("pressure.md").is_file());
+    let _ = std::fs::remove_dir_all(&out);
+}

@@ -29,7 +29,15 @@ pub struct PressureOptions {
     pub seconds: f64,
     /// Seconds a simulated worker takes per sample of its tile.
     pub pace: f64,
+    /// The job: width, height, tile size, spp ([`PressureOptions::JOB`] by default).
+    pub job: (u32, u32, u32, u32),
     pub command_line: String,
+}
+
+impl PressureOptions {
+    /// 4,096 tiles of 8² (more than a first pass of 10,000 workers needs), 256 spp: passes of
+    /// 1, 2, 4, … samples, so the first passes are tasks of a sample or two, as a real job's are.
+    pub const JOB: (u32, u32, u32, u32) = (512, 512, 8, 256);
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -56,9 +64,7 @@ pub fn run(opts: &PressureOptions) -> Result<(PressureResults, String), BenchErr
         .enable_all()
         .build()
         .map_err(|e| farm_err(format!("tokio runtime: {e}")))?;
-    // 4,096 tiles of 8² (more tiles than a first pass needs), 256 spp: passes of 1, 2, 4, …
-    // samples, so the first passes are tasks of a sample or two, as a real job's are.
-    let job = (512, 512, 8, 256);
+    let job = opts.job;
     let stores: Vec<Option<&str>> = std::iter::once(None)
         .chain(opts.postgres_url.as_deref().map(Some))
         .collect();

@@ -275,6 +275,7 @@ fn pressure(args: BenchArgs) -> anyhow::Result<()> {
         workers: if args.quick { 1_000 } else { 10_000 },
         seconds: args.seconds,
         pace: args.pace,
+        job: pathfarm_bench::farm::pressure::PressureOptions::JOB,
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     };
     let (_, markdown) =
