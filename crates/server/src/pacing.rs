@@ -11,16 +11,19 @@
 //!
 //! and hands it to every worker with each lease and upload acknowledgement
 //! ([`pathfarm_wire::api::Lease::slice_seconds`]); a worker renders slices of the longer of its
-//! own slice length and this. A slice cannot be longer than its task, so a farm whose tasks are
-//! shorter than `S` still leases faster than this allows: `ServerConfig::max_task_samples` is the
-//! operator's lever there (docs/benchmarks.md, "back-pressure").
+//! own slice length and this. A slice that errs long costs little: the worker renders as much,
+//! it only uploads less often.
 //!
 //! Slices cannot be longer than their tasks, and a farm's first passes are tasks of one sample a
-//! pixel: many workers finishing short tasks lease faster than any slice length helps. So leases
-//! are also admitted at `u C` a second (a token bucket that uploads draw on too, holding half a
-//! second of writes): a lease beyond it is answered 429 `slow_down` with a `Retry-After` long
-//! enough for every active worker to have had its turn, spread so that they do not come back
-//! together. Uploads are never refused: they carry finished work.
+//! pixel: many workers finishing short tasks lease faster than any slice length helps. So a lease
+//! is also refused while [`QUEUE_SECONDS`] of the store's writes (at its measured capacity, at
+//! least [`MIN_QUEUE`] writes) are under way: it is answered 429 `slow_down` with a
+//! `Retry-After` of one turn of every worker that wants work at that capacity, spread so that they
+//! do not come back together. The writes under way bound what a granted lease waits for, and the
+//! store runs at what it can take whatever the crowd. (An earlier version also admitted leases
+//! at `u C` a second; with group commit the capacity measured at a lower load reads lower, so
+//! the admitted rate spiralled down to a fifth of what the store takes: docs/benchmarks.md.)
+//! Uploads are never refused: they carry finished work.
 //!
 //! The estimate is redone at most once per [`WINDOW`], by whichever write ends after the window
 //! closes; between those a write costs two uncontended lock operations.
@@ -37,8 +40,13 @@ pub const MAX_SLICE_SECONDS: f64 = 60.0;
 /// A worker counts as active for this long after its last lease or upload (or for two slice
 /// lengths, when that is longer).
 const ACTIVE_FOR: Duration = Duration::from_secs(30);
-/// The admission bucket holds this many seconds of admitted writes.
-const BURST_SECONDS: f64 = 0.5;
+/// A lease is refused while this many seconds of the store's writes (at its measured capacity)
+/// are under way, so that the ones granted wait little; at least [`MIN_QUEUE`] writes.
+const QUEUE_SECONDS: f64 = 0.05;
+/// The writes under way that refuse a lease before any capacity was measured, and at least.
+const MIN_QUEUE: u32 = 16;
+/// The capacity a refused worker's turn is reckoned at before any was measured.
+const UNMEASURED_CAPACITY: f64 = 100.0;
 /// Weight of a new window's capacity in the running estimate.
 const SMOOTHING: f64 = 0.3;
 /// Windows busier than this long (of writes in flight) measure the capacity; quieter ones say
@@ -85,9 +93,6 @@ struct State {
     leases: u64,
     view: PacingView,
     seen: HashMap<String, Instant>,
-    /// The admission bucket: writes that may start now without exceeding `u C` a second.
-    tokens: f64,
-    refilled: Instant,
     /// Leases refused so far.
     refused: u64,
 }
@@ -129,8 +134,6 @@ impl Pacing {
                 leases: 0,
                 view: PacingView::default(),
                 seen: HashMap::new(),
-                tokens: 0.0,
-                refilled: Instant::now(),
                 refused: 0,
             }),
             slice_bits: AtomicU64::new(0f64.to_bits()),
@@ -156,10 +159,11 @@ impl Pacing {
         }
     }
 
-    /// Starts a write of `kind`; it ends when the guard is dropped. A lease beyond the admitted
-    /// rate is refused instead (uploads always start).
-    pub fn begin(&self, kind: Write) -> Result<WriteGuard<'_>, SlowDown> {
-        self.admit(kind, Instant::now())?;
+    /// Starts a write of `kind` by `worker`; it ends when the guard is dropped. A lease beyond
+    /// the admitted rate, or behind too many writes under way, is refused instead (uploads always
+    /// start).
+    pub fn begin(&self, kind: Write, worker: &str) -> Result<WriteGuard<'_>, SlowDown> {
+        self.admit(kind, worker, Instant::now())?;
         Ok(WriteGuard { pacing: self, kind })
     }
 
@@ -168,33 +172,27 @@ impl Pacing {
         self.lock().refused
     }
 
-    fn admit(&self, kind: Write, now: Instant) -> Result<(), SlowDown> {
+    fn admit(&self, kind: Write, worker: &str, now: Instant) -> Result<(), SlowDown> {
         let mut s = self.lock();
-        let rate = match s.view.capacity {
-            Some(c) if c > 0.0 && s.view.slice_seconds > 0.0 => {
-                self.target_load.map_or(f64::INFINITY, |u| u * c)
-            }
-            // Nothing measured yet, or no back-pressure: nothing to hold to.
-            _ => f64::INFINITY,
-        };
-        if rate.is_finite() {
-            let burst = (rate * BURST_SECONDS).max(1.0);
-            let elapsed = now.saturating_duration_since(s.refilled).as_secs_f64();
-            s.tokens = (s.tokens + elapsed * rate).min(burst);
-            s.refilled = now;
-            if kind == Write::Lease && s.tokens < 1.0 {
-                s.refused += 1;
-                // Long enough for every active worker to have had a turn, spread over ±50 %.
-                let turn =
-                    (s.view.active_workers.max(1) as f64 / rate).clamp(1.0, MAX_SLICE_SECONDS);
-                let spread = 0.5
-                    + (s.refused.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 11) as f64
-                        / (1u64 << 53) as f64;
-                return Err(SlowDown {
-                    retry_after_seconds: (turn * spread).ceil().max(1.0) as u32,
-                });
-            }
-            s.tokens -= 1.0;
+        if self.target_load.is_none() || kind == Write::Upload {
+            Self::started(&mut s, now);
+            return Ok(());
+        }
+        let capacity = s.view.capacity.filter(|c| *c > 0.0);
+        let queue = capacity.map_or(MIN_QUEUE, |c| ((c * QUEUE_SECONDS) as u32).max(MIN_QUEUE));
+        if s.in_flight >= queue {
+            s.refused += 1;
+            // A worker refused wants work: it counts among the active ones.
+            Self::note(&mut s, worker, now);
+            // Long enough for every such worker to have had a turn, spread over ±50 %.
+            let per_second = capacity.unwrap_or(UNMEASURED_CAPACITY);
+            let turn = (s.seen.len().max(1) as f64 / per_second).clamp(1.0, MAX_SLICE_SECONDS);
+            let spread = 0.5
+                + (s.refused.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 11) as f64
+                    / (1u64 << 53) as f64;
+            return Err(SlowDown {
+                retry_after_seconds: (turn * spread).ceil().max(1.0) as u32,
+            });
         }
         Self::started(&mut s, now);
         Ok(())
@@ -209,8 +207,10 @@ impl Pacing {
 
     /// Notes `worker` as active (it was granted a lease or had a slice merged).
     pub fn seen(&self, worker: &str) {
-        let now = Instant::now();
-        let mut s = self.lock();
+        Self::note(&mut self.lock(), worker, Instant::now());
+    }
+
+    fn note(s: &mut State, worker: &str, now: Instant) {
         match s.seen.get_mut(worker) {
             Some(t) => *t = now,
             None => {
@@ -349,58 +349,62 @@ mod tests {
         assert_eq!(p.slice_seconds(), MAX_SLICE_SECONDS);
     }
 
-    /// Once a capacity is measured, leases are admitted at the target share of it (uploads draw
-    /// on the same bucket but are never refused), and a refused lease is told to come back after
-    /// every active worker had a turn.
+    /// A lease finding too many writes under way is told to come back later, after a turn of
+    /// every worker that wants work; uploads always start.
     #[test]
-    fn leases_beyond_the_target_rate_are_told_to_come_back_later() {
+    fn leases_behind_a_full_queue_are_told_to_come_back_later() {
+        // Before any measurement: 16 writes under way at most for a lease.
         let fresh = Pacing::new(Some(0.5));
         let t0 = fresh.lock().window_start;
-        for _ in 0..50 {
-            assert!(
-                fresh.admit(Write::Lease, t0).is_ok(),
-                "nothing measured: no limit"
-            );
+        for _ in 0..MIN_QUEUE {
+            assert!(fresh.admit(Write::Lease, "w0", t0).is_ok());
         }
+        let slow = fresh.admit(Write::Lease, "w1", t0).unwrap_err();
+        // One worker wanting work, at the unmeasured capacity: the shortest turn, 1 s ± 50 %.
+        assert!((1..=2).contains(&slow.retry_after_seconds), "{slow:?}");
+        assert!(
+            fresh.admit(Write::Upload, "w0", t0).is_ok(),
+            "uploads always start"
+        );
+        fresh.end(Write::Upload, t0);
+        fresh.end(Write::Lease, t0);
+        assert!(
+            fresh.admit(Write::Lease, "w1", t0).is_ok(),
+            "one ended: room again"
+        );
+
+        // Measured at 1,000 writes a second: 50 ms of them, 50 writes, under way at most.
         let p = Pacing::new(Some(0.5));
         let t0 = p.lock().window_start;
         for i in 0..2000 {
             p.seen(&format!("w{i}"));
         }
-        // 1,000 writes a second measured: 500 a second admitted, a burst of 250.
         let t = serial(&p, t0, 1000, Duration::from_millis(1), Write::Upload);
-        assert!(p.slice_seconds() > 0.0);
-        let t = t + Duration::from_secs(1);
-        let mut admitted = 0;
+        assert!((p.view().capacity.unwrap() - 1000.0).abs() < 1.0);
         let mut refused = Vec::new();
         for _ in 0..1000 {
-            match p.admit(Write::Lease, t) {
-                Ok(()) => {
-                    admitted += 1;
-                    p.end(Write::Lease, t);
-                }
-                Err(slow) => refused.push(slow.retry_after_seconds),
+            if let Err(slow) = p.admit(Write::Lease, "w0", t) {
+                refused.push(slow.retry_after_seconds);
             }
         }
-        assert_eq!(admitted, 250, "the burst");
-        assert_eq!(refused.len(), 750);
-        assert_eq!(p.refused(), 750);
-        // 2,000 workers at 500 a second: a turn is 4 s, spread over 2–6 s.
-        assert!(refused.iter().all(|&s| (2..=6).contains(&s)), "{refused:?}");
-        assert!(refused.iter().any(|&s| s <= 3) && refused.iter().any(|&s| s >= 5));
-        // Uploads are never refused, but they use up what leases would have had.
-        assert!(p.admit(Write::Upload, t).is_ok());
-        p.end(Write::Upload, t);
-        let later = t + Duration::from_millis(100);
+        assert_eq!(refused.len(), 950, "50 admitted");
+        assert_eq!(p.refused(), 950);
+        // 2,000 workers at 1,000 a second: a turn is 2 s, spread over 1–3 s.
+        assert!(refused.iter().all(|&s| (1..=3).contains(&s)), "{refused:?}");
+        assert!(refused.contains(&2) && refused.contains(&3), "spread");
         for _ in 0..10 {
-            assert!(p.admit(Write::Upload, later).is_ok());
-            p.end(Write::Upload, later);
+            assert!(p.admit(Write::Upload, "w0", t).is_ok());
         }
-        // 50 tokens came back in 100 ms; 11 uploads took them.
-        let leases = (0..100)
-            .filter(|_| p.admit(Write::Lease, later).is_ok())
+        for _ in 0..20 {
+            p.end(Write::Lease, t);
+        }
+        let admitted = (0..100)
+            .filter(|_| p.admit(Write::Lease, "w0", t).is_ok())
             .count();
-        assert_eq!(leases, 39);
+        assert_eq!(
+            admitted, 10,
+            "60 under way after 20 ended: room for 10 with the uploads"
+        );
     }
 
     #[test]
@@ -414,7 +418,7 @@ mod tests {
         assert!(p.view().capacity.is_some(), "still measured");
         assert_eq!(p.slice_seconds(), 0.0);
         for _ in 0..1000 {
-            assert!(p.admit(Write::Lease, t).is_ok());
+            assert!(p.admit(Write::Lease, "w0", t).is_ok());
         }
     }
 

@@ -200,9 +200,15 @@ fn quantile_ms(v: &Mutex<Vec<f64>>, p: f64) -> f64 {
     }
 }
 
+/// Requests a shared HTTP client has under way at once (its connections): with
+/// [`LoadgenConfig::clients`] pools, the client side's sockets stay within the process's file
+/// limit however many workers share them; a request waiting for its turn counts its wait in its
+/// latency, as it would waiting for a connection.
+const IN_FLIGHT_PER_SHARED_CLIENT: usize = 6;
+
 async fn simulated_worker(
     i: usize,
-    client: ApiClient,
+    (client, turns): (ApiClient, Option<Arc<tokio::sync::Semaphore>>),
     worker_id: String,
     cfg: LoadgenConfig,
     mut start: tokio::sync::watch::Receiver<bool>,
@@ -219,7 +225,13 @@ async fn simulated_worker(
     let mut asked = 0.0f64;
     while !shared.stop.load(Ordering::Relaxed) {
         let t = Instant::now();
-        let lease = match client.lease(&worker_id).await {
+        let turn = match &turns {
+            Some(s) => s.clone().acquire_owned().await.ok(),
+            None => None,
+        };
+        let answer = client.lease(&worker_id).await;
+        drop(turn);
+        let lease = match answer {
             Ok(Some(l)) => l,
             Ok(None) => {
                 shared.fail(format!("sim-{i}: the queue ran dry"));
@@ -259,10 +271,15 @@ async fn simulated_worker(
             }
             let body = synthetic(tile.x0, tile.y0, tile.width, tile.height, b, b + n);
             let t = Instant::now();
-            match client
+            let turn = match &turns {
+                Some(s) => s.clone().acquire_owned().await.ok(),
+                None => None,
+            };
+            let answer = client
                 .upload_slice(lease.task_id, &lease.lease_token, body)
-                .await
-            {
+                .await;
+            drop(turn);
+            match answer {
                 Ok(ack) if ack.duplicate => {
                     shared.duplicates.fetch_add(1, Ordering::Relaxed);
                 }
@@ -369,14 +386,16 @@ async fn measure(
     };
     let mut pool_clients = Vec::with_capacity(pools);
     for _ in 0..pools {
-        pool_clients.push(server.client()?);
+        let turns = (pools < cfg.workers)
+            .then(|| Arc::new(tokio::sync::Semaphore::new(IN_FLIGHT_PER_SHARED_CLIENT)));
+        pool_clients.push((server.client()?, turns));
     }
     let mut ids = Vec::with_capacity(cfg.workers);
     let mut clients = Vec::with_capacity(cfg.workers);
     for chunk in (0..cfg.workers).collect::<Vec<_>>().chunks(64) {
         let mut set = tokio::task::JoinSet::new();
         for &i in chunk {
-            let c = pool_clients[i % pools].clone();
+            let (c, turns) = pool_clients[i % pools].clone();
             set.spawn(async move {
                 let reg = c
                     .register(&pathfarm_wire::api::WorkerRegistration {
@@ -387,7 +406,7 @@ async fn measure(
                     })
                     .await
                     .map_err(|e| farm_err(format!("registering simulated worker {i}: {e}")))?;
-                Ok::<_, BenchError>((i, c, reg.worker_id))
+                Ok::<_, BenchError>((i, (c, turns), reg.worker_id))
             });
         }
         let mut done = Vec::with_capacity(chunk.len());

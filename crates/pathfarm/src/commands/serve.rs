@@ -103,8 +103,9 @@ pub struct ServerArgs {
     #[arg(long, env = "PATHFARM_VERIFY_FRACTION", default_value_t = 0.0)]
     pub verify_fraction: f64,
     /// Back-pressure: the share (0 to 1] of the store's measured write capacity the workers'
-    /// uploads and leases may take. The server asks for slices long enough to stay under it and
-    /// answers leases beyond it with 429 `slow_down` and a `Retry-After`. 0: no back-pressure.
+    /// uploads and leases may take: the server asks for slices long enough to stay under it. A
+    /// lease that finds 50 ms of the store's writes under way is answered 429 `slow_down` with a
+    /// `Retry-After`. 0: no back-pressure.
     #[arg(long, env = "PATHFARM_TARGET_WRITE_LOAD", default_value_t = 0.5)]
     pub target_write_load: f64,
     /// Most unfinished jobs (queued, running, paused) one client token may have; 0: no limit.

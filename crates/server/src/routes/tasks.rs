@@ -212,7 +212,7 @@ async fn merge_upload(
     };
     let slice = decode_slice(&body, &limits).map_err(slice_error)?;
     // Uploads are always admitted (they carry finished work), so this is never an error.
-    let _write = state.pacing.begin(Write::Upload).ok();
+    let _write = state.pacing.begin(Write::Upload, worker_id).ok();
     Ok(state.store.merge_slice(task_id, token, slice).await?)
 }
 

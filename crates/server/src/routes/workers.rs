@@ -129,7 +129,7 @@ pub async fn lease(
     let started = std::time::Instant::now();
     let write = state
         .pacing
-        .begin(Write::Lease)
+        .begin(Write::Lease, &id)
         .map_err(|slow| ApiError::slow_down(slow.retry_after_seconds))?;
     let lease = state
         .store
