@@ -16,7 +16,7 @@ use pathfarm_tracer::output::{encode_png, encode_rgb8_png};
 use pathfarm_tracer::{render_tile, Tile};
 use pathfarm_wire::api::Lease;
 use pathfarm_wire::{encode_slice, Slice};
-use serde_json::{json, Value};
+use serde_json::Value;
 
 const JOBS: usize = 6;
 const SIDE: u32 = 32;
@@ -46,23 +46,9 @@ async fn render_jobs(
         assert_eq!(status, StatusCode::CREATED, "{job}");
         jobs.push((job["id"].as_str().unwrap().to_string(), s));
     }
-    let registration = json!({"name": "w", "threads": 1, "version": "t", "host": "h"});
-    let (status, worker): (_, Value) = call(
-        state,
-        request(
-            "POST",
-            "/api/v1/workers",
-            &[("content-type", "application/json")],
-            registration.to_string(),
-        ),
-    )
-    .await;
-    assert_eq!(status, StatusCode::CREATED, "{worker}");
-    let lease_uri = format!(
-        "/api/v1/workers/{}/lease",
-        worker["worker_id"].as_str().unwrap()
-    );
-    let cred = worker["credential"].as_str().unwrap();
+    let (worker_id, cred) = register_in_process(state).await;
+    let lease_uri = format!("/api/v1/workers/{worker_id}/lease");
+    let cred = cred.as_str();
     let loaded = gltf::load(scene, &NoExternalResources, &LoadOptions::default()).unwrap();
     loop {
         let (status, lease): (_, Option<Lease>) = call(

@@ -207,6 +207,12 @@ pub(crate) async fn simulated_worker_client(
     i: usize,
 ) -> Result<(ApiClient, String), BenchError> {
     let c = server.client()?;
+    let id = register_simulated(&c, i).await?;
+    Ok((c, id))
+}
+
+/// Registers simulated worker `i` (`sim-{i}`) through `c`, which keeps its credential: its id.
+pub(crate) async fn register_simulated(c: &ApiClient, i: usize) -> Result<String, BenchError> {
     let reg = c
         .register(&pathfarm_wire::api::WorkerRegistration {
             name: format!("sim-{i}"),
@@ -216,7 +222,7 @@ pub(crate) async fn simulated_worker_client(
         })
         .await
         .map_err(|e| farm_err(format!("registering simulated worker {i}: {e}")))?;
-    Ok((c, reg.worker_id))
+    Ok(reg.worker_id)
 }
 
 /// In-process worker daemons (`pathfarm_worker::run`), as `pathfarm up` starts them.

@@ -397,16 +397,8 @@ async fn measure(
         for &i in chunk {
             let (c, turns) = pool_clients[i % pools].clone();
             set.spawn(async move {
-                let reg = c
-                    .register(&pathfarm_wire::api::WorkerRegistration {
-                        name: format!("sim-{i}"),
-                        threads: 1,
-                        version: "sim".into(),
-                        host: "sim".into(),
-                    })
-                    .await
-                    .map_err(|e| farm_err(format!("registering simulated worker {i}: {e}")))?;
-                Ok::<_, BenchError>((i, (c, turns), reg.worker_id))
+                let id = super::harness::register_simulated(&c, i).await?;
+                Ok::<_, BenchError>((i, (c, turns), id))
             });
         }
         let mut done = Vec::with_capacity(chunk.len());
