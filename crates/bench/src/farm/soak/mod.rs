@@ -384,6 +384,9 @@ pub async fn run(cfg: &SoakConfig, scene: &[u8]) -> Result<SoakReport, BenchErro
             .connect_timeout(Duration::from_secs(5))
             .timeout(Duration::from_secs(60))
             .pool_max_idle_per_host(6)
+            // Idle connections go before the server's keep-alive timeout (60 s) closes them, so
+            // none is taken from the pool as the server closes it (reqwest keeps them 90 s).
+            .pool_idle_timeout(Duration::from_secs(30))
             .build()
             .map_err(|e| farm_err(format!("soak: HTTP client: {e}")))?;
         let b = Browser {
