@@ -15,7 +15,7 @@ use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::output::{encode_png, encode_rgb8_png};
 use pathfarm_tracer::{render_tile, Tile};
 use pathfarm_wire::api::Lease;
-use pathfarm_wire::{encode_slice, Slice};
+use pathfarm_wire::Slice;
 use serde_json::Value;
 
 const JOBS: usize = 6;
@@ -77,21 +77,7 @@ async fn render_jobs(
             sample_end: l.sample_end,
             acc: render_tile(&loaded, &l.settings.render_settings(), tile, range),
         };
-        let (status, ack): (_, Value) = call(
-            state,
-            request(
-                "POST",
-                &format!("/api/v1/tasks/{}/slices", l.task_id),
-                &[
-                    ("content-type", "application/x-pathfarm-slice"),
-                    ("pathfarm-lease-token", &l.lease_token),
-                    ("pathfarm-worker-credential", cred),
-                ],
-                encode_slice(&slice),
-            ),
-        )
-        .await;
-        assert_eq!(status, StatusCode::OK, "{ack}");
+        upload_in_process(state, cred, &l, &slice).await;
     }
     jobs
 }

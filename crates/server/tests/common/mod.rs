@@ -390,6 +390,12 @@ pub async fn upload_grey(
         sample_end: end,
         acc,
     };
+    upload_in_process(state, cred, l, &slice).await
+}
+
+/// Uploads `slice` of `l`'s task with the worker credential `cred` through the router: the
+/// acknowledgement (any other answer fails the test).
+pub async fn upload_in_process(state: &AppState, cred: &str, l: &Lease, slice: &Slice) -> SliceAck {
     let (status, ack): (_, serde_json::Value) = call(
         state,
         request(
@@ -398,9 +404,9 @@ pub async fn upload_grey(
             &[
                 ("content-type", "application/x-pathfarm-slice"),
                 ("pathfarm-lease-token", &l.lease_token),
-                ("pathfarm-worker-credential", cred.as_str()),
+                ("pathfarm-worker-credential", cred),
             ],
-            encode_slice(&slice),
+            encode_slice(slice),
         ),
     )
     .await;
