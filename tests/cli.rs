@@ -822,7 +822,8 @@ fn children_of(pid: i32) -> Vec<i32> {
 
 /// `up` with its tokens in the configuration file (and a client token in its environment): its
 /// worker registers, so it has the worker token, yet no token is in the worker's environment or
-/// command line (read from `/proc`), nor any variable that may hold a secret.
+/// command line (read from `/proc`), nor any variable that may hold a secret. By default it is
+/// one worker process rendering on every core.
 #[tokio::test(flavor = "multi_thread")]
 async fn up_keeps_tokens_out_of_its_workers_environment() {
     let dir = TestDir::new("up-secrets");
@@ -832,7 +833,7 @@ async fn up_keeps_tokens_out_of_its_workers_environment() {
         &config,
         format!(
             "[serve]\ndb = \"{}\"\nclient-tokens = [\"client-secret-1\"]\n\
-             worker-tokens = [\"worker-secret-1\"]\n[up]\nworkers = 1\nport = {port}\n",
+             worker-tokens = [\"worker-secret-1\"]\n[up]\nport = {port}\n",
             dir.arg("up.db")
         ),
     )
@@ -857,10 +858,12 @@ async fn up_keeps_tokens_out_of_its_workers_environment() {
     let url = format!("http://127.0.0.1:{port}");
     // The environment's client token won over the file's.
     let api = ApiClient::new(&url, Some("env-client-secret".into())).expect("client");
-    poll("the local worker", Duration::from_secs(60), || async {
-        named(&workers(&api).await, "local-1").map(|_| ())
+    let local = poll("the local worker", Duration::from_secs(60), || async {
+        named(&workers(&api).await, "local-1").cloned()
     })
     .await;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    assert_eq!(local.threads as usize, cores, "{local:?}");
     let kids = children_of(up.pid());
     assert_eq!(kids.len(), 1, "one worker process: {kids:?}");
     for pid in kids {
@@ -928,4 +931,58 @@ fn a_failed_store_start_does_not_print_the_password() {
             "{line}"
         );
     }
+}
+
+/// `pathfarm bench up --quick`: the direct render and `up` in both layouts, as real processes,
+/// give the same bytes; the report counts the farm's processes (up and its workers) and their
+/// memory.
+#[test]
+fn bench_up_compares_the_farm_with_a_direct_render() {
+    let dir = TestDir::new("bench-up");
+    let scenes = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes");
+    let out = command(&dir)
+        .args([
+            "bench",
+            "up",
+            "--quick",
+            "--threads",
+            "2",
+            "--scenes-dir",
+            scenes,
+        ])
+        .args(["--out", &dir.arg("report")])
+        .output()
+        .expect("run pathfarm bench up");
+    assert!(
+        out.status.success(),
+        "pathfarm bench up failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json = std::fs::read(dir.path("report").join("up.json")).expect("read up.json");
+    let results: serde_json::Value = serde_json::from_slice(&json).expect("up.json is JSON");
+    let rows = results["rows"].as_array().expect("rows");
+    let cases = results["cases"].as_array().expect("cases");
+    assert_eq!(rows.len(), 3 * cases.len(), "{results}");
+    for row in rows {
+        assert_eq!(row["identical"], true, "{row}");
+        let (layout, processes) = (
+            row["layout"].as_str().unwrap_or_default(),
+            row["processes"].as_u64().unwrap_or_default(),
+        );
+        let expected = match layout {
+            "render" => 1,
+            "up 1×2" => 2,
+            "up 2×1" => 3,
+            other => panic!("unexpected layout {other}"),
+        };
+        assert_eq!(processes, expected, "{row}");
+        assert!(row["seconds"].as_f64().unwrap_or_default() > 0.0, "{row}");
+        if layout != "render" {
+            assert!(
+                row["peak_rss_mib"].as_f64().unwrap_or_default() > 1.0,
+                "{row}"
+            );
+        }
+    }
+    assert!(dir.path("report").join("up.md").is_file());
 }

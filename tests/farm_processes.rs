@@ -22,13 +22,15 @@ async fn killed_worker_loses_nothing() {
     let server = farm.serve("server", &["--lease-seconds", "1"]).await;
     let api = farm.api();
 
+    // Long enough that the poll below finds A in the middle of a task: a worker uploads while it
+    // renders, so 48 spp were done in half a second.
     let settings = [
-        "--width", "64", "--height", "64", "--spp", "48", "--seed", "3",
+        "--width", "64", "--height", "64", "--spp", "256", "--seed", "3",
     ];
     let mut submitted = settings.to_vec();
     submitted.extend_from_slice(&["--tile", "32"]);
     let id = submit(&farm.dir, &farm.url, &submitted).await;
-    let planned = 64 * 64 * 48;
+    let planned = 64 * 64 * 256;
     assert_eq!(job(&api, &id).await.samples_planned, planned);
 
     let mut worker_a = farm.worker("worker-a", 1);
@@ -62,7 +64,10 @@ async fn killed_worker_loses_nothing() {
     assert_eq!(done.samples_done, planned);
     assert_eq!(done.leased_tasks, 0);
     let tiles = done.tiles.as_deref().expect("per-tile progress");
-    assert!(tiles.iter().all(|t| t.samples_per_pixel == 48), "{tiles:?}");
+    assert!(
+        tiles.iter().all(|t| t.samples_per_pixel == 256),
+        "{tiles:?}"
+    );
     // A's task came back through lease expiry (nothing else gives a dead worker's lease back).
     assert!(
         server.log_text().contains("lease expired"),

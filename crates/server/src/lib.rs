@@ -53,6 +53,8 @@ pub struct Inner {
     pub bodies: body_budget::BodyBudget,
     /// The slice length asked of workers ([`ServerConfig::target_write_load`]).
     pub pacing: pacing::Pacing,
+    /// When each running job's error was last estimated, and what it cost ([`monitor`]).
+    pub estimates: monitor::EstimateClock,
 }
 
 impl std::ops::Deref for AppState {
@@ -85,6 +87,7 @@ impl AppState {
             config,
             images,
             metrics: Default::default(),
+            estimates: Default::default(),
         })))
     }
 }

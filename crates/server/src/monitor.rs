@@ -8,6 +8,9 @@ use crate::states::JobEvent;
 use crate::store::{Estimate, JobRow};
 use crate::AppState;
 use pathfarm_wire::api::JobState;
+use std::collections::HashMap;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
 /// How often [`housekeeping`] runs: retention is counted in days, and its queries scan more than
 /// a monitor step's.
@@ -71,6 +74,40 @@ pub async fn housekeeping(state: &AppState) -> Result<(), crate::error::ApiError
     Ok(())
 }
 
+/// A running job's error is estimated again no sooner than this many times what its last
+/// estimate took (mostly building its image from every tile): at most about 2 % of one core per
+/// running job, whatever the image's size. A small image is still estimated at every step; a
+/// 4096² one, whose build takes about a second, every minute or so. A job that has ended is
+/// estimated at once, so its final answer carries its final error.
+pub const ESTIMATE_COST_RATIO: u32 = 50;
+
+/// When each running job's error was last estimated, and what that took.
+#[derive(Default)]
+pub struct EstimateClock(Mutex<HashMap<String, (Instant, Duration)>>);
+
+impl EstimateClock {
+    fn due(&self, job: &str, now: Instant) -> bool {
+        let last = self.lock().get(job).copied();
+        last.is_none_or(|(at, took)| now.duration_since(at) >= took * ESTIMATE_COST_RATIO)
+    }
+
+    /// Records an estimate, and lets go of jobs not estimated for an hour (cancelled or deleted
+    /// ones; one that runs on is merely estimated once more).
+    fn record(&self, job: &str, at: Instant, took: Duration) {
+        let mut map = self.lock();
+        map.retain(|_, (last, _)| at.duration_since(*last) < Duration::from_secs(3600));
+        map.insert(job.to_string(), (at, took));
+    }
+
+    fn forget(&self, job: &str) {
+        self.lock().remove(job);
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, (Instant, Duration)>> {
+        self.0.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
 pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
     let store = &state.store;
     let expired = store.expire_leases().await?;
@@ -105,11 +142,25 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
     for (id, _) in store.jobs_needing_estimate().await? {
         let job = match store.job(&id).await {
             Ok(j) => j,
-            Err(_) => continue, // deleted meanwhile
+            Err(_) => {
+                // Deleted meanwhile.
+                state.estimates.forget(&id);
+                continue;
+            }
         };
+        let started = Instant::now();
+        if job.state.is_final() {
+            state.estimates.forget(&id);
+        } else if !state.estimates.due(&id, started) {
+            continue;
+        }
         // One job whose image cannot be estimated (a stored tile that does not decode, say) must
         // not keep the monitor from every other job and from the time limits below.
-        let err = match refresh_estimate(state, &job).await {
+        let estimated = refresh_estimate(state, &job).await;
+        if !job.state.is_final() {
+            state.estimates.record(&id, started, started.elapsed());
+        }
+        let err = match estimated {
             Ok(err) => err,
             Err(e) => {
                 tracing::warn!(job = %id, error = %e, "cannot estimate the job's error");

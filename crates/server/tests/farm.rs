@@ -37,3 +37,61 @@ async fn farm_images_are_bit_identical_to_a_local_render() {
         server.stop().await;
     }
 }
+
+/// A worker uploads each slice while it renders the next and asks for its next task while it
+/// renders the last slice of the one in hand. Stopped in the middle of a job, it still reports
+/// exactly what the server merged from it (every accepted slice counted once, none of the slices
+/// it dropped), leaves nothing leased, and a second worker finishes the job to the same bytes as
+/// a local render.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_pipelined_worker_stopped_mid_job_accounts_for_every_slice() {
+    let scene = cornell();
+    for (store, url) in stores("pipelined-stop").await {
+        let server = TestServer::start(config(&url)).await;
+        let client = server.client(None);
+        let s = settings(48, 48, 24, 16);
+        let expected = exr(&local_render(&scene, &s));
+        let job = client
+            .submit(scene.clone(), "cornell.gltf", &s)
+            .await
+            .unwrap();
+        // Two samples a slice: most tasks take several slices.
+        let first = TestWorker::spawn(&server.url, None, Some(2));
+        let planned = job.samples_planned;
+        wait_until(&client, &job.id, Duration::from_secs(120), |j| {
+            j.samples_done * 3 >= planned
+        })
+        .await;
+        let report = first.stop().await;
+        let midway = client.job(&job.id).await.unwrap();
+        assert!(
+            midway.samples_done < planned,
+            "{store}: the job ended before the worker was stopped: {midway:?}"
+        );
+        assert_eq!(
+            report.samples, midway.samples_done,
+            "{store}: the worker's accepted samples against the server's merged ones ({report:?})"
+        );
+        assert!(report.slices > report.tasks, "{store}: {report:?}");
+        let leased = client
+            .workers()
+            .await
+            .unwrap()
+            .workers
+            .iter()
+            .filter(|w| w.current_task.is_some())
+            .count();
+        assert_eq!(leased, 0, "{store}: a stopped worker still holds a task");
+
+        let second = TestWorker::spawn(&server.url, None, None);
+        let done = wait_final(&client, &job.id, Duration::from_secs(120)).await;
+        second.stop().await;
+        assert_completed(&done);
+        let got = client.image_exr(&job.id, false).await.unwrap();
+        assert!(
+            got == expected,
+            "{store}: the image differs from the local render"
+        );
+        server.stop().await;
+    }
+}

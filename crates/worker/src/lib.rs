@@ -112,6 +112,9 @@ pub struct WorkerReport {
     pub samples: u64,
     /// Samples rendered invalid (NaN, infinite, negative or huge) and dropped.
     pub invalid_samples: u64,
+    /// Seconds the render threads were given work (the rest of the worker's time they waited
+    /// on the network, the server or the worker's own bookkeeping).
+    pub render_seconds: f64,
     /// The jobs whose invalid samples were reported: one warning per job, not one per sample.
     invalid_jobs_reported: std::collections::HashSet<String>,
 }
@@ -195,17 +198,37 @@ pub async fn run(
     let mut rate = Rate::default();
     let mut idle = Duration::from_millis(20);
     let mut abandoned = Backoff::new(retry::ABANDONED);
+    // The last slice of the task before, uploading while the next one is leased and rendered.
+    let mut previous: Option<InFlight> = None;
+    // The next task, asked for while the last slice of the current one renders.
+    let mut next: Option<NextLease> = None;
     while !*stop.borrow() {
-        let lease = retry::retry(
-            retry::LEASE,
-            Limits {
-                deadline: None,
-                stop: Some(stop.clone()),
-            },
-            || session.client.lease(&session.worker_id),
-            |e, d| tracing::warn!(error = %e, retry_in = ?d, "lease failed; retrying"),
-        )
-        .await;
+        let prefetched = match next.take() {
+            // An empty queue or a failure: asked again below, with the usual retries and waits.
+            Some(asked) => asked.await.ok().and_then(|r| r.ok()).flatten(),
+            None => None,
+        };
+        let lease = match prefetched {
+            Some(lease) => Ok(Some(lease)),
+            None => {
+                retry::retry(
+                    retry::LEASE,
+                    Limits {
+                        deadline: None,
+                        stop: Some(stop.clone()),
+                    },
+                    || session.client.lease(&session.worker_id),
+                    |e, d| tracing::warn!(error = %e, retry_in = ?d, "lease failed; retrying"),
+                )
+                .await
+            }
+        };
+        if !matches!(lease, Ok(Some(_))) {
+            // Nothing to render meanwhile: the answer for the last slice is awaited now.
+            if let Some(p) = previous.take() {
+                p.finish(&session.client, &mut report).await;
+            }
+        }
         let lease = match lease {
             Ok(l) => l,
             Err(_) if *stop.borrow() => break,
@@ -253,6 +276,8 @@ pub async fn run(
             &pool,
             &mut cache,
             &lease,
+            &mut previous,
+            &mut next,
             &mut stop,
             &lease_lost,
             &mut rate,
@@ -260,12 +285,19 @@ pub async fn run(
         )
         .await;
         *lock(&current) = None;
+        if let Some(p) = previous.take() {
+            // The task ended before its first slice was rendered.
+            p.finish(&session.client, &mut report).await;
+        }
         if report.slices > slices_before {
             abandoned.reset();
         }
         match outcome {
-            Ok(()) => {
-                report.tasks += 1;
+            Ok(in_flight) => {
+                match in_flight {
+                    Some(last) => previous = Some(last),
+                    None => report.tasks += 1,
+                }
                 abandoned.reset();
             }
             Err(e) if e.is_farm_decision() => {
@@ -276,11 +308,20 @@ pub async fn run(
             Err(e) => {
                 // Whatever went wrong may well go wrong again with the next lease (often the same
                 // task): wait before asking, longer each time nothing could be done.
+                if let Some(asked) = next.take() {
+                    give_back(asked, &session.client).await;
+                }
                 let delay = abandoned.next_delay();
                 tracing::warn!(task = lease.task_id, error = %e, retry_in = ?delay, "task abandoned");
                 wait(&mut stop, delay).await;
             }
         }
+    }
+    if let Some(p) = previous.take() {
+        p.finish(&session.client, &mut report).await;
+    }
+    if let Some(asked) = next.take() {
+        give_back(asked, &session.client).await;
     }
     heartbeat.abort();
     if let Err(e) = session.client.deregister(&session.worker_id).await {
@@ -291,6 +332,7 @@ pub async fn run(
         slices = report.slices,
         samples = report.samples,
         invalid_samples = report.invalid_samples,
+        render_seconds = report.render_seconds,
         "worker stopped"
     );
     Ok(report)
@@ -432,6 +474,113 @@ impl TaskError {
     }
 }
 
+/// A lease asked for while the last slice of the current task renders, so that the next task
+/// starts without a round trip.
+type NextLease = tokio::task::JoinHandle<Result<Option<Lease>, ClientError>>;
+
+/// Asks for the next task in the background.
+fn ask_next(session: &Session) -> NextLease {
+    let (client, worker_id) = (session.client.clone(), session.worker_id.clone());
+    tokio::spawn(async move { client.lease(&worker_id).await })
+}
+
+/// Gives back a lease asked for ahead that will not be worked on.
+async fn give_back(asked: NextLease, client: &ApiClient) {
+    if let Ok(Ok(Some(lease))) = asked.await {
+        let _ = client.release(lease.task_id, &lease.lease_token).await;
+    }
+}
+
+/// A slice on its way to the server while the worker renders the next one: uploads never hold
+/// the render threads up. A worker has at most two at once, one per task (the last slice of the
+/// task it finished, while it leases and renders the next).
+struct InFlight {
+    task_id: i64,
+    lease_token: String,
+    /// Camera paths in the slice, valid and invalid.
+    samples: u64,
+    upload: tokio::task::JoinHandle<Result<pathfarm_wire::api::SliceAck, TaskError>>,
+}
+
+impl InFlight {
+    /// Starts encoding and uploading `slice` (beside the next render), retrying while the server
+    /// cannot be reached for as long as the lease can still be valid. A retry after a lost
+    /// answer is harmless: the server counts a slice once.
+    fn start(session: &Session, lease: &Lease, samples: u64, slice: Slice) -> InFlight {
+        let client = session.client.clone();
+        let (task_id, token) = (lease.task_id, lease.lease_token.clone());
+        let limits = Limits {
+            deadline: Some(Instant::now() + session.lease_duration),
+            stop: None,
+        };
+        let upload = tokio::spawn(async move {
+            let body = tokio::task::spawn_blocking(move || encode_slice(&slice))
+                .await
+                .map_err(|e| TaskError::Join(e.to_string()))?;
+            let ack = retry::retry(
+                retry::UPLOAD,
+                limits,
+                || client.upload_slice(task_id, &token, body.clone()),
+                |e, d| {
+                    tracing::warn!(task = task_id, error = %e, retry_in = ?d, "slice upload failed; retrying")
+                },
+            )
+            .await?;
+            Ok(ack)
+        });
+        InFlight {
+            task_id: lease.task_id,
+            lease_token: lease.lease_token.clone(),
+            samples,
+            upload,
+        }
+    }
+
+    /// The server's answer. A failure that is not the farm's decision gives the lease back at
+    /// once, so that the task is queued again now rather than when the lease expires.
+    async fn settle(
+        self,
+        client: &ApiClient,
+        report: &mut WorkerReport,
+    ) -> Result<pathfarm_wire::api::SliceAck, TaskError> {
+        let answer = match self.upload.await {
+            Ok(answer) => answer,
+            Err(e) => Err(TaskError::Join(e.to_string())),
+        };
+        match &answer {
+            Ok(_) => {
+                report.slices += 1;
+                report.samples += self.samples;
+            }
+            Err(e) if !e.is_farm_decision() => {
+                let _ = client.release(self.task_id, &self.lease_token).await;
+            }
+            Err(_) => {}
+        }
+        answer
+    }
+
+    /// Settles the last slice of a task the worker has moved on from: the task is done when it is
+    /// accepted; a failure is logged (the lease was given back), and the worker goes on.
+    async fn finish(self, client: &ApiClient, report: &mut WorkerReport) {
+        let task = self.task_id;
+        match self.settle(client, report).await {
+            Ok(_) => report.tasks += 1,
+            Err(e) if e.is_farm_decision() => {
+                tracing::info!(task, reason = %e, "task taken back");
+            }
+            Err(e) => tracing::warn!(task, error = %e, "the last slice of a task was lost"),
+        }
+    }
+}
+
+/// Works on a leased task: renders it slice after slice, each uploaded while the next renders.
+/// Returns the last slice still in flight (its answer is awaited while the next task renders),
+/// or none when the task ended otherwise (completed early, given back, paused). `previous` is
+/// the last slice of the task before, settled once the first slice of this one is rendered.
+/// While the last slice renders, the next task is asked for (`next`), unless slices are long
+/// against the lease (a lease asked for early is not extended by heartbeats until it is worked
+/// on).
 #[allow(clippy::too_many_arguments)]
 async fn work_on(
     session: &Session,
@@ -439,11 +588,13 @@ async fn work_on(
     pool: &Arc<rayon::ThreadPool>,
     cache: &mut SceneCache,
     lease: &Lease,
+    previous: &mut Option<InFlight>,
+    next: &mut Option<NextLease>,
     stop: &mut watch::Receiver<bool>,
     lease_lost: &std::sync::atomic::AtomicBool,
     rate: &mut Rate,
     report: &mut WorkerReport,
-) -> Result<(), TaskError> {
+) -> Result<Option<InFlight>, TaskError> {
     let client = &session.client;
     let scene = match cache
         .get(
@@ -472,8 +623,13 @@ async fn work_on(
     // Back-pressure: the server's slice length when it asks for longer slices than ours.
     let mut slice_seconds = paced(config.slice_seconds, lease.slice_seconds);
     tracing::debug!(task = lease.task_id, job = %lease.job_id, samples = ?(begin..lease.sample_end), slice_seconds, "task leased");
+    // This task's slice on its way while the next one renders.
+    let mut pending: Option<InFlight> = None;
     while begin < lease.sample_end {
         if lease_lost.load(std::sync::atomic::Ordering::SeqCst) {
+            if let Some(p) = pending.take() {
+                let _ = p.settle(client, report).await;
+            }
             return Err(TaskError::LeaseLost);
         }
         let n = config
@@ -483,47 +639,77 @@ async fn work_on(
             })
             .clamp(1, lease.sample_end - begin);
         let range = begin..begin + n;
+        let short = slice_seconds * 4.0 < session.lease_duration.as_secs_f64();
+        if range.end >= lease.sample_end && next.is_none() && short && !*stop.borrow() {
+            *next = Some(ask_next(session));
+        }
         let t0 = Instant::now();
         let (scene2, settings2, pool2, r2) =
             (scene.clone(), settings.clone(), pool.clone(), range.clone());
-        let acc = tokio::task::spawn_blocking(move || {
+        let rendered = tokio::task::spawn_blocking(move || {
             pool2.install(|| render_tile(&scene2, &settings2, tile, r2))
         })
-        .await
-        .map_err(|e| TaskError::Join(e.to_string()))?;
+        .await;
+        let render_seconds = t0.elapsed().as_secs_f64();
+        if let Some(p) = previous.take() {
+            p.finish(client, report).await;
+        }
+        let acc = match rendered {
+            Ok(acc) => acc,
+            Err(e) => {
+                if let Some(p) = pending.take() {
+                    let _ = p.settle(client, report).await;
+                }
+                let _ = client.release(lease.task_id, &lease.lease_token).await;
+                return Err(TaskError::Join(e.to_string()));
+            }
+        };
         let samples = acc.total_samples() + acc.invalid_count;
-        rate.observe(samples, t0.elapsed().as_secs_f64());
+        report.render_seconds += render_seconds;
+        rate.observe(samples, render_seconds);
         report.note_invalid(&lease.job_id, &acc);
-        let body = encode_slice(&Slice {
+        let mut stopping = *stop.borrow();
+        if let Some(p) = pending.take() {
+            let ack = p.settle(client, report).await?;
+            slice_seconds = paced(config.slice_seconds, ack.slice_seconds);
+            if ack.task_complete {
+                // Others' samples completed it meanwhile: the slice in hand is not needed.
+                return Ok(None);
+            }
+            if ack.task_samples_done > range.start {
+                // The server holds samples past the previous slice (from an earlier lease of the
+                // task): the slice in hand repeats some of them, so it goes, and the rendering
+                // goes on from the server's count.
+                begin = ack.task_samples_done;
+                continue;
+            }
+            // A paused job: the slice in hand is uploaded, then the rest given back.
+            stopping |= !ack.keep_going;
+        }
+        let slice = Slice {
             sample_begin: range.start,
             sample_end: range.end,
             acc,
-        });
-        let ack = match upload(session, lease, body).await {
-            Ok(ack) => ack,
-            Err(e) => {
-                // Given back at once, so that the task is queued again now rather than when the
-                // lease expires (unless the farm already took it back).
-                if !e.is_farm_decision() {
-                    let _ = client.release(lease.task_id, &lease.lease_token).await;
-                }
-                return Err(e);
-            }
         };
-        report.slices += 1;
-        report.samples += samples;
-        slice_seconds = paced(config.slice_seconds, ack.slice_seconds);
-        begin = ack.task_samples_done.max(range.end);
-        if ack.task_complete {
-            return Ok(());
+        let in_flight = InFlight::start(session, lease, samples, slice);
+        begin = range.end;
+        if begin >= lease.sample_end {
+            return Ok(Some(in_flight));
         }
-        if !ack.keep_going || *stop.borrow() {
-            // Paused job, or asked to stop: the slice in hand is uploaded; give the rest back.
-            client.release(lease.task_id, &lease.lease_token).await?;
-            return Ok(());
+        if stopping {
+            // Asked to stop (or the job paused): the slice in hand is uploaded; give the rest back.
+            let ack = in_flight.settle(client, report).await?;
+            if !ack.task_complete {
+                client.release(lease.task_id, &lease.lease_token).await?;
+            }
+            return Ok(None);
         }
+        pending = Some(in_flight);
     }
-    Ok(())
+    if let Some(p) = pending.take() {
+        p.settle(client, report).await?;
+    }
+    Ok(None)
 }
 
 /// The slice length to render: `own`, or the server's when it asks for longer ones
@@ -537,33 +723,6 @@ fn paced(own: f64, server: Option<f64>) -> f64 {
 
 /// The longest slice a server can ask for (the server's own cap, `pacing::MAX_SLICE_SECONDS`).
 const MAX_SERVER_SLICE_SECONDS: f64 = 60.0;
-
-/// Uploads a slice, retrying while the server cannot be reached, for as long as the lease can
-/// still be valid. A retry after a lost answer is harmless: the server counts a slice once.
-async fn upload(
-    session: &Session,
-    lease: &Lease,
-    body: Vec<u8>,
-) -> Result<pathfarm_wire::api::SliceAck, TaskError> {
-    let limits = Limits {
-        deadline: Some(Instant::now() + session.lease_duration),
-        stop: None,
-    };
-    let ack = retry::retry(
-        retry::UPLOAD,
-        limits,
-        || {
-            session
-                .client
-                .upload_slice(lease.task_id, &lease.lease_token, body.clone())
-        },
-        |e, d| {
-            tracing::warn!(task = lease.task_id, error = %e, retry_in = ?d, "slice upload failed; retrying")
-        },
-    )
-    .await?;
-    Ok(ack)
-}
 
 #[cfg(test)]
 mod tests {

@@ -23,6 +23,7 @@ mod report;
 pub mod scaling;
 pub mod soak;
 pub mod submission;
+pub mod up;
 
 use crate::BenchError;
 use harness::{farm_err, unique_suffix, StoreSpec, WorkerSetup};

@@ -50,6 +50,13 @@ pub enum Suite {
     /// SQLite (and PostgreSQL with --postgres). Writes submission.md and submission.json. Not
     /// part of `all`.
     Submission,
+    /// `pathfarm up` against `pathfarm render` on the same cores (--threads, default every
+    /// core): the Cornell box at 512², 256 spp and a million-triangle sphere, rendered directly
+    /// and by `up` (real processes, the job sent with `pathfarm submit --wait`) in its default
+    /// layout (one worker process on every core) and with one worker process per core: time
+    /// ratio, peak memory of all the farm's processes, bit-identity. Smaller with --quick.
+    /// Writes up.md and up.json. Not part of `all`.
+    Up,
 }
 
 #[derive(Args, Debug)]
@@ -93,6 +100,10 @@ pub struct BenchArgs {
     /// runs each case in a process of its own).
     #[arg(long, hide = true)]
     pub case: Option<String>,
+    /// `up` only: also run this `pathfarm` binary's `up` (an earlier build) in its own default
+    /// layout, for a before-and-after in one run.
+    #[arg(long)]
+    pub baseline: Option<PathBuf>,
     /// The soak's window per store, in seconds (`soak` and `pressure` only).
     #[arg(long, default_value_t = 120.0)]
     pub seconds: f64,
@@ -232,6 +243,37 @@ fn frames(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn up(args: BenchArgs) -> anyhow::Result<()> {
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    anyhow::ensure!(threads > 0, "--threads must be at least 1");
+    anyhow::ensure!(
+        args.scenes_dir.join("cornell.gltf").is_file(),
+        "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
+        args.scenes_dir.display()
+    );
+    let opts = pathfarm_bench::farm::up::UpOptions {
+        exe: std::env::current_exe().context("cannot find this executable")?,
+        scenes_dir: args.scenes_dir,
+        out_dir: args.out.clone(),
+        threads,
+        quick: args.quick,
+        baseline: args.baseline,
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let (results, markdown) =
+        pathfarm_bench::farm::up::run(&opts).context("up benchmark failed")?;
+    println!("{markdown}");
+    eprintln!("report in {}", args.out.join("up.md").display());
+    let different: Vec<_> = results.rows.iter().filter(|r| !r.identical).collect();
+    anyhow::ensure!(
+        different.is_empty(),
+        "the farm's image differs from the direct render's: {different:?}"
+    );
+    Ok(())
+}
+
 fn submission(args: BenchArgs) -> anyhow::Result<()> {
     let scene_path = args.scenes_dir.join("cornell.gltf");
     anyhow::ensure!(
@@ -290,6 +332,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.suite {
         Suite::Pressure => return pressure(args),
         Suite::Submission => return submission(args),
+        Suite::Up => return up(args),
         Suite::Frames => return frames(args),
         Suite::Soak => return soak(args),
         Suite::Speed => return speed(args),

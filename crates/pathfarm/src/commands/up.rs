@@ -1,5 +1,6 @@
-//! `pathfarm up`: the embedded default in one command — a server on SQLite and N local worker
-//! processes. Ctrl-C stops the workers cleanly (they hand back their leases), then the server.
+//! `pathfarm up`: the embedded default in one command — a server on SQLite and a local worker
+//! process rendering on every core (one copy of each scene in memory; `--workers N` starts N
+//! processes that split the cores instead). Ctrl-C stops the workers cleanly (they hand back their leases), then the server.
 //! The workers never outlive `up`: they are killed if it fails while starting them, and on Linux
 //! (where the kernel can tell a child that its parent died) also if `up` itself is killed.
 //!
@@ -20,12 +21,13 @@ use tokio::io::AsyncWriteExt;
 #[derive(Args, Debug, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub struct UpArgs {
-    /// Local worker processes (default: one per core).
-    #[arg(long, env = "PATHFARM_WORKERS")]
-    pub workers: Option<usize>,
-    /// Render threads per worker.
-    #[arg(long, env = "PATHFARM_THREADS_PER_WORKER", default_value_t = 1)]
-    pub threads_per_worker: usize,
+    /// Local worker processes. One by default: it renders on every core with one copy of each
+    /// scene; more processes each hold their own copy.
+    #[arg(long, env = "PATHFARM_WORKERS", default_value_t = 1)]
+    pub workers: usize,
+    /// Render threads per worker (default: the cores shared among the workers, at least one each).
+    #[arg(long, env = "PATHFARM_THREADS_PER_WORKER")]
+    pub threads_per_worker: Option<usize>,
     /// Port to listen on (the dashboard and API at http://HOST:PORT).
     #[arg(long, env = "PATHFARM_PORT", default_value_t = 8080)]
     pub port: u16,
@@ -47,9 +49,9 @@ pub async fn run(args: UpArgs) -> Result<()> {
     let server = tokio::spawn(pathfarm_server::serve(state, listener, async move {
         let _ = stop_rx.changed().await;
     }));
-    let n = args
-        .workers
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let n = args.workers.max(1);
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = threads_per_worker(args.threads_per_worker, n, cores);
     let exe = std::env::current_exe().context("cannot find the pathfarm executable")?;
     let mut children = Vec::new();
     for i in 0..n {
@@ -58,7 +60,7 @@ pub async fn run(args: UpArgs) -> Result<()> {
             .arg("--server")
             .arg(&url)
             .arg("--threads")
-            .arg(args.threads_per_worker.max(1).to_string())
+            .arg(threads.to_string())
             .arg("--name")
             .arg(format!("local-{}", i + 1))
             // `up` failing (returning early) drops the workers started so far: killed with it.
@@ -83,7 +85,12 @@ pub async fn run(args: UpArgs) -> Result<()> {
         }
         children.push(child);
     }
-    println!("pathfarm is up: dashboard and API at {url} ({n} local workers); Ctrl-C stops it");
+    println!(
+        "pathfarm is up: dashboard and API at {url} ({n} local worker{} × {threads} thread{}); \
+         Ctrl-C stops it",
+        if n == 1 { "" } else { "s" },
+        if threads == 1 { "" } else { "s" }
+    );
     shutdown_signal().await;
     println!("stopping the workers…");
     for c in &children {
@@ -109,6 +116,12 @@ pub async fn run(args: UpArgs) -> Result<()> {
     Ok(())
 }
 
+/// Render threads of each of `workers` local workers: as asked, or the `cores` shared among them
+/// (at least one each).
+fn threads_per_worker(asked: Option<usize>, workers: usize, cores: usize) -> usize {
+    asked.unwrap_or(cores / workers.max(1)).max(1)
+}
+
 /// Asks the kernel to SIGKILL the child when this process dies (its server dies with it, so the
 /// worker could only retry in vain). The signal follows the thread that forks: `run` forks from the
 /// thread that `block_on` runs on, which lives as long as the process.
@@ -128,5 +141,19 @@ fn die_with_parent(cmd: &mut tokio::process::Command) {
             }
             Ok(())
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_workers_share_the_cores_unless_told_otherwise() {
+        use super::threads_per_worker as t;
+        assert_eq!(t(None, 1, 8), 8, "one worker renders on every core");
+        assert_eq!(t(None, 2, 8), 4);
+        assert_eq!(t(None, 3, 8), 2);
+        assert_eq!(t(None, 16, 8), 1, "at least one thread each");
+        assert_eq!(t(Some(3), 2, 8), 3, "as asked");
+        assert_eq!(t(Some(0), 1, 8), 1);
     }
 }

@@ -103,8 +103,12 @@ fn a_flag_wins_over_the_file_which_wins_over_the_default() {
     assert_eq!(s.server.worker_tokens.len(), 1);
 
     // `up` reads [up] and [serve], but not [serve]'s `listen`.
-    let u = up(&f, &["--workers", "1"]).unwrap();
-    assert_eq!((u.workers, u.port), (Some(1), 9100));
+    let u = up(&f, &["--workers", "3"]).unwrap();
+    assert_eq!((u.workers, u.port), (3, 9100));
+    assert_eq!(
+        u.threads_per_worker, None,
+        "the cores shared among the workers"
+    );
     assert_eq!(u.host.to_string(), "127.0.0.1");
     assert_eq!(u.server.lease_seconds, 12.5);
 }
