@@ -583,7 +583,8 @@ fn replace(path: &std::path::Path, text: &str) {
 /// `serve --tls-cert --tls-key` with the real binary: files that cannot serve are refused at
 /// start naming them; a worker and the client commands with `--ca-cert` render a job over
 /// `https://`; without it they stop at once with an error that names `--ca-cert`; SIGHUP serves
-/// replaced files.
+/// replaced files (with `--tls-reload-seconds 0`, only SIGHUP does; with 0.2, they are served
+/// within moments without it).
 #[tokio::test]
 async fn serve_terminates_tls_for_workers_and_clients_and_reloads_on_sighup() {
     let farm = Farm::new("tls");
@@ -613,8 +614,26 @@ async fn serve_terminates_tls_for_workers_and_clients_and_reloads_on_sighup() {
     assert!(e.contains("--tls-key") && e.contains(&cert_arg), "{e}");
     let e = refused(serve(&["--tls-cert", &cert_arg])).await;
     assert!(e.contains("--tls-key"), "{e}");
+    let bad = [
+        "--tls-cert",
+        &cert_arg,
+        "--tls-key",
+        &key_arg,
+        "--tls-reload-seconds",
+        "-1",
+    ];
+    let e = refused(serve(&bad)).await;
+    assert!(e.contains("--tls-reload-seconds"), "{e}");
 
-    let args = serve(&["--tls-cert", &cert_arg, "--tls-key", &key_arg]);
+    // Files not watched (0): only SIGHUP reads them again, as checked at the end.
+    let args = serve(&[
+        "--tls-cert",
+        &cert_arg,
+        "--tls-key",
+        &key_arg,
+        "--tls-reload-seconds",
+        "0",
+    ]);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let mut server = Proc::start("server", dir, &args);
     let url = format!("https://127.0.0.1:{}", farm.port);
@@ -690,6 +709,13 @@ async fn serve_terminates_tls_for_workers_and_clients_and_reloads_on_sighup() {
     std::fs::write(&new_ca, &new_pem).expect("write new-ca.pem");
     replace(&key, &new_key);
     replace(&cert, &new_pem);
+    // Not watched: the old certificate is still served a while after the files changed.
+    tokio::time::sleep(Duration::from_millis(700)).await;
+    let old = ApiClient::with_ca_cert(&url, None, Some(std::path::Path::new(&ca))).expect("client");
+    assert!(
+        old.workers().await.is_ok(),
+        "the certificate changed without SIGHUP although --tls-reload-seconds is 0"
+    );
     server.signal(libc::SIGHUP);
     poll("the new certificate", Duration::from_secs(10), || async {
         let fresh = ApiClient::with_ca_cert(&url, None, Some(std::path::Path::new(&new_ca)))
@@ -698,6 +724,38 @@ async fn serve_terminates_tls_for_workers_and_clients_and_reloads_on_sighup() {
     })
     .await;
     assert!(server.is_running());
+
+    // Watched every 0.2 s: a third certificate is served without a signal.
+    server.signal(libc::SIGTERM);
+    assert!(server.wait_exit(Duration::from_secs(20)).await.success());
+    let args = serve(&[
+        "--tls-cert",
+        &cert_arg,
+        "--tls-key",
+        &key_arg,
+        "--tls-reload-seconds",
+        "0.2",
+    ]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let mut watched = Proc::start("server-watched", dir, &args);
+    let second =
+        ApiClient::with_ca_cert(&url, None, Some(std::path::Path::new(&new_ca))).expect("client");
+    poll("the watched server", Duration::from_secs(30), || async {
+        second.workers().await.ok()
+    })
+    .await;
+    let (third_pem, third_key) = self_signed();
+    let third_ca = dir.arg("third-ca.pem");
+    std::fs::write(&third_ca, &third_pem).expect("write third-ca.pem");
+    replace(&key, &third_key);
+    replace(&cert, &third_pem);
+    poll("the third certificate", Duration::from_secs(5), || async {
+        let fresh = ApiClient::with_ca_cert(&url, None, Some(std::path::Path::new(&third_ca)))
+            .expect("client");
+        fresh.workers().await.ok()
+    })
+    .await;
+    assert!(watched.is_running());
 }
 
 /// `pathfarm jobs --json` against `url` with the configuration file `config` and the environment

@@ -193,9 +193,13 @@ fn read_pair(
     })
 }
 
-/// Reloads `cert` whenever its files change, every [`ServerCert::poll_interval`], until the task
-/// is aborted. Errors are logged and the certificate in use is kept.
+/// Reloads `cert` whenever its files change, every [`ServerCert::poll_interval`] (never when it
+/// is zero: SIGHUP only), until the task is aborted. Errors are logged and the certificate in use
+/// is kept.
 pub async fn watch(cert: Arc<ServerCert>) {
+    if cert.poll_interval.is_zero() {
+        return;
+    }
     let mut tick = tokio::time::interval(cert.poll_interval.max(Duration::from_millis(10)));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tick.tick().await;

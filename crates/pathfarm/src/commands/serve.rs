@@ -230,6 +230,15 @@ pub struct ServeArgs {
     /// PEM private key of --tls-cert's certificate (PKCS#8, PKCS#1 or SEC1).
     #[arg(long, env = "PATHFARM_TLS_KEY", requires = "tls_cert")]
     pub tls_key: Option<PathBuf>,
+    /// How often --tls-cert and --tls-key are checked for a change, in seconds (0: never; they
+    /// are still read again on SIGHUP).
+    #[arg(
+        long,
+        env = "PATHFARM_TLS_RELOAD_SECONDS",
+        default_value_t = 10.0,
+        allow_negative_numbers = true
+    )]
+    pub tls_reload_seconds: f64,
     #[command(flatten)]
     pub server: ServerArgs,
 }
@@ -241,7 +250,13 @@ impl ServeArgs {
         let mut c = self.server.config()?;
         c.tls = match (&self.tls_cert, &self.tls_key) {
             (Some(cert), Some(key)) => {
-                Some(Arc::new(pathfarm_server::tls::ServerCert::load(cert, key)?))
+                let reload = self.tls_reload_seconds;
+                if !(reload.is_finite() && reload >= 0.0) {
+                    bail!("--tls-reload-seconds must be zero or a positive number, not {reload}");
+                }
+                let mut cert = pathfarm_server::tls::ServerCert::load(cert, key)?;
+                cert.poll_interval = std::time::Duration::from_secs_f64(reload);
+                Some(Arc::new(cert))
             }
             (None, None) => None,
             _ => bail!("--tls-cert and --tls-key go together: give both or neither"),

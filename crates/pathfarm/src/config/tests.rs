@@ -190,6 +190,7 @@ fn the_tables_keys_are_the_documented_ones() {
         "listen",
         "tls-cert",
         "tls-key",
+        "tls-reload-seconds",
         "db",
         "client-tokens",
         "worker-tokens",
