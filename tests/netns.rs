@@ -227,13 +227,15 @@ async fn worker_link_cut_mid_task_and_restored() {
     let url = net.server_url();
     let api = ApiClient::new(&url, Some(CLIENT_TOKEN.into())).expect("API client");
 
+    // Long enough that worker 1, cut off and marked lost, still finds work when it comes back:
+    // at 1,024 spp worker 2 (which uploads while it renders) finished the job in the meantime.
     let settings = [
-        "--width", "96", "--height", "96", "--spp", "1024", "--seed", "11",
+        "--width", "96", "--height", "96", "--spp", "4096", "--seed", "11",
     ];
     let mut submitted = settings.to_vec();
     submitted.extend_from_slice(&["--tile", "32", "--token", CLIENT_TOKEN]);
     let id = submit(&dir, &url, &submitted).await;
-    let planned = 96 * 96 * 1024;
+    let planned = 96 * 96 * 4096;
     let reference = render_reference(&dir, "local.exr", &settings);
 
     let worker = |k: u8| {
