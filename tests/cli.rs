@@ -625,15 +625,18 @@ async fn serve_terminates_tls_for_workers_and_clients_and_reloads_on_sighup() {
     let e = refused(serve(&bad)).await;
     assert!(e.contains("--tls-reload-seconds"), "{e}");
 
+    let watching = |seconds: &str| {
+        serve(&[
+            "--tls-cert",
+            &cert_arg,
+            "--tls-key",
+            &key_arg,
+            "--tls-reload-seconds",
+            seconds,
+        ])
+    };
     // Files not watched (0): only SIGHUP reads them again, as checked at the end.
-    let args = serve(&[
-        "--tls-cert",
-        &cert_arg,
-        "--tls-key",
-        &key_arg,
-        "--tls-reload-seconds",
-        "0",
-    ]);
+    let args = watching("0");
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let mut server = Proc::start("server", dir, &args);
     let url = format!("https://127.0.0.1:{}", farm.port);
@@ -728,14 +731,7 @@ async fn serve_terminates_tls_for_workers_and_clients_and_reloads_on_sighup() {
     // Watched every 0.2 s: a third certificate is served without a signal.
     server.signal(libc::SIGTERM);
     assert!(server.wait_exit(Duration::from_secs(20)).await.success());
-    let args = serve(&[
-        "--tls-cert",
-        &cert_arg,
-        "--tls-key",
-        &key_arg,
-        "--tls-reload-seconds",
-        "0.2",
-    ]);
+    let args = watching("0.2");
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let mut watched = Proc::start("server-watched", dir, &args);
     let second =

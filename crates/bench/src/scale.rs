@@ -222,9 +222,9 @@ pub fn sphere_glb(triangles: usize, placements: usize) -> Result<Vec<u8>, BenchE
         .ok_or_else(|| BenchError::Invalid("the scene is over the .glb format's 4 GiB".into()))
 }
 
-/// `/proc/self/status` field `name` (e.g. `VmHWM:`), KiB.
-fn status_kib(name: &str) -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+/// Field `name` (e.g. `VmHWM:`) of `/proc/{process}/status` (`process`: `self` or a pid), KiB.
+pub(crate) fn status_kib(process: &str, name: &str) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{process}/status")).ok()?;
     status
         .lines()
         .find_map(|l| l.strip_prefix(name))
@@ -245,7 +245,9 @@ fn scene_error(name: &str, e: impl std::fmt::Display) -> BenchError {
 
 /// Loads `bytes`, builds the scene (flattened first where `flatten`) and renders it briefly.
 fn measure(case: &Case, bytes: &[u8], flatten: bool, seed: u64) -> Result<Measured, BenchError> {
-    let baseline = reset_peak_rss().then(|| status_kib("VmRSS:")).flatten();
+    let baseline = reset_peak_rss()
+        .then(|| status_kib("self", "VmRSS:"))
+        .flatten();
     let started = Instant::now();
     let mut parts = load_parts(bytes, &NoExternalResources, &LoadOptions::default())
         .map_err(|e| scene_error(case.name, e))?;
@@ -256,7 +258,7 @@ fn measure(case: &Case, bytes: &[u8], flatten: bool, seed: u64) -> Result<Measur
     let started = Instant::now();
     let scene = Scene::build(parts).map_err(|e| scene_error(case.name, e))?;
     let build_seconds = started.elapsed().as_secs_f64();
-    let peak_rss_mib = match (baseline, status_kib("VmHWM:")) {
+    let peak_rss_mib = match (baseline, status_kib("self", "VmHWM:")) {
         (Some(before), Some(peak)) => Some(peak.saturating_sub(before) as f64 / 1024.0),
         _ => None,
     };

@@ -8,7 +8,7 @@
 
 use crate::error::write_file;
 use crate::farm::harness::farm_err;
-use crate::scale::sphere_glb;
+use crate::scale::{sphere_glb, status_kib};
 use crate::{BenchError, Machine};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -417,14 +417,7 @@ struct PeakRss {
 impl PeakRss {
     fn sample(&mut self, pids: &[u32]) {
         for &pid in pids {
-            let Ok(status) = std::fs::read_to_string(format!("/proc/{pid}/status")) else {
-                continue;
-            };
-            let hwm = status
-                .lines()
-                .find_map(|l| l.strip_prefix("VmHWM:"))
-                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok());
-            if let Some(kib) = hwm {
+            if let Some(kib) = status_kib(&pid.to_string(), "VmHWM:") {
                 let e = self.max_kib.entry(pid).or_default();
                 *e = (*e).max(kib);
             }
