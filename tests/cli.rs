@@ -257,12 +257,6 @@ async fn every_api_operation_has_a_command_that_works_with_and_without_json() {
     assert!(text.contains(&format!("deleted job {id}")), "{text}");
 }
 
-/// Blender's animated export (a cube that slides and turns, a camera on an arc).
-const ANIMATED: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../../scenes/suite/animated.glb"
-);
-
 /// `submit --frames … --wait --out 'frame_##.exr'` writes one file per frame, each named by its
 /// frame number and bit-identical to `pathfarm render --frame f --fps F`; a pattern without `#`
 /// and a bad frame list are refused before anything is sent.
@@ -340,6 +334,17 @@ async fn submit_frames_writes_one_file_per_frame_equal_to_local_renders() {
         .find(|l| l.starts_with(&id))
         .expect("the job's row");
     assert!(row.split_whitespace().any(|w| w == "3/3"), "{list}");
+    // The job's details list each frame with its samples and error.
+    let details = ok(&farm, &["job", &id]).await;
+    for frame in ["0", "7", "8"] {
+        let line = details
+            .lines()
+            .find(|l| l.split_whitespace().next() == Some(frame))
+            .unwrap_or_else(|| panic!("no line for frame {frame}:\n{details}"));
+        let cols: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(cols[1], "4", "{line}");
+        assert!(cols[2].ends_with('%') && cols[3] == "complete", "{line}");
+    }
     let again = farm.dir.arg("again_###.exr");
     let text = ok(&farm, &["job", &id, "--out", &again]).await;
     assert!(text.contains("wrote 3 frames"), "{text}");

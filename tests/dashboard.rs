@@ -969,6 +969,15 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
         )
         .await;
     assert_eq!(cells, json!(["1:true", "10:true", "20:true"]));
+    // Each cell carries its frame's estimated error (every pixel has its two samples).
+    let errors = b
+        .js(
+            "return [...document.querySelectorAll('[data-testid=frame-cell]')]\
+               .map((c) => Number(c.dataset.error) > 0);",
+            vec![],
+        )
+        .await;
+    assert_eq!(errors, json!([true, true, true]));
     let shown_frame = || async {
         b.js(
             "const i = document.querySelector('[data-testid=preview-image]'); \
@@ -989,6 +998,26 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
         (shown_frame().await.as_deref() == Some("20")).then_some(())
     })
     .await;
+    // The charts follow the selected frame: its own history.
+    b.wait_text(
+        "the charts of frame 20",
+        "[data-testid=charts-frame]",
+        |t| t.contains("frame 20"),
+    )
+    .await;
+    let charted = b
+        .js(
+            "const e = document.querySelector('[data-testid=error-chart]'); \
+             const r = document.querySelector('[data-testid=rate-chart]'); \
+             return [e.dataset.frame, Number(r.dataset.points)];",
+            vec![],
+        )
+        .await;
+    assert_eq!(charted[0], json!("20"), "{charted}");
+    assert!(
+        charted[1].as_f64().is_some_and(|n| n >= 1.0),
+        "frame 20's history is not charted: {charted}"
+    );
     b.screenshot("frame-job").await;
     b.click("[data-testid=frame-play]").await;
     let mut seen = BTreeSet::new();

@@ -96,6 +96,107 @@ async fn killed_worker_loses_nothing() {
     assert_same_bytes(&exr, &local, "killed worker");
 }
 
+/// A worker killed with SIGKILL in the middle of an animation (frames behind it merged, a task of
+/// a later frame half uploaded) loses only the slice it was rendering: its lease expires, another
+/// worker takes the rest from where the merged samples end, no sample is merged twice, and every
+/// frame is bit-identical to `pathfarm render --frame N` of the same settings.
+#[tokio::test(flavor = "multi_thread")]
+async fn killed_worker_mid_sequence_loses_only_its_slice() {
+    let farm = Farm::new("killed-frame-worker");
+    let server = farm.serve("server", &["--lease-seconds", "1"]).await;
+    let api = farm.api();
+    let settings = [
+        "--width", "32", "--height", "24", "--spp", "256", "--seed", "5", "--fps", "24",
+    ];
+    let frames = [3, 9, 15, 21];
+    let mut submitted = settings.to_vec();
+    submitted.extend_from_slice(&[
+        "--tile",
+        "16",
+        "--frames",
+        "3-21x6",
+        "--frame-order",
+        "sequential",
+    ]);
+    let id = submit_scene(&farm.dir, &farm.url, ANIMATED, &submitted).await;
+    let planned = 32 * 24 * 256 * frames.len() as u64;
+    assert_eq!(job(&api, &id).await.samples_planned, planned);
+
+    let mut worker_a = farm.worker("worker-a", 2);
+    // Kill A once a frame is behind it and it is in the middle of a task of a later one.
+    poll(
+        "worker A to be in the middle of a later frame",
+        Duration::from_secs(120),
+        || async {
+            let j = job(&api, &id).await;
+            let a = named(&workers(&api).await, "worker-a")?.clone();
+            let tiles = j.tiles.as_deref()?;
+            let partial = tiles
+                .iter()
+                .find(|t| t.samples_per_pixel > 0 && t.samples_per_pixel + 8 < 256)?;
+            let behind = j.frames_done? >= 1 && partial.frame != Some(frames[0]);
+            (behind && a.state == WorkerState::Busy && a.current_task.is_some()).then_some(())
+        },
+    )
+    .await;
+    worker_a.kill_now();
+    let at_kill = job(&api, &id).await;
+    assert!(
+        at_kill.samples_done < planned && !at_kill.state.is_final(),
+        "the job ended before worker A was killed: {at_kill:?}"
+    );
+    let references: Vec<_> = frames
+        .iter()
+        .map(|f| {
+            let mut args = settings.to_vec();
+            let f = f.to_string();
+            args.extend_from_slice(&["--frame", &f, "--threads", "1"]);
+            render_reference_of(&farm.dir, ANIMATED, &format!("local-{f}.exr"), &args)
+        })
+        .collect();
+
+    let _worker_b = farm.worker("worker-b", 5);
+    let done = wait_completed(&api, &id, Duration::from_secs(180)).await;
+    assert_eq!(
+        (done.samples_done, done.frames_done),
+        (planned, Some(4)),
+        "{done:?}"
+    );
+    assert!(
+        server.log_text().contains("lease expired"),
+        "the server never expired worker A's lease"
+    );
+    let ws = poll(
+        "worker A to be marked lost",
+        Duration::from_secs(15),
+        || async {
+            let ws = workers(&api).await;
+            (named(&ws, "worker-a")?.state == WorkerState::Lost).then_some(ws)
+        },
+    )
+    .await;
+    let a = named(&ws, "worker-a")
+        .expect("worker A listed")
+        .samples_done;
+    let b = named(&ws, "worker-b")
+        .expect("worker B listed")
+        .samples_done;
+    assert!(a > 0 && b > 0, "A merged {a}, B merged {b}");
+    assert_eq!(a + b, planned, "a sample was lost or merged twice: {ws:?}");
+    for (frame, reference) in frames.iter().zip(references) {
+        let exr = api
+            .frame_exr(&id, *frame)
+            .await
+            .expect("GET image.exr?frame");
+        let local = reference.await.expect("the local render of the frame");
+        assert_same_bytes(
+            &exr,
+            &local,
+            &format!("frame {frame} after a killed worker"),
+        );
+    }
+}
+
 /// The server stopped with SIGTERM in the middle of a job and started again on the same SQLite
 /// file: the worker rides out the gap, and the job completes bit-identical to a local render.
 #[tokio::test(flavor = "multi_thread")]

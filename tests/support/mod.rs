@@ -15,6 +15,11 @@ use std::time::{Duration, Instant};
 
 pub const BIN: &str = env!("CARGO_BIN_EXE_pathfarm");
 pub const SCENE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/cornell.gltf");
+/// Blender's animated export (a cube that slides and turns, a camera on an arc).
+pub const ANIMATED: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../scenes/suite/animated.glb"
+);
 
 /// A fresh directory per test; removed at the end unless the test failed or `PATHFARM_E2E_KEEP` is
 /// set (then it is kept, and named, for the post-mortem).
@@ -308,7 +313,12 @@ pub fn partial_tile(j: &JobView) -> Option<(TileProgress, u64)> {
 
 /// `pathfarm submit SCENE --server URL SETTINGS…`; returns the job id it prints.
 pub async fn submit(dir: &TestDir, url: &str, settings: &[&str]) -> String {
-    let mut args = vec!["submit", SCENE, "--server", url];
+    submit_scene(dir, url, SCENE, settings).await
+}
+
+/// `pathfarm submit scene --server URL SETTINGS…`; returns the job id it prints.
+pub async fn submit_scene(dir: &TestDir, url: &str, scene: &str, settings: &[&str]) -> String {
+    let mut args = vec!["submit", scene, "--server", url];
     args.extend_from_slice(settings);
     let out = run_cli(dir, &args, Duration::from_secs(30)).await;
     assert_success(&out, "pathfarm submit");
@@ -328,10 +338,20 @@ pub fn render_reference(
     name: &str,
     settings: &[&str],
 ) -> tokio::task::JoinHandle<Vec<u8>> {
+    render_reference_of(dir, SCENE, name, settings)
+}
+
+/// [`render_reference`] of `scene`.
+pub fn render_reference_of(
+    dir: &TestDir,
+    scene: &str,
+    name: &str,
+    settings: &[&str],
+) -> tokio::task::JoinHandle<Vec<u8>> {
     let out_path = dir.path(name);
     let mut cmd = tokio::process::Command::from(command(dir));
     cmd.arg("render")
-        .arg(SCENE)
+        .arg(scene)
         .args(settings)
         .arg("--out")
         .arg(&out_path)

@@ -16,7 +16,7 @@
 use crate::heatmap;
 use crate::image_budget::Reservation;
 use pathfarm_tracer::output::{encode_rgb8_png, tonemap, ExrChannels, ImageError};
-use pathfarm_tracer::Accumulation;
+use pathfarm_tracer::{Accumulation, PixelAccum};
 
 /// What a pixel of a developed image takes: mean RGB (3 × 4), variance (4) and count (4).
 pub const BYTES_PER_PIXEL: usize = 20;
@@ -68,19 +68,10 @@ impl Planes {
         for (row, src) in acc.pixels.chunks_exact(w.max(1)).enumerate() {
             let start = (acc.y0 as usize + row) * width as usize + acc.x0 as usize;
             for (i, p) in src.iter().enumerate() {
-                let m = p.mean();
-                let var = p.variance_of_mean();
+                let (m, var) = sums.add(p);
                 self.mean[start + i] = m.map(|c| c as f32);
                 self.variance[start + i] = var.unwrap_or(0.0) as f32;
                 self.samples[start + i] = p.count.min(u64::from(u32::MAX)) as u32;
-                match var {
-                    Some(v) => sums.var += v,
-                    None => sums.without_estimate += 1,
-                }
-                sums.lum += 0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2];
-                sums.total_samples += p.count;
-                sums.max_samples = sums.max_samples.max(p.count);
-                sums.pixels += 1;
             }
         }
         Some(())
@@ -88,16 +79,68 @@ impl Planes {
 }
 
 impl Sums {
-    /// The image-level relative error √(mean Var[pixel mean]) / mean luminance, as the tracer's
-    /// `Accumulation::relative_error` defines it, of an image of `pixels` pixels: `None` unless
-    /// every pixel was developed with two samples or more, or when the image is black.
+    /// The sums over the pixels of `acc`: what a merge stores with its tile
+    /// ([`Sums::variance`], [`Sums::luminance`], [`Sums::without_estimate`]), so that a job's or a
+    /// frame's error is a sum over its tiles ([`relative_error`]).
+    pub fn of(acc: &Accumulation) -> Sums {
+        let mut sums = Sums::default();
+        for p in &acc.pixels {
+            sums.add(p);
+        }
+        sums
+    }
+
+    /// Adds one pixel; returns its mean and the variance of its mean.
+    fn add(&mut self, p: &PixelAccum) -> ([f64; 3], Option<f64>) {
+        let m = p.mean();
+        let var = p.variance_of_mean();
+        match var {
+            Some(v) => self.var += v,
+            None => self.without_estimate += 1,
+        }
+        self.lum += 0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2];
+        self.total_samples += p.count;
+        self.max_samples = self.max_samples.max(p.count);
+        self.pixels += 1;
+        (m, var)
+    }
+
+    /// Σ Var[mean luminance] over the pixels with two samples or more.
+    pub fn variance(&self) -> f64 {
+        self.var
+    }
+
+    /// Σ mean luminance.
+    pub fn luminance(&self) -> f64 {
+        self.lum
+    }
+
+    /// Pixels with fewer than two samples (no variance estimate).
+    pub fn without_estimate(&self) -> u64 {
+        self.without_estimate
+    }
+
+    /// The image-level relative error of an image of `pixels` pixels, of which these are the
+    /// sums (see [`relative_error`]).
     pub fn relative_error(&self, pixels: u64) -> Option<f64> {
-        if self.without_estimate > 0 || self.pixels != pixels || pixels == 0 || self.lum <= 0.0 {
+        if self.pixels != pixels {
             return None;
         }
-        let n = pixels as f64;
-        Some((self.var / n).sqrt() / (self.lum / n))
+        relative_error(self.var, self.lum, self.without_estimate, pixels)
     }
+}
+
+/// The image-level relative error √(mean Var[pixel mean]) / mean luminance, as the tracer's
+/// `Accumulation::relative_error` defines it, of an image of `pixels` pixels from the sums over
+/// all of them (Σ variance, Σ luminance, pixels without a variance estimate): `None` unless every
+/// pixel has two samples or more, or when the image is black. The one formula: the images the
+/// server develops and the estimates it sums from tiles (`store::estimates`) both use it.
+pub fn relative_error(var: f64, lum: f64, without_estimate: u64, pixels: u64) -> Option<f64> {
+    if without_estimate > 0 || pixels == 0 || lum <= 0.0 {
+        return None;
+    }
+    let n = pixels as f64;
+    Some((var / n).sqrt() / (lum / n))
 }
 
 pub struct JobImage {
@@ -384,9 +427,10 @@ mod tests {
         assert_eq!(img.total_samples, acc.total_samples());
         assert_eq!((img.min_samples, img.max_samples), (3, 3));
 
-        // Tile by tile, tiles of 16.
+        // Tile by tile, tiles of 16; and from each tile's own sums, as merges store them.
         let mut planes = Planes::zeroed(37 * 21);
         let mut sums = Sums::default();
+        let (mut var, mut lum, mut unestimated) = (0.0, 0.0, 0);
         for y0 in (0..21).step_by(16) {
             for x0 in (0..37).step_by(16) {
                 let mut tile = Accumulation::new(x0, y0, 16.min(37 - x0), 16.min(21 - y0));
@@ -397,12 +441,23 @@ mod tests {
                     }
                 }
                 planes.develop(37, &tile, &mut sums).unwrap();
+                let own = Sums::of(&tile);
+                (var, lum) = (var + own.variance(), lum + own.luminance());
+                unestimated += own.without_estimate();
             }
         }
         let tiled = JobImage::developed(4, (37, 21), planes, &sums, 3);
         assert_eq!(tiled.png(0.0).unwrap(), img.png(0.0).unwrap());
         let got = tiled.relative_error.unwrap();
         assert!((got - want).abs() <= want * 1e-12, "{got} {want}");
+        let got = relative_error(var, lum, unestimated, 37 * 21).unwrap();
+        assert!((got - want).abs() <= want * 1e-12, "{got} {want}");
+        // No estimate while a pixel has fewer than two samples, or for a black image.
+        assert_eq!(relative_error(var, lum, 1, 37 * 21), None);
+        assert_eq!(relative_error(var, 0.0, 0, 37 * 21), None);
+        let one = Sums::of(&accumulation(5, 4, 1));
+        assert_eq!(one.without_estimate(), 20);
+        assert_eq!(one.relative_error(20), None);
         // A tile outside the image is refused.
         let outside = Accumulation::new(30, 0, 16, 16);
         let mut planes = Planes::zeroed(37 * 21);

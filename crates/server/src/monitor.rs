@@ -5,7 +5,7 @@
 //! the shared store, so any number of servers can run it side by side.
 
 use crate::states::JobEvent;
-use crate::store::{Estimate, JobRow};
+use crate::store::{Estimate, ImageEstimate, JobRow};
 use crate::AppState;
 use pathfarm_wire::api::JobState;
 use std::collections::HashMap;
@@ -74,11 +74,11 @@ pub async fn housekeeping(state: &AppState) -> Result<(), crate::error::ApiError
     Ok(())
 }
 
-/// A running job's error is estimated again no sooner than this many times what its last
-/// estimate took (mostly building its image from every tile): at most about 2 % of one core per
-/// running job, whatever the image's size. A small image is still estimated at every step; a
-/// 4096² one, whose build takes about a second, every minute or so. A job that has ended is
-/// estimated at once, so its final answer carries its final error.
+/// A running job's error is estimated again no sooner than this many times what the last
+/// aggregate over its tiles took (the part of an estimate that grows with the job's tiles and
+/// frames; the writes after it, whose time is mostly waiting for the store's writer, are not
+/// counted): about 2 % of a core per running job at most, however large it is. A job that has
+/// ended is estimated at once, so its final answer carries its final error.
 pub const ESTIMATE_COST_RATIO: u32 = 50;
 
 /// When each running job's error was last estimated, and what that took.
@@ -148,18 +148,14 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
                 continue;
             }
         };
-        let started = Instant::now();
         if job.state.is_final() {
             state.estimates.forget(&id);
-        } else if !state.estimates.due(&id, started) {
+        } else if !state.estimates.due(&id, Instant::now()) {
             continue;
         }
-        // One job whose image cannot be estimated (a stored tile that does not decode, say) must
-        // not keep the monitor from every other job and from the time limits below.
+        // One job whose error cannot be estimated (a store error, say) must not keep the monitor
+        // from every other job and from the time limits below.
         let estimated = refresh_estimate(state, &job).await;
-        if !job.state.is_final() {
-            state.estimates.record(&id, started, started.elapsed());
-        }
         let err = match estimated {
             Ok(err) => err,
             Err(e) => {
@@ -203,41 +199,74 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
 /// /jobs/{id}` calls it for a finished job whose last image the monitor has not seen yet, so the
 /// final answer carries the final image's error at once rather than one monitor tick later.
 ///
-/// A job without a merged slice has nothing to estimate: its (empty) estimate is recorded without
-/// reading or assembling anything.
+/// The error is summed from the tiles (`store::estimates`): no image is assembled. A frame job's
+/// error is its worst frame's (`None` until every frame has one), and each frame's is recorded in
+/// its own history; with a noise target, the frames that reached it stop taking samples
+/// ([`Store::stop_frames`]) so that the farm's work goes to the others, and the job ends when
+/// its worst frame reaches it.
+///
+/// [`Store::stop_frames`]: crate::store::Store::stop_frames
 pub async fn refresh_estimate(
     state: &AppState,
     job: &JobRow,
 ) -> Result<Option<f64>, crate::error::ApiError> {
     let store = &state.store;
-    let (version, err, samples) = if job.version == 0 {
-        (0, None, 0)
+    // Read after `job`: what they sum is current as of the job's version at least.
+    let images = if job.version == 0 {
+        Vec::new()
     } else {
-        // Shared with the requests viewing the job: while it runs, any image newer than the last
-        // estimate will do (so a build under way is joined, not followed by another); once it
-        // is final, the final image. The estimate and the sample count were summed as the image
-        // was developed.
-        let wanted = if job.state.is_final() {
-            job.version
-        } else {
-            (job.rel_error_version + 1).clamp(1, job.version)
-        };
-        let img = state.images.get_at_least(store, job, wanted).await?;
-        // A frame job's image (its first frame's) carries the frame's version; it was read
-        // after `job`, so it is current as of the job's version at least.
-        let version = match job.settings.frames {
-            Some(_) => job.version,
-            None => img.version,
-        };
-        (version, img.relative_error, img.total_samples)
+        let started = Instant::now();
+        let images = store.image_estimates(&job.id).await?;
+        if !job.state.is_final() {
+            state.estimates.record(&job.id, started, started.elapsed());
+        }
+        images
     };
-    let target_reached = matches!((job.settings.noise_target, err), (Some(t), Some(e)) if e <= t);
+    let err = job_error(&images);
+    let samples = images.iter().map(|i| i.samples_done).sum();
+    let target = job.settings.noise_target;
+    let at_target = |e: Option<f64>| matches!((target, e), (Some(t), Some(e)) if e <= t);
+    let target_reached = at_target(err);
     let estimate = Estimate {
-        version,
+        version: job.version,
         relative_error: err,
         samples,
         last: target_reached || samples >= job.samples_planned || job.state.is_final(),
     };
     store.record_estimate(&job.id, &estimate).await?;
+    if job.settings.frames.is_some() && !images.is_empty() {
+        let spp = u64::from(job.settings.spp);
+        let ended = |i: &ImageEstimate| i.samples_per_pixel >= spp || at_target(i.relative_error);
+        store
+            .record_frame_estimates(&job.id, &images, ended)
+            .await?;
+        // The whole job at its target is ended by the monitor, with its message.
+        if job.state == JobState::Running && !target_reached {
+            let stop: Vec<(i64, i64)> = images
+                .iter()
+                .filter(|i| i.samples_per_pixel < spp && at_target(i.relative_error))
+                .map(|i| (i.first_tile, i.tiles))
+                .collect();
+            let cancelled = store.stop_frames(&job.id, &stop).await?;
+            if cancelled > 0 {
+                tracing::info!(
+                    job = %job.id,
+                    tasks = cancelled,
+                    "frames at the noise target stopped"
+                );
+            }
+        }
+    }
     Ok(err)
+}
+
+/// A job's error from its images' estimates: a still job's image's, a frame job's worst frame's
+/// (`None` while any frame has none).
+fn job_error(images: &[ImageEstimate]) -> Option<f64> {
+    let mut worst: Option<f64> = None;
+    for i in images {
+        let e = i.relative_error?;
+        worst = Some(worst.map_or(e, |w| w.max(e)));
+    }
+    worst
 }

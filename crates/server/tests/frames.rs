@@ -8,7 +8,7 @@ mod common;
 use axum::http::StatusCode;
 use common::*;
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources, SceneSource};
-use pathfarm_tracer::render_image;
+use pathfarm_tracer::{render_image, Accumulation};
 use pathfarm_wire::api::{ErrorBody, FrameOrder, JobSettings, JobState, WorkerRegistration};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -22,16 +22,15 @@ fn animated() -> Vec<u8> {
 
 /// `pathfarm render --frame frame --fps fps` of the job's settings, as EXR bytes.
 fn local_frame(scene: &[u8], s: &JobSettings, frame: i64) -> Vec<u8> {
+    exr(&local_accumulation(scene, s, frame))
+}
+
+/// `pathfarm render --frame frame --fps fps` of the job's settings.
+fn local_accumulation(scene: &[u8], s: &JobSettings, frame: i64) -> Accumulation {
     let source = SceneSource::load(scene, &NoExternalResources, &LoadOptions::default()).unwrap();
     let time = gltf::frame_time(frame, s.frames_per_second());
     let scene = source.into_scene_at(time).unwrap().with_environment(None);
-    exr(&render_image(
-        &scene,
-        &s.render_settings(),
-        32,
-        0..s.spp,
-        &|_| {},
-    ))
+    render_image(&scene, &s.render_settings(), 32, 0..s.spp, &|_| {})
 }
 
 fn frame_settings(frames: &str, order: Option<FrameOrder>, tile: u32) -> JobSettings {
@@ -47,7 +46,16 @@ async fn every_frame_is_bit_identical_to_a_local_render_at_that_frame() {
     let scene = animated();
     let frames = [30, 1, 12];
     let s = frame_settings("30,1,12", None, 8);
-    let expected: Vec<Vec<u8>> = frames.iter().map(|&f| local_frame(&scene, &s, f)).collect();
+    let local: Vec<Accumulation> = frames
+        .iter()
+        .map(|&f| local_accumulation(&scene, &s, f))
+        .collect();
+    let expected: Vec<Vec<u8>> = local.iter().map(exr).collect();
+    // Each frame's error, as the local render estimates it.
+    let errors: Vec<f64> = local
+        .iter()
+        .map(|a| a.relative_error().expect("an estimate at 3 spp"))
+        .collect();
     assert_ne!(
         expected[0], expected[1],
         "the frames differ: the scene moves"
@@ -93,8 +101,110 @@ async fn every_frame_is_bit_identical_to_a_local_render_at_that_frame() {
             }
             // The job's own image is its first frame's.
             assert!(client.image_exr(&job.id, false).await.unwrap() == expected[0]);
+            // Each frame's error is the local render's (summed from the tiles, so equal up to
+            // the order of the sums), in the view and as the last point of its own history; the
+            // job's is its worst frame's.
+            let close = |got: f64, want: f64| (got - want).abs() <= want * 1e-12;
+            for ((p, f), want) in progress.iter().zip(frames).zip(&errors) {
+                let got = p.relative_error.expect("every frame's error");
+                assert!(close(got, *want), "{store}: frame {f}: {got} vs {want}");
+                let history = client.frame_convergence(&job.id, f).await.unwrap();
+                let last = history
+                    .points
+                    .last()
+                    .expect("a point in the frame's history");
+                assert_eq!(last.samples_done, 24 * 16 * 3, "{store}: frame {f}");
+                let got = last.relative_error.expect("the frame's last error");
+                assert!(
+                    close(got, *want),
+                    "{store}: frame {f}'s history: {got} vs {want}"
+                );
+            }
+            let worst = errors.iter().copied().fold(0.0, f64::max);
+            let got = done.relative_error.expect("the job's error");
+            assert!(
+                close(got, worst),
+                "{store}: the job's error {got}, worst frame {worst}"
+            );
             eprintln!("{store}: {workers} workers, tile {tile}, {order:?}: every frame identical");
         }
+        server.stop().await;
+    }
+}
+
+/// With a noise target, each frame stops taking samples once its error reaches it (its queued
+/// tasks cancelled, its samples no longer planned), so the farm's work goes to the frames still
+/// above it, and the job ends when its worst frame reaches it. In sequential order a frame would
+/// otherwise take its whole spp before the next starts.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_noise_target_stops_each_frame_where_it_reaches_it() {
+    let scene = animated();
+    let frames = [30, 1, 12];
+    let mut s = frame_settings("30,1,12", Some(FrameOrder::Sequential), 16);
+    (s.width, s.height, s.spp) = (64, 48, 1 << 14);
+    // What the noisiest frame reaches at 256 spp.
+    let mut probe = s.clone();
+    probe.spp = 256;
+    let target = frames
+        .iter()
+        .map(|&f| {
+            local_accumulation(&scene, &probe, f)
+                .relative_error()
+                .unwrap()
+        })
+        .fold(0.0, f64::max);
+    s.noise_target = Some(target);
+    for (store, url) in stores("frames-noise").await {
+        let mut cfg = config(&url);
+        // Passes of 16, 32, 64, … spp: the target comes several passes in.
+        cfg.min_frame_task_samples = 16 * 256;
+        let server = TestServer::start(cfg).await;
+        let client = server.client(None);
+        let job = client
+            .submit(scene.clone(), "animated.glb", &s)
+            .await
+            .unwrap();
+        let ws: Vec<_> = (0..2)
+            .map(|_| TestWorker::spawn(&server.url, None, None))
+            .collect();
+        let done = wait_final(&client, &job.id, Duration::from_secs(300)).await;
+        for w in ws {
+            w.stop().await;
+        }
+        assert_eq!(
+            done.state,
+            JobState::Completed,
+            "{store}: {:?}",
+            done.message
+        );
+        let view = client.job(&job.id).await.unwrap();
+        assert_eq!(view.frames_done, Some(3), "{store}");
+        let progress = view.frames.expect("per-frame progress");
+        for p in &progress {
+            let err = p.relative_error.expect("every frame's error");
+            assert!(p.complete, "{store}: frame {}", p.frame);
+            assert!(
+                err <= target,
+                "{store}: frame {}: {err} > {target}",
+                p.frame
+            );
+            assert!(
+                p.samples_per_pixel < u64::from(s.spp) / 4,
+                "{store}: frame {} was not stopped at its target: {} spp",
+                p.frame,
+                p.samples_per_pixel
+            );
+        }
+        let merged: u64 = progress.iter().map(|p| p.samples_done).sum();
+        assert_eq!(done.samples_done, merged, "{store}");
+        assert!(done.relative_error.unwrap() <= target, "{store}");
+        eprintln!(
+            "{store}: noise target {target:.4}: frames stopped at {:?} spp",
+            progress
+                .iter()
+                .map(|p| p.samples_per_pixel)
+                .collect::<Vec<_>>()
+        );
         server.stop().await;
     }
 }
@@ -186,10 +296,6 @@ async fn bad_frame_settings_are_4xx_naming_the_field() {
                 r#"{"width":8,"height":8,"spp":1,"frames":"1","frame_order":"random"}"#,
                 "expected `interleaved` or `sequential`",
             ),
-            (
-                r#"{"width":8,"height":8,"spp":1,"frames":"1","noise_target":0.1}"#,
-                "noise_target",
-            ),
         ] {
             let (ct, body) = multipart(&scene, settings);
             let (status, err): (StatusCode, ErrorBody) = call(
@@ -221,7 +327,7 @@ async fn bad_frame_settings_are_4xx_naming_the_field() {
             (&job.id, "frame=x", StatusCode::BAD_REQUEST),
             (&still.id, "frame=1", StatusCode::NOT_FOUND),
         ] {
-            for image in ["image.exr", "preview.png"] {
+            for image in ["image.exr", "preview.png", "convergence"] {
                 let (status, _): (StatusCode, ErrorBody) = call(
                     &server.state,
                     request("GET", &format!("/api/v1/jobs/{id}/{image}?{q}"), &[], ""),

@@ -94,9 +94,18 @@ async fn nothing_is_built_before_the_first_sample() {
             "{store}: built before the first sample"
         );
 
-        // The first slice: one build, for the request and the monitor both.
+        // The first slice: the monitor estimates it from the tiles' sums, building nothing; the
+        // request builds the image once.
         let worker = register_in_process(&state).await;
         render_by_hand(&state, &worker, 1).await;
+        monitor::step(&state).await.unwrap();
+        let job = state.store.job(&small).await.unwrap();
+        assert_eq!(job.rel_error_version, job.version, "{store}: not estimated");
+        assert_eq!(
+            state.images.builds(),
+            0,
+            "{store}: the monitor built an image"
+        );
         let (status, headers, _) = get(&state, &small, "preview.png").await;
         assert_eq!(status, StatusCode::OK, "{store}");
         assert_eq!(headers["etag"], "\"v1\"", "{store}");

@@ -425,8 +425,12 @@ pub struct FrameProgress {
     pub samples_done: u64,
     /// The fewest samples per pixel of any of its tiles.
     pub samples_per_pixel: u64,
-    /// Every planned sample of the frame is merged.
+    /// Every planned sample of the frame is merged, or its error reached the job's noise target.
     pub complete: bool,
+    /// The frame's estimated relative error (as the job's `relative_error` is the still image's):
+    /// `None` until every pixel of the frame has two samples.
+    #[serde(default)]
+    pub relative_error: Option<f64>,
 }
 
 /// A page of jobs, newest first.

@@ -682,6 +682,16 @@ impl ApiClient {
     pub async fn convergence(&self, id: &str) -> Result<Convergence, ClientError> {
         Self::json(self.request(Method::GET, &format!("/api/v1/jobs/{id}/convergence"))).await
     }
+
+    /// The convergence history of frame `frame` of a frame job.
+    pub async fn frame_convergence(
+        &self,
+        id: &str,
+        frame: i64,
+    ) -> Result<Convergence, ClientError> {
+        let path = format!("/api/v1/jobs/{id}/convergence?frame={frame}");
+        Self::json(self.request(Method::GET, &path)).await
+    }
 }
 
 /// A streamed download, read a chunk at a time (the frame archives are too large to hold).

@@ -372,11 +372,29 @@ fn environment_line(e: &EnvironmentSettings) -> String {
     )
 }
 
-/// The job's summary, its environment and the scene loader's warnings.
+/// The job's summary, its environment, a frame job's frames and the scene loader's warnings.
 fn print_details(j: &JobView) {
     print_summary(j);
     if let Some(e) = &j.settings.environment {
         println!("environment: {}", environment_line(e));
+    }
+    if let Some(frames) = j.frames.as_deref().filter(|f| !f.is_empty()) {
+        println!(
+            "frames ({} of {} complete; the job's error is the worst frame's):",
+            j.frames_done.unwrap_or(0),
+            frames.len()
+        );
+        println!("  {:>8}  {:>10}  {:>8}  state", "frame", "spp", "error");
+        for f in frames {
+            println!(
+                "  {:>8}  {:>10}  {:>8}  {}",
+                f.frame,
+                f.samples_per_pixel,
+                f.relative_error
+                    .map_or("n/a".into(), |e| format!("{:.2}%", e * 100.0)),
+                if f.complete { "complete" } else { "rendering" }
+            );
+        }
     }
     if !j.warnings.is_empty() {
         println!("scene warnings ({}):", j.warnings.len());

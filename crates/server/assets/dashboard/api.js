@@ -114,7 +114,9 @@ export const api = {
     return getJson(`/jobs?${q}`, { signal });
   },
   job: (id, signal) => getJson(`/jobs/${encodeURIComponent(id)}`, { signal }),
-  convergence: (id, signal) => getJson(`/jobs/${encodeURIComponent(id)}/convergence`, { signal }),
+  // A frame job's frame's history when `frame` is given, else the job's.
+  convergence: (id, signal, frame = null) =>
+    getJson(`/jobs/${encodeURIComponent(id)}/convergence${frame === null ? '' : `?frame=${frame}`}`, { signal }),
   workers: (page = 1, perPage = 100, signal) => {
     const q = new URLSearchParams({ page: String(page), per_page: String(perPage) });
     return getJson(`/workers?${q}`, { signal });

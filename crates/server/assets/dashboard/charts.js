@@ -4,7 +4,8 @@
 //    of an unbiased Monte Carlo estimator through the first point for reference;
 //  - samples per second against elapsed time.
 // Each chart's container carries `data-points`, the number of points plotted, for tests and
-// for anyone scripting the page.
+// for anyone scripting the page. `update(points, tag)` redraws when the points or the tag (what
+// they are the history of: a frame job's frame) change.
 
 import uPlot from './vendor/uplot/uPlot.esm.js';
 import { el, fmtError, fmtSi, fmtDuration } from './util.js';
@@ -50,10 +51,10 @@ export function errorChart(container, summary) {
   let last = '';
   return {
     destroy,
-    update(points) {
+    update(points, tag = '') {
       // Log axes take positive values only: t = 0 and "no estimate yet" are left out.
       const pts = points.filter((p) => p.elapsed_s > 0 && p.relative_error > 0);
-      const key = `${pts.length}:${pts.length ? pts[pts.length - 1].elapsed_s : ''}`;
+      const key = `${tag}:${pts.length}:${pts.length ? pts[pts.length - 1].elapsed_s : ''}`;
       if (key === last) return;
       last = key;
       const xs = pts.map((p) => p.elapsed_s);
@@ -85,8 +86,8 @@ export function rateChart(container, summary) {
   let last = '';
   return {
     destroy,
-    update(points) {
-      const key = `${points.length}:${points.length ? points[points.length - 1].elapsed_s : ''}`;
+    update(points, tag = '') {
+      const key = `${tag}:${points.length}:${points.length ? points[points.length - 1].elapsed_s : ''}`;
       if (key === last) return;
       last = key;
       plot.setData([points.map((p) => p.elapsed_s), points.map((p) => p.samples_per_second)]);

@@ -1,9 +1,10 @@
 // A frame job's frame strip and player. One cell per frame, in the job's frame order, with the
-// frame's progress (its fewest samples per pixel against the job's); clicking a cell shows that
-// frame in the preview. Play steps through the frames rendered so far at the job's frames per
+// frame's progress (its fewest samples per pixel against the job's) and its estimated error
+// (`data-error`, and in the tooltip); clicking a cell shows that frame in the preview and its
+// history in the charts. Play steps through the frames rendered so far at the job's frames per
 // second, looping, until Pause.
 
-import { el, setText } from './util.js';
+import { el, setText, fmtError } from './util.js';
 
 // The fastest the player steps, whatever the job's rate: each step may fetch a preview.
 const MIN_STEP_MS = 40;
@@ -84,7 +85,8 @@ export function frameStrip(onSelect) {
       const button = li.firstChild;
       setText(button.firstChild, String(f.frame));
       if (Number(button.lastChild.value) !== done) button.lastChild.value = done;
-      button.title = `Frame ${f.frame}: ${f.samples_per_pixel} / ${spp} samples per pixel${f.complete ? ', complete' : ''}`;
+      li.dataset.error = f.relative_error == null ? '' : String(f.relative_error);
+      button.title = `Frame ${f.frame}: ${f.samples_per_pixel} / ${spp} samples per pixel, error ${fmtError(f.relative_error)}${f.complete ? ', complete' : ''}`;
     });
     while (cells.children.length > frames.length) cells.lastChild.remove();
     setText(summary, `${job.frames_done ?? 0} of ${job.frames_total ?? frames.length} complete, ${fps} fps`);

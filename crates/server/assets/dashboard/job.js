@@ -78,6 +78,8 @@ export function mount(root, pageSignal, _query, id) {
   // What the scene loader ignored, as the server found it at submission (it never changes).
   const warnings = el('section', { class: 'warnings', hidden: true, 'aria-labelledby': 'warnings-title', dataset: { testid: 'job-warnings' } });
   const errorBox = el('div', { class: 'chart', dataset: { testid: 'error-chart', points: '0' } });
+  // A frame job's charts are the selected frame's history: the heading says which.
+  const chartsFrame = el('span', { class: 'muted', dataset: { testid: 'charts-frame' } });
   const errorSummary = el('p', { class: 'muted chart-summary' });
   const rateBox = el('div', { class: 'chart', dataset: { testid: 'rate-chart', points: '0' } });
   const rateSummary = el('p', { class: 'muted chart-summary' });
@@ -110,7 +112,7 @@ export function mount(root, pageSignal, _query, id) {
         el('section', { 'aria-labelledby': 'downloads-title' }, el('h2', { id: 'downloads-title' }, 'Download'), downloads),
         el('section', { 'aria-labelledby': 'settings-title' }, el('h2', { id: 'settings-title' }, 'Settings'), settings))),
     el('section', { class: 'charts', 'aria-labelledby': 'charts-title' },
-      el('h2', { id: 'charts-title' }, 'Convergence'),
+      el('h2', { id: 'charts-title' }, 'Convergence', chartsFrame),
       el('div', { class: 'chart-grid' },
         el('figure', {}, el('figcaption', {}, 'Estimated relative error against time (log–log), with the 1/√t slope'), errorBox, errorSummary),
         el('figure', {}, el('figcaption', {}, 'Samples per second'), rateBox, rateSummary)))));
@@ -230,6 +232,7 @@ export function mount(root, pageSignal, _query, id) {
         if (job.tiles) drawTiles(overlay, job, frame());
         fillCaption();
         refreshPreview();
+        refreshCharts();
       });
       previewSection.append(strip.element);
       downloads.append(...frameDownloads());
@@ -241,7 +244,7 @@ export function mount(root, pageSignal, _query, id) {
     const perPixel = f ? f.samples_per_pixel : job.samples_done / (job.settings.width * job.settings.height);
     setText(caption.lastChild, samplesShown() === 0
       ? `No samples${f ? ` in frame ${f.frame}` : ''} yet: the image appears after the first pass.`
-      : `${f ? `Frame ${f.frame}: ` : ''}${job.settings.width}×${job.settings.height}, ${fmtInt(perPixel)} samples per pixel${f ? '' : ' on average'}`);
+      : `${f ? `Frame ${f.frame}: ` : ''}${job.settings.width}×${job.settings.height}, ${fmtInt(perPixel)} samples per pixel${f ? `, error ${fmtError(f.relative_error)}` : ' on average'}`);
   }
 
   function fill() {
@@ -278,20 +281,26 @@ export function mount(root, pageSignal, _query, id) {
   };
   refresh = poll(update, () => (job && FINAL_STATES.has(job.state) ? FINAL_MS : LIVE_MS), signal);
 
-  // The convergence history; once the job is final one more fetch shows its last points.
-  let finalFetched = false;
-  poll(async () => {
-    if (!job || finalFetched) return;
+  // The convergence history (a frame job's: the selected frame's); once the job is final one
+  // more fetch shows its last points, and one more whenever another frame is selected.
+  let finalFetched = null;
+  const refreshCharts = poll(async () => {
+    const shown = frame();
+    if (!job || finalFetched === String(shown)) return;
     const final = FINAL_STATES.has(job.state);
     let points = [];
     try {
-      points = (await api.convergence(id, signal)).points;
+      points = (await api.convergence(id, signal, shown)).points;
     } catch (e) {
       // A server without the history (or a job just deleted) draws empty charts.
       if (!(e instanceof ApiError && e.status === 404)) throw e;
     }
-    charts.forEach((c) => c.update(points));
-    finalFetched = final;
+    // A frame selected while the answer was on its way: the next fetch draws it.
+    if (String(frame()) !== String(shown)) return;
+    errorBox.dataset.frame = shown === null ? '' : String(shown);
+    setText(chartsFrame, shown === null ? '' : ` · frame ${shown}`);
+    charts.forEach((c) => c.update(points, String(shown)));
+    finalFetched = final ? String(shown) : null;
   }, 1000, signal);
 }
 
@@ -300,7 +309,7 @@ function fillStats(dl, job) {
   const p = progress(job);
   const rows = [
     ['Samples', 'samples', `${fmtInt(job.samples_done)} / ${fmtInt(job.samples_planned)} (${(p * 100).toFixed(1)} %)`],
-    ['Relative error', 'error', fmtError(job.relative_error)],
+    [job.frames_total == null ? 'Relative error' : 'Relative error (worst frame)', 'error', fmtError(job.relative_error)],
     ['Samples per second', 'rate', fmtRate(job.samples_per_second)],
     ['ETA', 'eta', fmtDuration(job.eta_seconds)],
     ['Elapsed', 'elapsed', fmtDuration(elapsed)],

@@ -283,19 +283,8 @@ impl ImageCache {
     /// or a later one, else one build shared with every request waiting for it. A frame job's
     /// image is its first frame's.
     pub async fn get(&self, store: &Store, job: &JobRow) -> ApiResult<Arc<JobImage>> {
-        self.get_at_least(store, job, job.version).await
-    }
-
-    /// [`ImageCache::get`], content with an image of version `wanted` or later (the monitor takes
-    /// any image newer than its last estimate, so that it joins the builds of the requests).
-    pub async fn get_at_least(
-        &self,
-        store: &Store,
-        job: &JobRow,
-        wanted: i64,
-    ) -> ApiResult<Arc<JobImage>> {
         let slot = job.settings.frames.as_ref().map(|_| 0);
-        self.get_view(store, job, slot, wanted).await
+        self.get_view(store, job, slot, job.version).await
     }
 
     /// The image of the frame in slot `slot` of a frame job's frame list (`None`: a still job's

@@ -54,7 +54,11 @@ async fn chosen_frames(
     };
     let progress = state
         .store
-        .frame_progress(&job.id, u64::from(job.settings.spp))
+        .frame_progress(
+            &job.id,
+            u64::from(job.settings.spp),
+            job.settings.noise_target,
+        )
         .await?;
     Ok(progress
         .iter()

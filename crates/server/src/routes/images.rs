@@ -8,6 +8,7 @@ use crate::error::{ApiError, ApiResult};
 use crate::heatmap;
 use crate::image_cache::image_key;
 use crate::job_image::{cost, JobImage};
+use crate::store::JobRow;
 use crate::AppState;
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -46,35 +47,39 @@ async fn job_image(
     frame: Option<i64>,
 ) -> ApiResult<(Arc<JobImage>, String)> {
     let job = state.store.job(id).await?;
+    let slot = frame_slot(&job, frame)?;
+    let img = state.images.get_frame(&state.store, &job, slot).await?;
+    Ok((img, image_key(id, slot)))
+}
+
+/// The slot in `job`'s frame list of the frame a request names (`frame`; a frame job's first
+/// when absent; `None` for a still job's image): 404 for a frame the job does not render, and
+/// for any frame of a still job.
+pub(crate) fn frame_slot(job: &JobRow, frame: Option<i64>) -> ApiResult<Option<u32>> {
+    let id = &job.id;
     let frames = job
         .settings
         .frame_list()
         .map_err(|e| ApiError::internal(format!("stored settings: {e}")))?;
-    let slot = match (frames, frame) {
-        (None, None) => None,
+    match (frames, frame) {
+        (None, None) => Ok(None),
         // A still job has no frames: like a frame that a frame job does not render, the image
         // asked for does not exist.
-        (None, Some(f)) => {
-            return Err(ApiError::new(
+        (None, Some(f)) => Err(ApiError::new(
+            StatusCode::NOT_FOUND,
+            "not_found",
+            format!("job {id} is a still image: it has no frame {f}"),
+        )),
+        (Some(_), None) => Ok(Some(0)),
+        (Some(frames), Some(f)) => match frames.iter().position(|&x| x == f) {
+            Some(slot) => Ok(Some(slot as u32)),
+            None => Err(ApiError::new(
                 StatusCode::NOT_FOUND,
                 "not_found",
-                format!("job {id} is a still image: it has no frame {f}"),
-            ))
-        }
-        (Some(_), None) => Some(0),
-        (Some(frames), Some(f)) => match frames.iter().position(|&x| x == f) {
-            Some(slot) => Some(slot as u32),
-            None => {
-                return Err(ApiError::new(
-                    StatusCode::NOT_FOUND,
-                    "not_found",
-                    format!("frame {f} is not one of job {id}'s frames"),
-                ))
-            }
+                format!("frame {f} is not one of job {id}'s frames"),
+            )),
         },
-    };
-    let img = state.images.get_frame(&state.store, &job, slot).await?;
-    Ok((img, image_key(id, slot)))
+    }
 }
 
 /// A preview's exposure: a finite number of stops in [-64, 64] (400 otherwise).

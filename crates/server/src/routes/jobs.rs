@@ -61,7 +61,11 @@ pub(crate) async fn with_frames(
     }
     let frames = state
         .store
-        .frame_progress(&view.id, u64::from(view.settings.spp))
+        .frame_progress(
+            &view.id,
+            u64::from(view.settings.spp),
+            view.settings.noise_target,
+        )
         .await?;
     view.frames_total = Some(frames.len() as u64);
     view.frames_done = Some(frames.iter().filter(|f| f.complete).count() as u64);
@@ -112,13 +116,26 @@ pub async fn list(
     }))
 }
 
-/// The job's convergence history: estimated error and throughput against time.
+#[derive(Deserialize)]
+pub struct ConvergenceQuery {
+    /// A frame job's frame: its history instead of the job's.
+    #[serde(default)]
+    frame: Option<i64>,
+}
+
+/// The job's convergence history (or, with `frame`, that frame's): estimated error and
+/// throughput against time.
 pub async fn convergence(
     _: ReadAuth,
     State(state): State<AppState>,
     Path(id): Path<String>,
+    Query(q): Query<ConvergenceQuery>,
 ) -> ApiResult<Json<Convergence>> {
-    Ok(Json(state.store.convergence(&id).await?))
+    if q.frame.is_some() {
+        // 404 for a frame the job does not render.
+        super::images::frame_slot(&state.store.job(&id).await?, q.frame)?;
+    }
+    Ok(Json(state.store.convergence(&id, q.frame).await?))
 }
 
 pub async fn show(

@@ -503,13 +503,6 @@ fn validate(state: &AppState, s: &JobSettings, scene_bytes: usize) -> ApiResult<
             ));
         }
     }
-    if s.frames.is_some() && s.noise_target.is_some() {
-        return bad(
-            "noise_target is not supported with frames yet: a frame job renders every frame to \
-             its spp (or time_limit_s)"
-                .into(),
-        );
-    }
     // The plan's size, computed before anything is planned: a submission cannot make the server
     // allocate more than the limits allow. A frame job plans every frame's tiles and tasks.
     let (tiles, tasks) = scheduler::plan_size(

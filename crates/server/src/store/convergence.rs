@@ -1,9 +1,11 @@
-//! Each job's error estimate and its convergence history (error and samples against time).
+//! Each job's error estimate and its convergence history (error and samples against time), and
+//! each frame's of a frame job.
 
 use super::error::{Error, StoreResult};
-use super::Store;
+use super::{ImageEstimate, Store};
 use pathfarm_wire::api::{Convergence, ConvergencePoint};
 use sqlx::Row;
+use std::collections::HashMap;
 
 /// A new point is recorded once the job has run this much longer than at its last point, as a
 /// fraction of the elapsed time: points are log-spaced, about 50 per decade of time, so a job of
@@ -21,6 +23,14 @@ pub struct Estimate {
     pub samples: u64,
     /// Record a history point whatever the spacing (the job's last image).
     pub last: bool,
+}
+
+/// Whether a point at `elapsed` ms is due after the last one at `last` (see [`RELATIVE_SPACING`]).
+fn due(last: Option<i64>, elapsed: i64) -> bool {
+    last.is_none_or(|last| {
+        let gap = ((last as f64 * RELATIVE_SPACING) as i64).max(MIN_SPACING_MS);
+        elapsed - last >= gap
+    })
 }
 
 /// An optional error as a bindable number: −1 (which no relative error is) for none, turned back
@@ -62,10 +72,7 @@ impl Store {
                     .fetch_one(&mut *w.tx)
                     .await?
                     .try_get("last")?;
-            let due = last.is_none_or(|last| {
-                let gap = ((last as f64 * RELATIVE_SPACING) as i64).max(MIN_SPACING_MS);
-                elapsed - last >= gap
-            });
+            let due = due(last, elapsed);
             // The last image may land in the same millisecond as the point before it (a job's
             // final merges come close together): it then replaces that point, so the history
             // always ends with the final image.
@@ -89,8 +96,78 @@ impl Store {
         Ok(())
     }
 
-    /// The job's convergence history, oldest first.
-    pub async fn convergence(&self, id: &str) -> StoreResult<Convergence> {
+    /// Adds a point to the history of each frame of a frame job (`frames`, as the tiles sum
+    /// them) that has samples since its last point, when one is due by the job's spacing or the
+    /// frame has ended (`ended`: every planned sample merged, or its noise target reached).
+    pub async fn record_frame_estimates(
+        &self,
+        id: &str,
+        frames: &[ImageEstimate],
+        ended: impl Fn(&ImageEstimate) -> bool,
+    ) -> StoreResult<()> {
+        let mut w = self.write().await?;
+        let row = sqlx::query("SELECT started_ms, finished_ms FROM jobs WHERE id = $1")
+            .bind(id)
+            .fetch_optional(&mut *w.tx)
+            .await?;
+        let Some(row) = row else {
+            return Ok(()); // deleted meanwhile
+        };
+        let Some(started) = row.try_get::<Option<i64>, _>("started_ms")? else {
+            return Ok(()); // nothing leased yet, so nothing merged
+        };
+        let finished: Option<i64> = row.try_get("finished_ms")?;
+        let now = self.now_ms();
+        let elapsed = (finished.unwrap_or(now).min(now) - started).max(0);
+        let lasts: HashMap<i64, (i64, i64)> = sqlx::query(
+            "SELECT frame, MAX(elapsed_ms) AS last, MAX(samples_done) AS samples \
+             FROM frame_progress WHERE job_id = $1 GROUP BY frame",
+        )
+        .bind(id)
+        .fetch_all(&mut *w.tx)
+        .await?
+        .iter()
+        .map(|r| {
+            Ok((
+                r.try_get("frame")?,
+                (r.try_get("last")?, r.try_get("samples")?),
+            ))
+        })
+        .collect::<Result<_, sqlx::Error>>()?;
+        for f in frames {
+            let Some(frame) = f.frame else { continue };
+            let last = lasts.get(&frame).copied();
+            let samples = f.samples_done as i64;
+            if samples == 0 || last.is_some_and(|(_, n)| n >= samples) {
+                continue; // nothing new
+            }
+            let ended = ended(f);
+            let last_ms = last.map(|(t, _)| t);
+            let later = last_ms.is_none_or(|t| elapsed > t || (ended && elapsed == t));
+            if (due(last_ms, elapsed) || ended) && later {
+                sqlx::query(
+                    "INSERT INTO frame_progress (job_id, frame, elapsed_ms, samples_done, rel_error) \
+                     VALUES ($1, $2, $3, $4, NULLIF($5, -1.0)) \
+                     ON CONFLICT (job_id, frame, elapsed_ms) DO UPDATE SET \
+                     samples_done = excluded.samples_done, rel_error = excluded.rel_error \
+                     WHERE frame_progress.samples_done < excluded.samples_done",
+                )
+                .bind(id)
+                .bind(frame)
+                .bind(elapsed)
+                .bind(samples)
+                .bind(bindable_error(f.relative_error))
+                .execute(&mut *w.tx)
+                .await?;
+            }
+        }
+        w.commit().await?;
+        Ok(())
+    }
+
+    /// The convergence history, oldest first: the job's, or with `frame` that frame's (a frame
+    /// of the job's; the caller checks it is one).
+    pub async fn convergence(&self, id: &str, frame: Option<i64>) -> StoreResult<Convergence> {
         let mut tx = self.pool().begin().await?;
         let exists = sqlx::query("SELECT 1 AS one FROM jobs WHERE id = $1")
             .bind(id)
@@ -100,13 +177,27 @@ impl Store {
         if !exists {
             return Err(Error::not_found("job", id));
         }
-        let rows = sqlx::query(
-            "SELECT elapsed_ms, samples_done, rel_error FROM job_progress WHERE job_id = $1 \
-             ORDER BY elapsed_ms",
-        )
-        .bind(id)
-        .fetch_all(&mut *tx)
-        .await?;
+        let rows = match frame {
+            None => {
+                sqlx::query(
+                    "SELECT elapsed_ms, samples_done, rel_error FROM job_progress \
+                     WHERE job_id = $1 ORDER BY elapsed_ms",
+                )
+                .bind(id)
+                .fetch_all(&mut *tx)
+                .await?
+            }
+            Some(frame) => {
+                sqlx::query(
+                    "SELECT elapsed_ms, samples_done, rel_error FROM frame_progress \
+                     WHERE job_id = $1 AND frame = $2 ORDER BY elapsed_ms",
+                )
+                .bind(id)
+                .bind(frame)
+                .fetch_all(&mut *tx)
+                .await?
+            }
+        };
         tx.commit().await?;
         let mut points = Vec::with_capacity(rows.len());
         let (mut prev_t, mut prev_n) = (0i64, 0i64);

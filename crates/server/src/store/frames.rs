@@ -3,32 +3,36 @@
 use super::error::StoreResult;
 use super::Store;
 use pathfarm_wire::api::FrameProgress;
-use sqlx::Row;
 
 impl Store {
     /// Every frame of a frame job, in the job's frame order (the order of their tiles), with
-    /// the samples merged into it and the fewest samples per pixel of its tiles; `spp` is the
-    /// job's samples per pixel, which make a frame complete. Empty for a still job.
-    pub async fn frame_progress(&self, job_id: &str, spp: u64) -> StoreResult<Vec<FrameProgress>> {
-        let rows = sqlx::query(
-            "SELECT frame, MIN(tile_index) AS first, MIN(samples) AS spp, \
-             CAST(SUM(samples * width * height) AS BIGINT) AS done \
-             FROM tiles WHERE job_id = $1 AND frame IS NOT NULL GROUP BY frame ORDER BY first",
-        )
-        .bind(job_id)
-        .fetch_all(self.pool())
-        .await?;
-        Ok(rows
-            .iter()
-            .map(|r| {
-                let per_pixel = r.try_get::<i64, _>("spp")?.max(0) as u64;
-                Ok(FrameProgress {
-                    frame: r.try_get("frame")?,
-                    samples_done: r.try_get::<i64, _>("done")?.max(0) as u64,
-                    samples_per_pixel: per_pixel,
-                    complete: per_pixel >= spp,
+    /// the samples merged into it, the fewest samples per pixel of its tiles and its estimated
+    /// error. `spp` is the job's samples per pixel and `noise_target` its noise target: a frame
+    /// is complete when every planned sample is merged or its error reached the target. Empty
+    /// for a still job.
+    pub async fn frame_progress(
+        &self,
+        job_id: &str,
+        spp: u64,
+        noise_target: Option<f64>,
+    ) -> StoreResult<Vec<FrameProgress>> {
+        Ok(self
+            .image_estimates(job_id)
+            .await?
+            .into_iter()
+            .filter_map(|e| {
+                let at_target = matches!(
+                    (noise_target, e.relative_error),
+                    (Some(t), Some(err)) if err <= t
+                );
+                Some(FrameProgress {
+                    frame: e.frame?,
+                    samples_done: e.samples_done,
+                    samples_per_pixel: e.samples_per_pixel,
+                    complete: e.samples_per_pixel >= spp || at_target,
+                    relative_error: e.relative_error,
                 })
             })
-            .collect::<Result<Vec<_>, sqlx::Error>>()?)
+            .collect())
     }
 }

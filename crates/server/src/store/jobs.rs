@@ -72,6 +72,33 @@ pub(crate) fn job_state(s: &str) -> Result<JobState, sqlx::Error> {
     JobState::parse(s).ok_or_else(|| sqlx::Error::Protocol(format!("unknown job state {s:?}")))
 }
 
+/// The one rule by which a job ends by itself: every planned sample merged and every
+/// verification judged. `row` is the job's row as an `UPDATE jobs … RETURNING state,
+/// samples_done, samples_planned, verifying` inside `tx` gave it (a merge, a verification
+/// dropped, frames stopped at the noise target); when the rule holds and the job has not ended,
+/// it is completed in `tx`. Returns the job's state after, and whether this completed it.
+pub(super) async fn complete_when_done(
+    tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+    job_id: &str,
+    row: &AnyRow,
+    now_ms: i64,
+) -> StoreResult<(JobState, bool)> {
+    let state = job_state(&row.try_get::<String, _>("state")?)?;
+    let done =
+        row.try_get::<i64, _>("samples_done")? >= row.try_get::<i64, _>("samples_planned")?;
+    if !done || row.try_get::<i64, _>("verifying")? > 0 || state.is_final() {
+        return Ok((state, false));
+    }
+    let to = job_transition(state, JobEvent::Complete).map_err(Error::internal)?;
+    sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3")
+        .bind(to.as_str())
+        .bind(now_ms)
+        .bind(job_id)
+        .execute(&mut **tx)
+        .await?;
+    Ok((to, true))
+}
+
 /// Frees the workers busy with a job that ends or disappears. Called after the job row is
 /// written, keeping the lock order (tasks, tiles, jobs, workers).
 pub(super) async fn free_job_workers(

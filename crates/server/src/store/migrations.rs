@@ -33,6 +33,7 @@ pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
         "0007_all_invalid_slices.sql",
         "0008_frame_versions.sql",
         "0009_verification.sql",
+        "0010_tile_error_sums.sql",
     ))
 });
 
@@ -48,6 +49,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0007_all_invalid_slices.sql",
         "0008_frame_versions.sql",
         "0009_verification.sql",
+        "0010_tile_error_sums.sql",
     ))
 });
 

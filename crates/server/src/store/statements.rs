@@ -13,6 +13,7 @@ use sqlx::any::AnyRow;
 /// A bound value.
 pub(super) enum Arg {
     Int(i64),
+    Float(f64),
     Text(String),
     Blob(Vec<u8>),
 }
@@ -20,6 +21,12 @@ pub(super) enum Arg {
 impl From<i64> for Arg {
     fn from(v: i64) -> Arg {
         Arg::Int(v)
+    }
+}
+
+impl From<f64> for Arg {
+    fn from(v: f64) -> Arg {
+        Arg::Float(v)
     }
 }
 
@@ -103,6 +110,7 @@ fn bind(
     for a in args {
         q = match a {
             Arg::Int(v) => q.bind(v),
+            Arg::Float(v) => q.bind(v),
             Arg::Text(v) => q.bind(v),
             Arg::Blob(v) => q.bind(v),
         };

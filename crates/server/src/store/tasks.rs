@@ -4,11 +4,12 @@
 //! row locks in that order, so concurrent servers never deadlock; SQLite has one writer anyway.
 
 use super::error::{Error, StoreResult};
-use super::jobs::job_state;
+use super::jobs::complete_when_done;
 use super::statements::Statements;
 use super::writes::{Done, MergeOutcome, Op};
 use super::{Dialect, Store};
-use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState, WorkerEvent};
+use crate::job_image::Sums;
+use crate::states::{task_transition, TaskEvent, TaskState, WorkerEvent};
 use pathfarm_tracer::accumulation::MergeError;
 use pathfarm_tracer::{Accumulation, Tile};
 use pathfarm_wire::api::{JobState, SliceAck};
@@ -281,13 +282,16 @@ impl Store {
         // job's update returns what decides completion; its state changes (one more statement)
         // only on the job's last merge.
         let mut writes = Statements::new(self.dialect());
-        if let Some((new_samples, encoded)) = tile_update {
+        if let Some((new_samples, encoded, sums)) = tile_update {
             writes.push(
-                "UPDATE tiles SET samples = $1, accum = $2, merges = merges + 1 \
-                 WHERE job_id = $3 AND tile_index = $4",
+                "UPDATE tiles SET samples = $1, accum = $2, merges = merges + 1, err_var = $3, \
+                 err_lum = $4, err_unestimated = $5 WHERE job_id = $6 AND tile_index = $7",
                 vec![
                     (new_samples as i64).into(),
                     encoded.into(),
+                    sums.variance().into(),
+                    sums.luminance().into(),
+                    (sums.without_estimate() as i64).into(),
                     job_id.as_str().into(),
                     tile_index.into(),
                 ],
@@ -333,23 +337,7 @@ impl Store {
         let job = rows
             .first()
             .ok_or_else(|| Error::internal(format!("job {job_id} vanished during a merge")))?;
-        let current = job_state(&job.try_get::<String, _>("state")?)?;
-        let done = job.try_get::<i64, _>("samples_done")? as u64;
-        let planned = job.try_get::<i64, _>("samples_planned")? as u64;
-        // Every sample merged, and every verification judged.
-        let job_completed = done >= planned && job.try_get::<i64, _>("verifying")? <= 0;
-        let new_state = if job_completed {
-            let to = job_transition(current, JobEvent::Complete).map_err(Error::internal)?;
-            sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3")
-                .bind(to.as_str())
-                .bind(now)
-                .bind(&job_id)
-                .execute(&mut **tx)
-                .await?;
-            to
-        } else {
-            current
-        };
+        let (new_state, job_completed) = complete_when_done(tx, &job_id, job, now).await?;
         Ok(MergeOutcome {
             ack: SliceAck {
                 duplicate: false,
@@ -534,7 +522,8 @@ impl Store {
 }
 
 /// The tile (its row `tile`: samples, accumulation) with slice `a` of task `task_id` (`n` samples
-/// a pixel) merged in: its new sample count and stored accumulation. Checked: an overflow refuses
+/// a pixel) merged in: its new sample count, stored accumulation and error sums (what the job's
+/// and its frame's error estimates add up: `estimates.rs`). Checked: an overflow refuses
 /// the slice (before any write, so a batch goes on) and leaves the tile as it was, so honest
 /// slices still merge into it.
 fn merged_tile(
@@ -542,7 +531,7 @@ fn merged_tile(
     a: &Accumulation,
     task_id: i64,
     n: u32,
-) -> StoreResult<(u64, Vec<u8>)> {
+) -> StoreResult<(u64, Vec<u8>, Sums)> {
     let tile_samples = tile.try_get::<i64, _>("samples")? as u64;
     let accum: Option<Vec<u8>> = tile.try_get("accum")?;
     let mut merged = match accum {
@@ -567,10 +556,11 @@ fn merged_tile(
     // The stored tile is the union of sample ranges that may not be contiguous yet (a later pass
     // can be merged before an earlier one), so its recorded invalid samples can lie beyond its
     // sample count: it is stored as covering every sample index. Its count is in `samples`.
+    let sums = Sums::of(&merged);
     let encoded = encode_slice(&Slice {
         sample_begin: 0,
         sample_end: u32::MAX,
         acc: merged,
     });
-    Ok((tile_samples + u64::from(n), encoded))
+    Ok((tile_samples + u64::from(n), encoded, sums))
 }

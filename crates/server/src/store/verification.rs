@@ -24,9 +24,9 @@
 //!   samples queued again.
 
 use super::error::{Error, StoreResult};
-use super::jobs::job_state;
+use super::jobs::complete_when_done;
 use super::Store;
-use crate::states::{job_transition, JobEvent, TaskState};
+use crate::states::{JobEvent, TaskState};
 use pathfarm_tracer::Accumulation;
 use pathfarm_wire::{decode_slice, encode_slice, Slice, SliceLimits};
 use sha2::{Digest, Sha256};
@@ -424,17 +424,7 @@ impl Store {
             .bind(&job_id)
             .fetch_one(&mut *w.tx)
             .await?;
-            let state = job_state(&job.try_get::<String, _>("state")?)?;
-            let done = job.try_get::<i64, _>("samples_done")? >= job.try_get("samples_planned")?;
-            if done && job.try_get::<i64, _>("verifying")? <= 0 && !state.is_final() {
-                let to = job_transition(state, JobEvent::Complete).map_err(Error::internal)?;
-                sqlx::query("UPDATE jobs SET state = $1, finished_ms = $2 WHERE id = $3")
-                    .bind(to.as_str())
-                    .bind(self.now_ms())
-                    .bind(&job_id)
-                    .execute(&mut *w.tx)
-                    .await?;
-            }
+            complete_when_done(&mut w.tx, &job_id, &job, self.now_ms()).await?;
             tracing::warn!(job = %job_id, task = checked, "no other worker can verify the task: left unverified");
             dropped += 1;
         }
@@ -550,7 +540,8 @@ impl Store {
             * tile.try_get::<i64, _>("width")?
             * tile.try_get::<i64, _>("height")?;
         sqlx::query(
-            "UPDATE tiles SET samples = 0, accum = NULL, merges = merges + 1 \
+            "UPDATE tiles SET samples = 0, accum = NULL, merges = merges + 1, err_var = NULL, \
+             err_lum = NULL, err_unestimated = NULL \
              WHERE job_id = $1 AND tile_index = $2",
         )
         .bind(job_id)
