@@ -3,7 +3,7 @@
 -- Σ Var[pixel mean luminance] over its pixels with two samples or more, Σ mean luminance, and the
 -- pixels with fewer than two (no variance estimate). A job's or a frame's error is then a sum over
 -- its tiles, with no image assembled. NULL: not known (a tile merged before this migration, or
--- none yet), and then no estimate until the tile is merged again.
+-- none yet); the server computes what is missing for the jobs still running when it starts.
 ALTER TABLE tiles ADD COLUMN err_var DOUBLE PRECISION;
 ALTER TABLE tiles ADD COLUMN err_lum DOUBLE PRECISION;
 ALTER TABLE tiles ADD COLUMN err_unestimated BIGINT;

@@ -17,6 +17,15 @@ use std::time::{Duration, Instant};
 pub const HOUSEKEEPING_INTERVAL: std::time::Duration = std::time::Duration::from_secs(60);
 
 pub async fn run(state: AppState) {
+    // Tiles merged before the error sums were kept (migration 0010), of jobs still running.
+    match state.store.backfill_error_sums().await {
+        Ok(0) => {}
+        Ok(n) => tracing::info!(
+            tiles = n,
+            "error sums computed for tiles merged before they were kept"
+        ),
+        Err(e) => tracing::warn!(error = %e, "cannot compute the error sums of older tiles"),
+    }
     let mut tick = tokio::time::interval(state.config.monitor_interval);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last_housekeeping: Option<tokio::time::Instant> = None;
@@ -227,37 +236,65 @@ pub async fn refresh_estimate(
     let target = job.settings.noise_target;
     let at_target = |e: Option<f64>| matches!((target, e), (Some(t), Some(e)) if e <= t);
     let target_reached = at_target(err);
+    let spp = u64::from(job.settings.spp);
+    // The frames at the target stop first, so that an estimate whose stopped frames leave nothing
+    // planned (the job completes) is recorded as the job's last.
+    let mut ended = false;
+    if job.settings.frames.is_some() && job.state == JobState::Running && !target_reached {
+        ended = stop_frames_at_target(state, job, &images).await?;
+    }
     let estimate = Estimate {
         version: job.version,
         relative_error: err,
         samples,
-        last: target_reached || samples >= job.samples_planned || job.state.is_final(),
+        last: target_reached || ended || samples >= job.samples_planned || job.state.is_final(),
     };
     store.record_estimate(&job.id, &estimate).await?;
     if job.settings.frames.is_some() && !images.is_empty() {
-        let spp = u64::from(job.settings.spp);
         let ended = |i: &ImageEstimate| i.samples_per_pixel >= spp || at_target(i.relative_error);
         store
             .record_frame_estimates(&job.id, &images, ended)
             .await?;
-        // The whole job at its target is ended by the monitor, with its message.
-        if job.state == JobState::Running && !target_reached {
-            let stop: Vec<(i64, i64)> = images
-                .iter()
-                .filter(|i| i.samples_per_pixel < spp && at_target(i.relative_error))
-                .map(|i| (i.first_tile, i.tiles))
-                .collect();
-            let cancelled = store.stop_frames(&job.id, &stop).await?;
-            if cancelled > 0 {
-                tracing::info!(
-                    job = %job.id,
-                    tasks = cancelled,
-                    "frames at the noise target stopped"
-                );
-            }
-        }
     }
     Ok(err)
+}
+
+/// Stops the frames of a running frame job whose error reached its noise target and that still
+/// have queued work ([`Store::stop_frames`]). Returns whether that completed the job.
+///
+/// [`Store::stop_frames`]: crate::store::Store::stop_frames
+async fn stop_frames_at_target(
+    state: &AppState,
+    job: &JobRow,
+    images: &[ImageEstimate],
+) -> Result<bool, crate::error::ApiError> {
+    let spp = u64::from(job.settings.spp);
+    let target = job.settings.noise_target;
+    let at_target = |e: Option<f64>| matches!((target, e), (Some(t), Some(e)) if e <= t);
+    let mut at: Vec<&ImageEstimate> = images
+        .iter()
+        .filter(|i| i.samples_per_pixel < spp && at_target(i.relative_error))
+        .collect();
+    if at.is_empty() {
+        return Ok(false);
+    }
+    // Frames stopped before stay at the target: only those with queued work are stopped now.
+    let open = state.store.frames_with_queued_tasks(&job.id).await?;
+    at.retain(|i| i.frame.is_some_and(|f| open.contains(&f)));
+    let ranges: Vec<(i64, i64)> = at.iter().map(|i| (i.first_tile, i.tiles)).collect();
+    let stopped = state.store.stop_frames(&job.id, &ranges).await?;
+    if stopped.tasks > 0 {
+        tracing::info!(
+            job = %job.id,
+            frames = ranges.len(),
+            tasks = stopped.tasks,
+            "frames at the noise target stopped"
+        );
+    }
+    if stopped.completed {
+        tracing::info!(job = %job.id, "job completed: every frame that still renders is at its noise target or its spp");
+    }
+    Ok(stopped.completed)
 }
 
 /// A job's error from its images' estimates: a still job's image's, a frame job's worst frame's

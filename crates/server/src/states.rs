@@ -75,6 +75,11 @@ pub enum TaskEvent {
     /// The worker gave the lease back, or the lease expired: the unmerged rest is queued again.
     Requeue,
     Cancel,
+    /// Its frame reached the job's noise target while it was queued: it ends as it stands, done
+    /// with the samples merged so far (`merged`: some were) or cancelled (none were).
+    Stop {
+        merged: bool,
+    },
 }
 
 impl TaskState {
@@ -107,6 +112,8 @@ pub fn task_transition(from: TaskState, event: TaskEvent) -> Result<TaskState, S
         (S::Leased, E::Merged { complete: true }) => Ok(S::Done),
         (S::Leased, E::Requeue) => Ok(S::Queued),
         (S::Queued | S::Leased, E::Cancel) => Ok(S::Cancelled),
+        (S::Queued, E::Stop { merged: true }) => Ok(S::Done),
+        (S::Queued, E::Stop { merged: false }) => Ok(S::Cancelled),
         _ => Err(format!("a {} task cannot take {event:?}", from.as_str())),
     }
 }
@@ -228,5 +235,10 @@ mod tests {
         assert!(task_transition(t, TaskEvent::Requeue).is_err());
         assert!(task_transition(t, TaskEvent::Cancel).is_err());
         assert!(task_transition(TaskState::Queued, TaskEvent::Merged { complete: false }).is_err());
+        // A queued task of a frame stopped at its noise target ends as it stands.
+        let stop = |merged| task_transition(TaskState::Queued, TaskEvent::Stop { merged });
+        assert_eq!(stop(true), Ok(TaskState::Done));
+        assert_eq!(stop(false), Ok(TaskState::Cancelled));
+        assert!(task_transition(TaskState::Leased, TaskEvent::Stop { merged: true }).is_err());
     }
 }

@@ -594,18 +594,119 @@ async fn all_frames_download_as_a_tar_of_exrs_and_as_an_animated_png() {
 /// A slice of `lease`'s whole sample range with the same valid value in every sample (what it
 /// shows does not matter here, only that it is merged).
 fn flat_slice(lease: &pathfarm_wire::api::Lease) -> Vec<u8> {
+    flat_slice_of(lease, lease.sample_begin, lease.sample_end)
+}
+
+/// [`flat_slice`] of samples `begin..end` of `lease`'s range.
+fn flat_slice_of(lease: &pathfarm_wire::api::Lease, begin: u32, end: u32) -> Vec<u8> {
     let t = &lease.tile;
     let mut acc = pathfarm_tracer::Accumulation::new(t.x0, t.y0, t.width, t.height);
     for p in &mut acc.pixels {
-        for _ in lease.sample_begin..lease.sample_end {
+        for _ in begin..end {
             p.add_sample(glam::Vec3::splat(0.5));
         }
     }
     pathfarm_wire::encode_slice(&pathfarm_wire::Slice {
-        sample_begin: lease.sample_begin,
-        sample_end: lease.sample_end,
+        sample_begin: begin,
+        sample_end: end,
         acc,
     })
+}
+
+/// Stopping a frame at the noise target ends its queued tasks as they stand — one partly merged
+/// and given back keeps its merged samples (done), one not begun is cancelled — and takes their
+/// unmerged samples off the plan, exactly; when the other frames are done that completes the job
+/// by the one completion rule, with every planned sample merged and nothing queued or leased.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn stopping_a_frame_ends_its_queued_tasks_and_keeps_the_plan_exact() {
+    for (store, url) in stores("frames-stop").await {
+        let mut c = config(&url);
+        c.max_leases_per_worker = 1000;
+        c.min_frame_task_samples = 1;
+        c.monitor_interval = Duration::from_secs(3600);
+        let server = TestServer::start(c).await;
+        let client = server.client(None);
+        // One tile a frame (tile 0 is frame 1's, tile 1 frame 2's); passes [0,1) [1,3) [3,7)
+        // [7,8): four tasks a frame.
+        let mut s = frame_settings("1,2", None, 32);
+        s.spp = 8;
+        let job = client.submit(animated(), "animated.glb", &s).await.unwrap();
+        let px = 24 * 16;
+        assert_eq!(job.samples_planned, 2 * 8 * px);
+        let worker = register(&client, "w").await;
+        let mut leases = Vec::new();
+        while let Some(l) = client.lease(&worker).await.unwrap() {
+            leases.push(l);
+        }
+        let of_frame =
+            |f: i64| -> Vec<_> { leases.iter().filter(|l| l.frame == Some(f)).collect() };
+        let (one, two) = (of_frame(1), of_frame(2));
+        assert_eq!((one.len(), two.len()), (4, 4), "{store}");
+        for l in two.iter().chain(&one[..2]) {
+            client
+                .upload_slice(l.task_id, &l.lease_token, flat_slice(l))
+                .await
+                .unwrap();
+        }
+        // Frame 1's third task: two of its four samples merged, then given back; its fourth
+        // given back untouched.
+        let (third, fourth) = (one[2], one[3]);
+        assert_eq!((third.sample_begin, third.sample_end), (3, 7), "{store}");
+        client
+            .upload_slice(
+                third.task_id,
+                &third.lease_token,
+                flat_slice_of(third, 3, 5),
+            )
+            .await
+            .unwrap();
+        client
+            .release(third.task_id, &third.lease_token)
+            .await
+            .unwrap();
+        client
+            .release(fourth.task_id, &fourth.lease_token)
+            .await
+            .unwrap();
+        let before = client.job(&job.id).await.unwrap();
+        assert_eq!(before.samples_done, (8 + 5) * px, "{store}");
+        assert_eq!(before.state, JobState::Running, "{store}");
+
+        let stopped = server
+            .state
+            .store
+            .stop_frames(&job.id, &[(0, 1)])
+            .await
+            .unwrap();
+        assert_eq!(stopped.tasks, 2, "{store}");
+        assert!(stopped.completed, "{store}: nothing planned is left");
+        let done = client.job(&job.id).await.unwrap();
+        assert_eq!(done.state, JobState::Completed, "{store}");
+        assert_eq!(
+            (done.samples_done, done.samples_planned, done.leased_tasks),
+            ((8 + 5) * px, (8 + 5) * px, 0),
+            "{store}"
+        );
+        let frames = done.frames.expect("per-frame progress");
+        assert_eq!(
+            frames
+                .iter()
+                .map(|f| (f.frame, f.samples_per_pixel))
+                .collect::<Vec<_>>(),
+            [(1, 5), (2, 8)],
+            "{store}"
+        );
+        // Nothing queued is left to lease, and stopping again stops nothing.
+        assert!(client.lease(&worker).await.unwrap().is_none(), "{store}");
+        let again = server
+            .state
+            .store
+            .stop_frames(&job.id, &[(0, 1)])
+            .await
+            .unwrap();
+        assert_eq!(again.tasks, 0, "{store}");
+        server.stop().await;
+    }
 }
 
 /// `GET path` with `If-None-Match: tag` when given: status and ETag.

@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use pathfarm_server::heatmap::{viridis, NOISE_SCALE};
-use pathfarm_wire::api::{JobCreated, PreviewView};
+use pathfarm_wire::api::{JobCreated, JobState, PreviewView};
 use pathfarm_worker::client::{ApiClient, ClientError};
 use std::time::Duration;
 
@@ -290,6 +290,66 @@ async fn the_last_image_ends_the_history_even_in_the_same_millisecond() {
         assert_eq!(points[0].samples_done, 1024, "{store}: {points:?}");
         assert_eq!(points[0].elapsed_s, 0.5, "{store}: {points:?}");
         assert_eq!(points[0].relative_error, Some(1.0 / 3.0), "{store}");
+        server.stop().await;
+    }
+}
+
+/// Tiles merged before the server kept error sums (migration 0010 left them NULL) are summed
+/// when the monitor starts, for the jobs that have not ended, to the sums a merge would have
+/// written: the estimate is the same to the bit. A job that ended is left as it ended.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn tiles_merged_before_the_error_sums_are_summed_at_start() {
+    let forget = "UPDATE tiles SET err_var = NULL, err_lum = NULL, err_unestimated = NULL \
+                  WHERE job_id = $1";
+    for (store, url) in stores("backfill").await {
+        let (server, client, ended) = server_without_monitor(&url).await;
+        let st = &server.state.store;
+        let running = client
+            .submit(cornell(), "cornell.gltf", &settings(32, 24, 1 << 16, 16))
+            .await
+            .unwrap();
+        let worker = TestWorker::spawn(&server.url, None, Some(2));
+        // Until the small job has ended and every pixel of the big one has two samples.
+        let deadline = std::time::Instant::now() + Duration::from_secs(60);
+        loop {
+            let images = st.image_estimates(&running.id).await.unwrap();
+            let over = client.job(&ended.id).await.unwrap().state.is_final();
+            if over && images[0].relative_error.is_some() {
+                break;
+            }
+            assert!(std::time::Instant::now() < deadline, "{store}: no estimate");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        worker.stop().await;
+        let before = st.image_estimates(&running.id).await.unwrap();
+        assert_eq!(
+            client.job(&running.id).await.unwrap().state,
+            JobState::Running,
+            "{store}"
+        );
+        for id in [&running.id, &ended.id] {
+            sqlx::query(forget)
+                .bind(id)
+                .execute(st.pool())
+                .await
+                .unwrap();
+        }
+        assert_eq!(
+            st.image_estimates(&running.id).await.unwrap()[0].relative_error,
+            None
+        );
+        let summed = st.backfill_error_sums().await.unwrap();
+        assert_eq!(summed, 4, "{store}: the running job's four tiles");
+        assert_eq!(
+            st.image_estimates(&running.id).await.unwrap(),
+            before,
+            "{store}"
+        );
+        let ended = st.image_estimates(&ended.id).await.unwrap();
+        assert_eq!(
+            ended[0].relative_error, None,
+            "{store}: the ended job was summed"
+        );
         server.stop().await;
     }
 }

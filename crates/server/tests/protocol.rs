@@ -595,3 +595,62 @@ async fn a_slice_of_only_invalid_samples_completes_nothing() {
         server.stop().await;
     }
 }
+
+/// A pipelined worker leases its next task before its last task's final slice is merged: that
+/// merge completes the last task but leaves the worker busy with the next (its current task and
+/// job stay); the merge completing the task it is on makes it idle.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_task_completed_after_the_next_lease_leaves_the_worker_on_the_next() {
+    let bytes = cornell();
+    let scene = load(&bytes);
+    for (store, url) in stores("lease-ahead").await {
+        let server = TestServer::start(config(&url)).await;
+        let c = server.client(None);
+        let job = c
+            .submit(bytes.clone(), "c.gltf", &settings(16, 16, 8, 16))
+            .await
+            .unwrap();
+        let w = register(&c, "w").await;
+        let first = c.lease(&w).await.unwrap().expect("work");
+        let next = c.lease(&w).await.unwrap().expect("more work");
+        let view = |c: &pathfarm_worker::client::ApiClient| {
+            let c = c.clone();
+            let w = w.clone();
+            async move {
+                let list = c.workers().await.unwrap();
+                let v = list.workers.into_iter().find(|v| v.id == w).unwrap();
+                (v.state, v.current_task, v.current_job)
+            }
+        };
+        assert_eq!(
+            view(&c).await,
+            (WorkerState::Busy, Some(next.task_id), Some(job.id.clone())),
+            "{store}"
+        );
+        let (b, e) = (first.sample_begin, first.sample_end);
+        let ack = c
+            .upload_slice(
+                first.task_id,
+                &first.lease_token,
+                slice_body(&scene, &first, b, e),
+            )
+            .await
+            .unwrap();
+        assert!(ack.task_complete, "{store}");
+        assert_eq!(
+            view(&c).await,
+            (WorkerState::Busy, Some(next.task_id), Some(job.id.clone())),
+            "{store}: the completed task took the worker off its next one"
+        );
+        let (b, e) = (next.sample_begin, next.sample_end);
+        c.upload_slice(
+            next.task_id,
+            &next.lease_token,
+            slice_body(&scene, &next, b, e),
+        )
+        .await
+        .unwrap();
+        assert_eq!(view(&c).await, (WorkerState::Idle, None, None), "{store}");
+        server.stop().await;
+    }
+}

@@ -95,5 +95,5 @@ export function frameStrip(onSelect) {
     mark();
   }
 
-  return { element, update, selected: () => selected, destroy: pause };
+  return { element, update, selected: () => selected, playing: () => timer !== null, destroy: pause };
 }

@@ -232,7 +232,9 @@ export function mount(root, pageSignal, _query, id) {
         if (job.tiles) drawTiles(overlay, job, frame());
         fillCaption();
         refreshPreview();
-        refreshCharts();
+        // While the player runs, the charts stay with their poll (once a second) rather than
+        // asking for every frame it steps through.
+        if (!strip.playing()) refreshCharts();
       });
       previewSection.append(strip.element);
       downloads.append(...frameDownloads());

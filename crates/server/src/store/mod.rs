@@ -40,7 +40,7 @@ mod writes;
 pub use clock::{Clock, ManualClock, SystemClock};
 pub use convergence::Estimate;
 pub use error::{Error, StoreResult};
-pub use estimates::ImageEstimate;
+pub use estimates::{ImageEstimate, Stopped};
 pub use images::{ImageReader, ImageSnapshot, TileMeta};
 pub use jobs::{JobRow, TileRow};
 pub use retention::JOBS_PER_STEP;

@@ -317,12 +317,17 @@ impl Store {
                 ],
             );
         if let Some(worker) = &worker_id {
+            // A pipelined worker finishes a task's last upload after it leased its next task:
+            // the merge that completes the task leaves that next task (and the worker busy with
+            // it) as it is. SET reads the row as it was before the update, on both stores.
             writes.push(
                 format!(
                     "UPDATE workers SET samples_done = samples_done + $1, last_seen_ms = $2, \
-                 state = {}, \
-                 current_task = CASE WHEN $3 = 1 THEN NULL ELSE current_task END, \
-                 current_job = CASE WHEN $3 = 1 THEN NULL ELSE current_job END WHERE id = $4",
+                 state = CASE WHEN $3 = 1 AND current_task <> $5 THEN state ELSE {} END, \
+                 current_task = CASE WHEN $3 = 1 AND current_task = $5 THEN NULL \
+                 ELSE current_task END, \
+                 current_job = CASE WHEN $3 = 1 AND current_task = $5 THEN NULL \
+                 ELSE current_job END WHERE id = $4",
                     super::worker_state_after(WorkerEvent::SliceMerged { complete })
                 ),
                 vec![
@@ -330,6 +335,7 @@ impl Store {
                     now.into(),
                     (complete as i64).into(),
                     worker.as_str().into(),
+                    task_id.into(),
                 ],
             );
         }
