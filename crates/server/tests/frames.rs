@@ -261,6 +261,45 @@ async fn frames_are_leased_interleaved_by_default_or_in_sequence() {
     }
 }
 
+/// A frame job is one job to the scheduler: leases share the farm between it and a still job of
+/// the same priority (the job with fewer leased tasks first), and a job of higher priority is
+/// served before both.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frame_jobs_share_the_farm_by_priority_and_fair_share() {
+    for (store, url) in stores("frames-fair").await {
+        let mut c = config(&url);
+        c.max_leases_per_worker = 1000;
+        c.min_frame_task_samples = 1;
+        let server = TestServer::start(c).await;
+        let client = server.client(None);
+        let mut s = frame_settings("1-3", None, 8);
+        s.spp = 8;
+        let frames = client.submit(animated(), "animated.glb", &s).await.unwrap();
+        let still = client
+            .submit(cornell(), "c.gltf", &settings(24, 16, 8, 8))
+            .await
+            .unwrap();
+        let worker = register(&client, "w").await;
+        let mut jobs = Vec::new();
+        for _ in 0..8 {
+            let l = client.lease(&worker).await.unwrap().expect("work");
+            jobs.push(l.job_id);
+        }
+        let count = |id: &str| jobs.iter().filter(|j| *j == id).count();
+        assert_eq!(
+            (count(&frames.id), count(&still.id)),
+            (4, 4),
+            "{store}: {jobs:?}"
+        );
+        let mut urgent = settings(8, 8, 4, 8);
+        urgent.priority = 5;
+        let urgent = client.submit(cornell(), "c.gltf", &urgent).await.unwrap();
+        let l = client.lease(&worker).await.unwrap().expect("work");
+        assert_eq!(l.job_id, urgent.id, "{store}: priority first");
+        server.stop().await;
+    }
+}
+
 #[tokio::test]
 async fn bad_frame_settings_are_4xx_naming_the_field() {
     for (store, url) in stores("frames-bad").await {
