@@ -130,7 +130,7 @@ async fn malformed_requests_get_documented_errors() {
                 as_worker(req(
                     "POST",
                     "/api/v1/tasks/1/slices",
-                    Some("application/octet-stream"),
+                    Some("application/json"),
                     "x",
                 )),
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,

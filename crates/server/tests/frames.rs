@@ -800,7 +800,10 @@ async fn a_merge_into_one_frame_leaves_the_other_frames_images_current() {
         let (status, tag1) = image_tag(&server, &frame1, None).await;
         assert_eq!(status, StatusCode::OK, "{store}");
         let (_, empty2) = image_tag(&server, &frame2, None).await;
-        assert_eq!(empty2, "\"v0\"", "{store}: frame 2 has nothing merged yet");
+        assert_eq!(
+            empty2, "\"v0.f1.exr\"",
+            "{store}: frame 2 has nothing merged yet"
+        );
         let builds = server.state.images.builds();
         // Merges into frame 2 change neither frame 1's image nor its tag: no build, 304.
         upload(two[0]).await.unwrap();
@@ -818,12 +821,12 @@ async fn a_merge_into_one_frame_leaves_the_other_frames_images_current() {
         );
         // Frame 2's own image moved on; a merge into frame 1 moves frame 1's.
         let (_, tag2) = image_tag(&server, &frame2, None).await;
-        assert_eq!(tag2, "\"v2\"", "{store}");
+        assert_eq!(tag2, "\"v2.f1.exr\"", "{store}");
         upload(one[1]).await.unwrap();
         let (status, newer1) = image_tag(&server, &frame1, Some(&tag1)).await;
         assert_eq!(
             (status, newer1.as_str()),
-            (StatusCode::OK, "\"v2\""),
+            (StatusCode::OK, "\"v2.f0.exr\""),
             "{store}"
         );
         server.stop().await;

@@ -74,7 +74,7 @@ async fn nothing_is_built_before_the_first_sample() {
         let big = submit(&state, 4096, 4096, 1, 64).await;
         let (status, headers, _) = get(&state, &big, "preview.png").await;
         assert_eq!(status, StatusCode::OK, "{store}");
-        assert_eq!(headers["etag"], "\"v0\"", "{store}");
+        assert_eq!(headers["etag"], "\"v0.png@0\"", "{store}");
         let img = state.images.peek(&big).expect("the empty image is kept");
         assert!(img.is_empty() && img.pixel_bytes() == 0, "{store}");
         assert!(
@@ -108,7 +108,7 @@ async fn nothing_is_built_before_the_first_sample() {
         );
         let (status, headers, _) = get(&state, &small, "preview.png").await;
         assert_eq!(status, StatusCode::OK, "{store}");
-        assert_eq!(headers["etag"], "\"v1\"", "{store}");
+        assert_eq!(headers["etag"], "\"v1.png@0\"", "{store}");
         monitor::step(&state).await.unwrap();
         assert_eq!(state.images.builds(), 1, "{store}");
         state.store.close().await;
@@ -161,7 +161,7 @@ async fn concurrent_requests_share_one_build() {
         for r in requests {
             let (status, headers, body) = r.await.unwrap();
             assert_eq!(status, StatusCode::OK, "{store}");
-            assert_eq!(headers["etag"], "\"v16\"", "{store}");
+            assert_eq!(headers["etag"], "\"v16.png@0\"", "{store}");
             bodies.push(body);
         }
         assert!(bodies.windows(2).all(|w| w[0] == w[1]), "{store}");

@@ -1,6 +1,9 @@
 //! `openapi.yaml` and the router describe the same API: every route the server serves is in the
 //! spec and every operation of the spec is served, every operation documents its errors with the
-//! shared error body, and every `$ref` of the document resolves.
+//! shared error body, and every `$ref` of the document resolves. And the contract works for
+//! generated clients: a default error response everywhere, media types they read, no frozen
+//! request defaults, conditional requests declared, `rr` typed with the tracer's own grammar
+//! (`tests/generated_client.rs` drives a whole job with a generated client).
 
 use serde_json::Value;
 use std::collections::BTreeSet;
@@ -253,4 +256,142 @@ fn operations_are_well_formed() {
         }
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// The media types `openapi-python-client` (and most generators) read: JSON, bytes, text.
+fn generators_read(media_type: &str) -> bool {
+    media_type == "application/json"
+        || media_type == "application/octet-stream"
+        || media_type.starts_with("text/")
+}
+
+#[test]
+fn every_operation_has_a_default_error_response() {
+    let spec = spec();
+    let mut problems = Vec::new();
+    for o in operations(&spec) {
+        match o.op["responses"].get("default") {
+            Some(r) if is_error_body(&spec, r) => {}
+            Some(_) => problems.push(format!("{}: default is not {ERROR_BODY}", o.name())),
+            None => problems.push(format!("{}: no default response", o.name())),
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+#[test]
+fn every_body_has_a_media_type_generators_read() {
+    let spec = spec();
+    let mut problems = Vec::new();
+    for o in operations(&spec) {
+        // A request body: generators send one media type, and skip the operation when any
+        // listed one is unknown to them; multipart forms they build themselves.
+        let body = resolve(&spec, &o.op["requestBody"]);
+        for media_type in body["content"]
+            .as_object()
+            .into_iter()
+            .flatten()
+            .map(|c| c.0)
+        {
+            if !(generators_read(media_type) || media_type == "multipart/form-data") {
+                problems.push(format!("{}: request body {media_type}", o.name()));
+            }
+        }
+        // A response: generators take the first listed type they read.
+        for (status, r) in o.op["responses"].as_object().into_iter().flatten() {
+            let Some(content) = resolve(&spec, r)["content"].as_object() else {
+                continue;
+            };
+            if !content.keys().any(|t| generators_read(t)) {
+                problems.push(format!(
+                    "{} {status}: only {:?}",
+                    o.name(),
+                    content.keys().collect::<Vec<_>>()
+                ));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+#[test]
+fn request_defaults_are_stated_not_frozen() {
+    // A `default` keyword is copied into generated clients, which then send it: a server default
+    // that changes would not reach them. Only the `default` response (a status) and the server
+    // URL's variables may say `default`.
+    fn walk(v: &Value, at: &str, problems: &mut Vec<String>) {
+        match v {
+            Value::Object(map) => {
+                let responses = at.ends_with("/responses");
+                let variable = at.contains("/servers/") && at.contains("/variables/");
+                if map.contains_key("default") && !responses && !variable {
+                    problems.push(format!("{at}: default {}", map["default"]));
+                }
+                for (k, child) in map {
+                    walk(child, &format!("{at}/{k}"), problems);
+                }
+            }
+            Value::Array(items) => {
+                for (i, child) in items.iter().enumerate() {
+                    walk(child, &format!("{at}/{i}"), problems);
+                }
+            }
+            _ => {}
+        }
+    }
+    let spec = spec();
+    let mut problems = Vec::new();
+    walk(&spec, "#", &mut problems);
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+#[test]
+fn every_validated_download_declares_its_conditional_request() {
+    let spec = spec();
+    let mut problems = Vec::new();
+    let mut validated = 0;
+    for o in operations(&spec) {
+        let ok = resolve(&spec, &o.op["responses"]["200"]);
+        if ok.pointer("/headers/ETag").is_none() {
+            continue;
+        }
+        validated += 1;
+        let declares = [&o.path_item["parameters"], &o.op["parameters"]]
+            .into_iter()
+            .flat_map(|p| p.as_array().into_iter().flatten())
+            .map(|p| resolve(&spec, p))
+            .any(|p| p["in"] == "header" && p["name"] == "If-None-Match");
+        if !declares {
+            problems.push(format!("{}: an ETag but no If-None-Match", o.name()));
+        }
+        if o.op["responses"].get("304").is_none() {
+            problems.push(format!("{}: an ETag but no 304", o.name()));
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+    assert_eq!(validated, 2, "image.exr and preview.png carry ETags");
+}
+
+#[test]
+fn the_roulette_patterns_are_the_tracers_grammar() {
+    use pathfarm_tracer::settings::roulette_numbers::{FRACTION, PROBABILITY, THRESHOLD};
+    let spec = spec();
+    let rr = &spec["components"]["schemas"]["JobSettings"]["properties"]["rr"];
+    let branches = rr["anyOf"].as_array().expect("rr is anyOf");
+    assert!(
+        branches.iter().all(|b| b["type"] == "string"),
+        "every branch of rr is typed: {rr}"
+    );
+    let patterns: Vec<&str> = branches
+        .iter()
+        .filter_map(|b| b["pattern"].as_str())
+        .collect();
+    assert_eq!(
+        patterns,
+        [
+            format!("^({PROBABILITY})$"),
+            format!("^({FRACTION})@({THRESHOLD})$")
+        ],
+        "the rr patterns must be the tracer's (settings::roulette_numbers)"
+    );
 }

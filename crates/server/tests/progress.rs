@@ -135,6 +135,54 @@ async fn convergence_history_and_heat_maps() {
             200,
             "{store}: an old version is sent again"
         );
+        // Each representation has its own tag: the image view's current tag is no match for
+        // another view, another exposure, the EXR, or the same PNG sent as bytes.
+        let exr_url = format!("{}/api/v1/jobs/{}/image.exr", server.url, job.id);
+        let mut tags = vec![tag.clone()];
+        for (url, accept) in [
+            (format!("{url}?view=noise"), None),
+            (format!("{url}?exposure=1"), None),
+            (exr_url.clone(), None),
+            (format!("{exr_url}?extra=true"), None),
+            (url.clone(), Some("application/octet-stream")),
+        ] {
+            let mut request = http.get(&url).header("If-None-Match", &tag);
+            if let Some(accept) = accept {
+                request = request.header("Accept", accept);
+            }
+            let answer = request.send().await.unwrap();
+            assert_eq!(answer.status().as_u16(), 200, "{store}: {url} {accept:?}");
+            let own = answer.headers()["etag"].to_str().unwrap().to_string();
+            assert!(
+                !tags.contains(&own),
+                "{store}: {url} {accept:?} reuses {own}"
+            );
+            tags.push(own.clone());
+            // And its own tag gets a 304.
+            let mut request = http.get(&url).header("If-None-Match", &own);
+            if let Some(accept) = accept {
+                request = request.header("Accept", accept);
+            }
+            let again = request.send().await.unwrap();
+            assert_eq!(again.status().as_u16(), 304, "{store}: {url} {accept:?}");
+        }
+        // A client that takes only bytes gets the same bytes as application/octet-stream.
+        let as_png = http.get(&url).send().await.unwrap();
+        assert_eq!(as_png.headers()["content-type"], "image/png");
+        let png = as_png.bytes().await.unwrap();
+        let as_bytes = http
+            .get(&url)
+            .header("Accept", "application/octet-stream")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(
+            as_bytes.headers()["content-type"],
+            "application/octet-stream",
+            "{store}"
+        );
+        assert_eq!(as_bytes.headers()["vary"], "accept", "{store}");
+        assert_eq!(as_bytes.bytes().await.unwrap(), png, "{store}");
 
         // Unknown job and unknown view.
         match client.convergence("nope").await {

@@ -654,3 +654,63 @@ async fn a_task_completed_after_the_next_lease_leaves_the_worker_on_the_next() {
         server.stop().await;
     }
 }
+
+/// Releasing is idempotent, as the contract says: a release repeated (a retry after a lost
+/// answer), late (the task leased again since) or with a token that never held the task answers
+/// 204 and changes nothing, so it never takes a task from the worker that holds it now.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_repeated_or_late_release_changes_nothing() {
+    let bytes = cornell();
+    let scene = load(&bytes);
+    for (store, url) in stores("release-twice").await {
+        let server = TestServer::start(config(&url)).await;
+        let (first, second) = (server.client(None), server.client(None));
+        let job = first
+            .submit(bytes.clone(), "job", &settings(16, 16, 4, 16))
+            .await
+            .unwrap();
+        let w1 = register(&first, "first").await;
+        let w2 = register(&second, "second").await;
+        let l1 = first.lease(&w1).await.unwrap().unwrap();
+        first.release(l1.task_id, &l1.lease_token).await.unwrap();
+        first.release(l1.task_id, &l1.lease_token).await.unwrap();
+        let l2 = second.lease(&w2).await.unwrap().unwrap();
+        assert_eq!(
+            l2.task_id, l1.task_id,
+            "{store}: the released task is queued again"
+        );
+        assert_ne!(l2.lease_token, l1.lease_token);
+        // Late, and never valid: both leave the second worker's lease alone.
+        first.release(l1.task_id, &l1.lease_token).await.unwrap();
+        first.release(l1.task_id, "never-a-token").await.unwrap();
+        let ack = second
+            .upload_slice(
+                l2.task_id,
+                &l2.lease_token,
+                slice_body(&scene, &l2, l2.sample_begin, l2.sample_end),
+            )
+            .await
+            .unwrap();
+        assert!(!ack.duplicate, "{store}");
+        let view = first.job(&job.id).await.unwrap();
+        assert_eq!(
+            view.samples_done,
+            u64::from(l2.sample_end - l2.sample_begin) * 16 * 16,
+            "{store}"
+        );
+        // A release for the worker that holds it is still checked: not the first worker's.
+        let l3 = second.lease(&w2).await.unwrap();
+        if let Some(l3) = l3 {
+            let e = first
+                .release(l3.task_id, &l3.lease_token)
+                .await
+                .unwrap_err();
+            assert_eq!(
+                code(&e),
+                (StatusCode::FORBIDDEN, "not_your_lease".to_string()),
+                "{store}"
+            );
+        }
+        server.stop().await;
+    }
+}

@@ -96,27 +96,106 @@ impl fmt::Display for RussianRoulette {
 
 impl FromStr for RussianRoulette {
     type Err = String;
+    /// Parses what [`fmt::Display`] writes. The numbers are plain decimals (no sign, no
+    /// exponent) of at most six significant digits ([`roulette_numbers`]), so every string
+    /// accepted is one the API contract's pattern for `rr` accepts and the other way round, and
+    /// each value's written form parses back to it.
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
             "off" => Ok(RussianRoulette::Off),
             "auto" => Ok(RussianRoulette::Auto),
             "max" => Ok(RussianRoulette::Max),
             _ if s.contains('@') => {
-                let bad = || format!("invalid Russian roulette {s:?} (expected TERMINATE@BELOW, e.g. 0.5@0.25: terminate with probability TERMINATE in (0, 1) when the throughput's luminance is below BELOW > 0)");
+                let bad = || format!("invalid Russian roulette {s:?} (expected TERMINATE@BELOW, e.g. 0.5@0.25: terminate with probability TERMINATE in (0, 1) when the throughput's luminance is below BELOW in (0, 1000000), plain decimals of at most 6 significant digits)");
                 let (t, b) = s.split_once('@').ok_or_else(bad)?;
+                if !(roulette_numbers::is_fraction(t) && roulette_numbers::is_threshold(b)) {
+                    return Err(bad());
+                }
                 let terminate: f32 = t.parse().map_err(|_| bad())?;
                 let below: f32 = b.parse().map_err(|_| bad())?;
-                if terminate > 0.0 && terminate < 1.0 && below > 0.0 && below.is_finite() {
-                    Ok(RussianRoulette::Threshold { terminate, below })
-                } else {
-                    Err(bad())
-                }
+                Ok(RussianRoulette::Threshold { terminate, below })
             }
-            _ => match s.parse::<f32>() {
-                Ok(p) if p > 0.0 && p <= 1.0 => Ok(RussianRoulette::Fixed(p)),
-                _ => Err(format!("invalid Russian roulette {s:?} (expected off, auto, max, a survival probability in (0, 1], or TERMINATE@BELOW)")),
-            },
+            _ if roulette_numbers::is_probability(s) => s
+                .parse::<f32>()
+                .map(RussianRoulette::Fixed)
+                .map_err(|e| format!("invalid Russian roulette {s:?}: {e}")),
+            _ => Err(format!("invalid Russian roulette {s:?} (expected off, auto, max, a survival probability in (0, 1], or TERMINATE@BELOW; plain decimals of at most 6 significant digits)")),
         }
+    }
+}
+
+/// The numbers of a written Russian roulette, as plain decimals (digits and at most one point, no
+/// sign, no exponent) of at most six significant digits (trailing zeros aside). Six digits is
+/// what a float32 keeps exactly (`f32::DIGITS`): each such decimal parses to its own float, and
+/// the shortest form `Display` writes of that float is the same decimal again, so stored
+/// settings parse back. The bounds are decided on the digits, so no decimal is refused for a
+/// rounding (`0.9999999` would be 1.0 as a float32, where TERMINATE must stay below 1).
+///
+/// The same grammar as regular expressions (the API contract's `rr` patterns, tested equal):
+/// [`FRACTION`](roulette_numbers::FRACTION) and the others.
+pub mod roulette_numbers {
+    /// A number in (0, 1) of at most 6 significant digits, at least 10⁻³¹.
+    pub const FRACTION: &str = r"0*\.0{0,30}[1-9][0-9]{0,5}0*";
+    /// A number in (0, 1]: a [`FRACTION`] or one.
+    pub const PROBABILITY: &str = r"0*\.0{0,30}[1-9][0-9]{0,5}0*|0*1(\.0*)?";
+    /// A number in (0, 10⁶): a [`FRACTION`], or 1 to 6 integer digits and at most 6
+    /// significant digits in all.
+    pub const THRESHOLD: &str = r"0*\.0{0,30}[1-9][0-9]{0,5}0*|0*[1-9](\.[0-9]{0,5}0*)?|0*[1-9][0-9](\.[0-9]{0,4}0*)?|0*[1-9][0-9]{2}(\.[0-9]{0,3}0*)?|0*[1-9][0-9]{3}(\.[0-9]{0,2}0*)?|0*[1-9][0-9]{4}(\.[0-9]{0,1}0*)?|0*[1-9][0-9]{5}(\.0*)?";
+
+    /// The most significant digits a number may have.
+    const DIGITS: usize = 6;
+    /// The most zeros between the point and a fraction's first significant digit.
+    const LEADING_ZEROS: usize = 30;
+
+    fn all_digits(s: &str) -> bool {
+        s.bytes().all(|b| b.is_ascii_digit())
+    }
+
+    /// The significant digits of `digits` that start with a non-zero digit: its length without
+    /// the trailing zeros.
+    fn significant(digits: &str) -> usize {
+        digits.trim_end_matches('0').len()
+    }
+
+    /// [`FRACTION`].
+    pub fn is_fraction(s: &str) -> bool {
+        let Some(rest) = s.trim_start_matches('0').strip_prefix('.') else {
+            return false;
+        };
+        let digits = rest.trim_start_matches('0');
+        all_digits(rest)
+            && rest.len() - digits.len() <= LEADING_ZEROS
+            && digits.starts_with(|c: char| c != '0')
+            && (1..=DIGITS).contains(&significant(digits))
+    }
+
+    /// [`PROBABILITY`].
+    pub fn is_probability(s: &str) -> bool {
+        let one = s
+            .trim_start_matches('0')
+            .strip_prefix('1')
+            .is_some_and(|rest| {
+                rest.is_empty()
+                    || rest
+                        .strip_prefix('.')
+                        .is_some_and(|z| z.bytes().all(|b| b == b'0'))
+            });
+        one || is_fraction(s)
+    }
+
+    /// [`THRESHOLD`].
+    pub fn is_threshold(s: &str) -> bool {
+        if is_fraction(s) {
+            return true;
+        }
+        let s = s.trim_start_matches('0');
+        let (int, frac) = s.split_once('.').unwrap_or((s, ""));
+        !int.is_empty()
+            && !int.starts_with('0')
+            && int.len() <= DIGITS
+            && all_digits(int)
+            && all_digits(frac)
+            && int.len() + significant(frac) <= DIGITS
     }
 }
 
@@ -213,10 +292,102 @@ mod tests {
             }
         );
         for bad in [
-            "0", "1.5", "0@0.25", "1@0.25", "0.5@0", "0.5@", "@0.2", "0.5@x", "x",
+            "0",
+            "1.5",
+            "0@0.25",
+            "1@0.25",
+            "0.5@0",
+            "0.5@",
+            "@0.2",
+            "0.5@x",
+            "x",
+            "+0.5",
+            "5e-1",
+            "0.9999999",
+            "0.5@1000000",
+            "inf",
+            "NaN",
+            ".",
+            "0.1234567",
         ] {
             let err = bad.parse::<RussianRoulette>().unwrap_err();
             assert!(err.contains(bad), "{bad}: {err}");
         }
+    }
+
+    /// Strings near the grammar: digits (zeros often), points, and now and then a sign, an
+    /// exponent or a letter, from a fixed seed.
+    fn near_decimals(n: usize) -> Vec<String> {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move |m: u64| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 33) % m
+        };
+        (0..n)
+            .map(|_| {
+                let len = 1 + next(14) as usize;
+                (0..len)
+                    .map(|_| match next(20) {
+                        0..=5 => '0',
+                        6..=8 => '.',
+                        9 => ['+', '-', 'e', 'x'][next(4) as usize],
+                        10 => '1',
+                        11 => '9',
+                        _ => char::from(b'0' + next(10) as u8),
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_roulette_numbers_match_their_regular_expressions() {
+        use roulette_numbers::*;
+        type Grammar = fn(&str) -> bool;
+        let whole = |re: &str| regex::Regex::new(&format!("^({re})$")).unwrap();
+        let checks: [(&str, regex::Regex, Grammar); 3] = [
+            ("FRACTION", whole(FRACTION), is_fraction),
+            ("PROBABILITY", whole(PROBABILITY), is_probability),
+            ("THRESHOLD", whole(THRESHOLD), is_threshold),
+        ];
+        let mut accepted = [0; 3];
+        for s in near_decimals(200_000) {
+            for (i, (name, re, f)) in checks.iter().enumerate() {
+                assert_eq!(re.is_match(&s), f(&s), "{name} on {s:?}");
+                accepted[i] += usize::from(f(&s));
+            }
+        }
+        // The inputs reach both sides of every grammar.
+        assert!(accepted.iter().all(|&n| n > 1000), "{accepted:?}");
+    }
+
+    #[test]
+    fn every_accepted_roulette_is_in_range_and_written_back_the_same() {
+        let mut seen = 0;
+        let near = near_decimals(100_000);
+        let pairs = near.chunks(2).map(|p| format!("{}@{}", p[0], p[1]));
+        for s in near.iter().cloned().chain(pairs) {
+            let Ok(rr) = s.parse::<RussianRoulette>() else {
+                continue;
+            };
+            seen += 1;
+            match rr {
+                RussianRoulette::Fixed(p) => assert!(p > 0.0 && p <= 1.0, "{s}: {p}"),
+                RussianRoulette::Threshold { terminate, below } => assert!(
+                    terminate > 0.0 && terminate < 1.0 && below > 0.0 && below < 1e6,
+                    "{s}: {terminate}@{below}"
+                ),
+                other => panic!("{s} parsed as {other:?}"),
+            }
+            let written = rr.to_string();
+            assert_eq!(
+                written.parse::<RussianRoulette>(),
+                Ok(rr),
+                "{s} written {written}"
+            );
+        }
+        assert!(seen > 1000, "{seen}");
     }
 }

@@ -6,8 +6,12 @@ use serde::{Deserialize, Serialize};
 
 /// Path prefix of every versioned endpoint.
 pub const API_PREFIX: &str = "/api/v1";
-/// Media type of a binary slice body (see [`crate::slice`]).
-pub const SLICE_CONTENT_TYPE: &str = "application/x-pathfarm-slice";
+/// Media type of a binary slice body (see [`crate::slice`]): the generic binary type, the one
+/// client generators can send (the body's magic and version say what it is).
+pub const SLICE_CONTENT_TYPE: &str = "application/octet-stream";
+/// The slice body's own media type, which workers sent before [`SLICE_CONTENT_TYPE`]: still
+/// accepted.
+pub const SLICE_CONTENT_TYPE_LEGACY: &str = "application/x-pathfarm-slice";
 /// Header that carries a task's lease token on slice uploads.
 pub const LEASE_TOKEN_HEADER: &str = "pathfarm-lease-token";
 /// Header that carries a worker's own credential (from its registration) on every call it makes

@@ -19,7 +19,7 @@ use crate::store::JobRow;
 use crate::AppState;
 use axum::body::{Body, Bytes};
 use axum::extract::{Path, Query, State};
-use axum::http::{header, StatusCode};
+use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use pathfarm_tracer::output::ExrChannels;
 use serde::Deserialize;
@@ -109,12 +109,19 @@ async fn send(tx: &mpsc::Sender<std::io::Result<Bytes>>, result: ApiResult<Bytes
     }
 }
 
+/// A streamed download's headers: its media type (`native`, or `application/octet-stream` for a
+/// client that asks for that, see [`super::media`]) and its file name.
 fn download_headers(
-    content_type: &'static str,
+    request: &HeaderMap,
+    native: &'static str,
     file_name: String,
-) -> [(header::HeaderName, String); 3] {
+) -> [(header::HeaderName, String); 4] {
     [
-        (header::CONTENT_TYPE, content_type.to_string()),
+        (
+            header::CONTENT_TYPE,
+            super::media::binary_type(request, native).to_string(),
+        ),
+        (header::VARY, "accept".to_string()),
         (header::CACHE_CONTROL, "no-cache".to_string()),
         (
             header::CONTENT_DISPOSITION,
@@ -172,6 +179,7 @@ pub async fn frames_tar(
     _: ReadAuth,
     State(state): State<AppState>,
     Path(id): Path<String>,
+    request: HeaderMap,
 ) -> ApiResult<Response> {
     let job = state.store.job(&id).await?;
     let frames = chosen_frames(&state, &job, |p| p.samples_done > 0).await?;
@@ -218,7 +226,7 @@ pub async fn frames_tar(
         send(&tx, Ok(Bytes::from_static(&[0; 1024]))).await;
     });
     Ok((
-        download_headers("application/x-tar", format!("{id}-frames.tar")),
+        download_headers(&request, "application/x-tar", format!("{id}-frames.tar")),
         body,
     )
         .into_response())
@@ -292,6 +300,7 @@ pub async fn preview_apng(
     _: ReadAuth,
     State(state): State<AppState>,
     Path(id): Path<String>,
+    request: HeaderMap,
     query: Result<Query<ApngQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
@@ -369,7 +378,7 @@ pub async fn preview_apng(
         }
     });
     Ok((
-        download_headers("image/apng", format!("{id}-preview.apng")),
+        download_headers(&request, "image/apng", format!("{id}-preview.apng")),
         body,
     )
         .into_response())

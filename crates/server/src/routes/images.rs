@@ -40,16 +40,16 @@ pub struct PngQuery {
 }
 
 /// The image a request names: a still job's, or the frame `frame` of a frame job (its first when
-/// `frame` is absent), with the key it is kept under.
+/// `frame` is absent), with the key it is kept under and its frame's slot.
 async fn job_image(
     state: &AppState,
     id: &str,
     frame: Option<i64>,
-) -> ApiResult<(Arc<JobImage>, String)> {
+) -> ApiResult<(Arc<JobImage>, String, Option<u32>)> {
     let job = state.store.job(id).await?;
     let slot = frame_slot(&job, frame)?;
     let img = state.images.get_frame(&state.store, &job, slot).await?;
-    Ok((img, image_key(id, slot)))
+    Ok((img, image_key(id, slot), slot))
 }
 
 /// The slot in `job`'s frame list of the frame a request names (`frame`; a frame job's first
@@ -94,40 +94,62 @@ pub(super) fn check_exposure(exposure: f32) -> ApiResult<()> {
     }
 }
 
-fn etag(version: i64) -> String {
-    format!("\"v{version}\"")
+/// One representation of a job's image: what the bytes are (the format and view, with the
+/// exposure, `exr+extra`, `png@1.5`, `png:noise`, …), of which frame, in which media type.
+struct Representation<'a> {
+    what: &'a str,
+    frame: Option<u32>,
+    content_type: &'static str,
 }
 
-/// 304 Not Modified when the client already holds this version (`If-None-Match`): pollers of an
-/// image that did not change get no body at all.
-fn not_modified(request: &HeaderMap, version: i64) -> Option<Response> {
-    let tag = etag(version);
-    let held = request.get(header::IF_NONE_MATCH)?.to_str().ok()?;
-    held.split(',')
-        .map(|t| t.trim().trim_start_matches("W/"))
-        .any(|t| t == tag || t == "*")
-        .then(|| {
-            (
-                StatusCode::NOT_MODIFIED,
-                [
-                    (header::CACHE_CONTROL, "no-cache".to_string()),
-                    (header::ETAG, tag),
-                ],
-            )
-                .into_response()
-        })
-}
+impl Representation<'_> {
+    /// The strong validator of this representation at image `version`:
+    /// `"v<version>[.f<slot>].<what>[.bin]"`. Every format, view, exposure, frame and media type
+    /// has its own, so a cache that keys by URL alone (or one that follows `Vary: Accept`) never
+    /// takes one representation's bytes for another's.
+    fn etag(&self, version: i64) -> String {
+        let frame = self.frame.map(|f| format!(".f{f}")).unwrap_or_default();
+        let bin = if self.content_type == super::media::OCTET_STREAM {
+            ".bin"
+        } else {
+            ""
+        };
+        format!("\"v{version}{frame}.{}{bin}\"", self.what)
+    }
 
-fn image_response(bytes: axum::body::Bytes, content_type: &'static str, version: i64) -> Response {
-    (
-        [
-            (header::CONTENT_TYPE, content_type.to_string()),
-            (header::CACHE_CONTROL, "no-cache".to_string()),
-            (header::ETAG, etag(version)),
-        ],
-        bytes,
-    )
-        .into_response()
+    /// 304 Not Modified when the client already holds this version (`If-None-Match`): pollers
+    /// of an image that did not change get no body at all.
+    fn not_modified(&self, request: &HeaderMap, version: i64) -> Option<Response> {
+        let tag = self.etag(version);
+        let held = request.get(header::IF_NONE_MATCH)?.to_str().ok()?;
+        held.split(',')
+            .map(|t| t.trim().trim_start_matches("W/"))
+            .any(|t| t == tag || t == "*")
+            .then(|| {
+                (
+                    StatusCode::NOT_MODIFIED,
+                    [
+                        (header::CACHE_CONTROL, "no-cache".to_string()),
+                        (header::VARY, "accept".to_string()),
+                        (header::ETAG, tag),
+                    ],
+                )
+                    .into_response()
+            })
+    }
+
+    fn response(&self, bytes: axum::body::Bytes, version: i64) -> Response {
+        (
+            [
+                (header::CONTENT_TYPE, self.content_type.to_string()),
+                (header::CACHE_CONTROL, "no-cache".to_string()),
+                (header::VARY, "accept".to_string()),
+                (header::ETAG, self.etag(version)),
+            ],
+            bytes,
+        )
+            .into_response()
+    }
 }
 
 pub async fn image_exr(
@@ -138,11 +160,16 @@ pub async fn image_exr(
     query: Result<Query<ExrQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
-    let (img, image) = job_image(&state, &id, q.frame).await?;
-    if let Some(r) = not_modified(&request, img.version) {
+    let (img, image, slot) = job_image(&state, &id, q.frame).await?;
+    let key = if q.extra { "exr+extra" } else { "exr" };
+    let repr = Representation {
+        what: key,
+        frame: slot,
+        content_type: super::media::binary_type(&request, "image/x-exr"),
+    };
+    if let Some(r) = repr.not_modified(&request, img.version) {
         return Ok(r);
     }
-    let key = if q.extra { "exr+extra" } else { "exr" };
     let channels = ExrChannels {
         variance: q.extra,
         samples: q.extra,
@@ -155,7 +182,7 @@ pub async fn image_exr(
                 .map_err(|e| ApiError::internal(format!("EXR encoding: {e}")))
         })
         .await?;
-    Ok(image_response(bytes, "image/x-exr", img.version))
+    Ok(repr.response(bytes, img.version))
 }
 
 pub async fn preview_png(
@@ -167,10 +194,7 @@ pub async fn preview_png(
 ) -> ApiResult<Response> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
     check_exposure(q.exposure)?;
-    let (img, image) = job_image(&state, &id, q.frame).await?;
-    if let Some(r) = not_modified(&request, img.version) {
-        return Ok(r);
-    }
+    let (img, image, slot) = job_image(&state, &id, q.frame).await?;
     let (key, scale) = match q.view {
         PreviewView::Image => (format!("png@{}", q.exposure), None),
         PreviewView::Samples => (
@@ -179,6 +203,14 @@ pub async fn preview_png(
         ),
         PreviewView::Noise => ("png:noise".to_string(), Some(heatmap::NOISE_SCALE)),
     };
+    let repr = Representation {
+        what: &key,
+        frame: slot,
+        content_type: super::media::binary_type(&request, "image/png"),
+    };
+    if let Some(r) = repr.not_modified(&request, img.version) {
+        return Ok(r);
+    }
     let (view, exposure) = (q.view, q.exposure);
     let need = cost::png(img.width, img.height);
     let bytes = state
@@ -192,7 +224,7 @@ pub async fn preview_png(
             .map_err(|e| ApiError::internal(format!("PNG encoding: {e}")))
         })
         .await?;
-    let mut resp = image_response(bytes, "image/png", img.version);
+    let mut resp = repr.response(bytes, img.version);
     if let Some((lo, hi)) = scale {
         let headers = resp.headers_mut();
         for (name, v) in [(SCALE_MIN_HEADER, lo), (SCALE_MAX_HEADER, hi)] {

@@ -6,6 +6,7 @@ mod health;
 mod images;
 mod jobs;
 mod json;
+mod media;
 pub(crate) mod metrics;
 pub(crate) use json::{starts_an_object, JsonBody, OptionalJsonBody};
 mod submit;

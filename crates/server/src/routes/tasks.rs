@@ -13,7 +13,9 @@ use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::IntoResponse;
 use axum::Json;
 use http_body_util::BodyExt;
-use pathfarm_wire::api::{Release, SliceAck, LEASE_TOKEN_HEADER, SLICE_CONTENT_TYPE};
+use pathfarm_wire::api::{
+    Release, SliceAck, LEASE_TOKEN_HEADER, SLICE_CONTENT_TYPE, SLICE_CONTENT_TYPE_LEGACY,
+};
 use pathfarm_wire::{
     decode_slice, decode_slice_header, max_slice_body_bytes, SliceError, SliceLimits,
 };
@@ -49,8 +51,9 @@ pub async fn scene(
     ))
 }
 
-/// `POST /api/v1/tasks/{id}/slices`: one slice's accumulation, binary (`application/x-pathfarm-slice`),
-/// with the lease token in the `Pathfarm-Lease-Token` header.
+/// `POST /api/v1/tasks/{id}/slices`: one slice's accumulation, binary (`application/octet-stream`,
+/// or the older `application/x-pathfarm-slice`), with the lease token in the
+/// `Pathfarm-Lease-Token` header.
 ///
 /// Everything that can refuse the upload without its body is checked before a byte of it is
 /// read: the worker token, the content type, the lease token against the task, and the declared
@@ -70,7 +73,9 @@ pub async fn upload_slice(
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("");
-    if ct != SLICE_CONTENT_TYPE {
+    // The generic binary type (what the contract declares: client generators can send it), or
+    // the slice's own type, which workers sent before.
+    if ct != SLICE_CONTENT_TYPE && ct != SLICE_CONTENT_TYPE_LEGACY {
         return Err(ApiError::new(
             StatusCode::UNSUPPORTED_MEDIA_TYPE,
             "unsupported_media_type",

@@ -399,7 +399,9 @@ impl Store {
         Ok(valid)
     }
 
-    /// Gives a lease back: the task's unmerged samples are queued again.
+    /// Gives a lease back: the task's unmerged samples are queued again. Idempotent: when
+    /// `token` does not hold the task (any more: released before, expired, completed, or leased
+    /// again since), there is nothing of that lease to give back, and nothing changes.
     pub async fn release(&self, task_id: i64, token: &str) -> StoreResult<()> {
         self.release_checked(task_id, token, None).await
     }
@@ -430,7 +432,9 @@ impl Store {
         let lease_token: Option<String> = task.try_get("lease_token")?;
         let state = task_state(&task.try_get::<String, _>("state")?)?;
         if lease_token.as_deref() != Some(token) {
-            return Err(stale_lease(task_id));
+            // This lease is over already: a release repeated (a retry after a lost answer) or
+            // late is a no-op, as the contract says.
+            return Ok(());
         }
         let worker_id: Option<String> = task.try_get("worker_id")?;
         if worker.is_some_and(|w| worker_id.as_deref() != Some(w)) {
