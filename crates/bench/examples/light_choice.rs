@@ -1,6 +1,8 @@
 //! The light tree against choosing lights by power alone, at equal time, on a scene of many
-//! emitters: `cargo run --release -p pathfarm-bench --example light_choice -- FILE.glb [THREADS]
-//! [SPP] [ROUNDS]`.
+//! emitters or many punctual lamps (both families are switched to power for the comparison):
+//! `cargo run --release -p pathfarm-bench --example light_choice -- FILE.glb [THREADS] [SPP]
+//! [ROUNDS] [FAMILY]`, FAMILY `all` (the default), `area` or `lamps`: which family the power
+//! side chooses by power (the other keeps its tree).
 //!
 //! Each choice renders the scene (256 × 256, MIS) with two seeds per round, the choices
 //! alternating so that the VM's drift touches both alike. The noise of one render is estimated
@@ -42,22 +44,47 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let path = args
         .first()
-        .ok_or("usage: light_choice FILE.glb [THREADS] [SPP] [ROUNDS]")?;
+        .ok_or("usage: light_choice FILE.glb [THREADS] [SPP] [ROUNDS] [all|area|lamps]")?;
     let threads: usize = args.get(1).map_or(Ok(2), |s| s.parse())?;
     let spp: u32 = args.get(2).map_or(Ok(16), |s| s.parse())?;
     let rounds: u32 = args.get(3).map_or(Ok(3), |s| s.parse())?;
+    let family = args.get(4).map_or("all", String::as_str);
+    if !["all", "area", "lamps"].contains(&family) {
+        return Err(format!("FAMILY is all, area or lamps, not {family}").into());
+    }
     let bytes = std::fs::read(path)?;
     let parts = load_parts(&bytes, &NoExternalResources, &LoadOptions::default())?;
     let tree = Scene::build(parts)?;
-    if !tree.lights.area.has_tree() {
+    if !tree.lights.area.has_tree() && tree.lights.punctual_tree.is_none() {
         return Err(format!(
-            "{path}: {} light triangles are chosen by power already",
-            tree.lights.area.triangles.len()
+            "{path}: its {} light triangles and {} punctual lamps are chosen by power already",
+            tree.lights.area.triangles.len(),
+            tree.lights.punctual.len()
         )
         .into());
     }
+    println!(
+        "{path}: {} light triangles ({}), {} punctual lamps ({})",
+        tree.lights.area.triangles.len(),
+        if tree.lights.area.has_tree() {
+            "tree"
+        } else {
+            "power"
+        },
+        tree.lights.punctual.len(),
+        if tree.lights.punctual_tree.is_some() {
+            "tree"
+        } else {
+            "power"
+        },
+    );
     let mut power = tree.clone();
-    power.lights.area.choose_by_power();
+    if family != "lamps" {
+        power.lights.area.choose_by_power();
+    }
+    if family != "area" {
+        power.lights.choose_punctual_by_power();
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()?;

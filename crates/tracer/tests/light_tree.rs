@@ -1,13 +1,16 @@
 //! Many emitters choose by the light tree (`light::tree`): the image is the same, within its noise,
 //! as the one BSDF sampling alone renders (which never chooses a light), for light sampling alone
 //! and for MIS, with one-sided and two-sided emitters of different powers, some facing away from
-//! everything they could light.
+//! everything they could light. Many punctual lamps (a lit street: points, spots, some pointing
+//! away, and a sun) likewise: the same image as choosing them by power, with less noise, also on
+//! the street Blender exports (`scenes/suite/lit_street.glb`, `make_street.py`).
 
 mod common;
 
 use common::*;
 use glam::Vec3;
 use pathfarm_tracer::geometry::Mesh;
+use pathfarm_tracer::light::{DirectionalLight, PointLight, PunctualLight, SpotLight};
 use pathfarm_tracer::scene::SceneParts;
 use pathfarm_tracer::{render_image, DirectStrategy, RenderSettings, Scene};
 
@@ -115,4 +118,108 @@ fn the_tree_has_less_noise_than_choosing_by_power() {
             direct.name()
         );
     }
+}
+
+/// A 40 m street (a floor) under 96 lamps 4 m up in two rows: points of different intensities,
+/// every third a spot pointing down (every ninth pointing up, lighting nothing), and a dim sun.
+/// The camera looks down at a stretch of it: most lamps are far from what it sees.
+fn lit_street() -> Scene {
+    let mut mesh = Mesh::default();
+    let (a, b, c, d) = (
+        Vec3::new(-20.0, -4.0, 0.0),
+        Vec3::new(20.0, -4.0, 0.0),
+        Vec3::new(20.0, 4.0, 0.0),
+        Vec3::new(-20.0, 4.0, 0.0),
+    );
+    for t in [[a, b, c], [a, c, d]] {
+        mesh.positions.push(t);
+        mesh.material.push(0);
+    }
+    let mut lamps = Vec::new();
+    for k in 0..96 {
+        let position = Vec3::new(
+            -19.5 + (k / 2) as f32 * 0.8,
+            if k % 2 == 0 { -3.0 } else { 3.0 },
+            4.0,
+        );
+        let intensity = Vec3::splat(20.0 + (k % 5) as f32 * 10.0);
+        lamps.push(if k % 3 == 0 {
+            PunctualLight::Spot(SpotLight {
+                position,
+                direction: if k % 9 == 0 { Vec3::Z } else { -Vec3::Z },
+                intensity: intensity * 3.0,
+                cos_inner: 0.85,
+                cos_outer: 0.6,
+            })
+        } else {
+            PunctualLight::Point(PointLight {
+                position,
+                intensity,
+            })
+        });
+    }
+    lamps.push(PunctualLight::Directional(DirectionalLight {
+        direction: Vec3::new(0.2, 0.3, -1.0).normalize(),
+        illuminance: Vec3::splat(0.5),
+    }));
+    // Looking straight down (a camera looks along −z) at a 6 m stretch of the street.
+    let camera = camera_at(Vec3::new(1.0, 0.0, 3.0));
+    Scene::build(SceneParts {
+        mesh,
+        materials: vec![lambert(0.6, 0.0)],
+        punctual_lights: lamps,
+        camera: Some(camera),
+        ..SceneParts::default()
+    })
+    .expect("scene builds")
+}
+
+#[test]
+fn many_lamps_choose_by_the_tree_with_the_image_of_choosing_by_power_and_less_noise() {
+    let tree = lit_street();
+    assert!(tree.lights.punctual_tree.is_some(), "96 lamps: a tree");
+    let mut power = lit_street();
+    power.lights.choose_punctual_by_power();
+    // Lamps are reached by their own sample whatever the strategy: one is enough.
+    let (m_tree, se_tree) = render(&tree, DirectStrategy::Mis, 64);
+    let (m_power, se_power) = render(&power, DirectStrategy::Mis, 64);
+    let z = (m_tree - m_power) / (se_tree * se_tree + se_power * se_power).sqrt();
+    eprintln!("tree {m_tree:.5} ± {se_tree:.5}, power {m_power:.5} ± {se_power:.5}: z = {z:+.2}");
+    assert!(m_tree > 0.0);
+    assert!(z.abs() < 3.5, "z = {z:.2}");
+    assert!(
+        se_tree < 0.8 * se_power,
+        "tree {se_tree} against power {se_power}"
+    );
+}
+
+/// The street Blender exports (97 lamps: points on posts, spots over the road and up the walls, a
+/// moon; lit windows): its lamps are chosen by the tree, with the image of choosing them by power
+/// and less noise.
+#[test]
+fn the_blender_street_chooses_its_lamps_by_the_tree() {
+    use pathfarm_tracer::gltf::{load, LoadOptions, NoExternalResources};
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes/suite/lit_street.glb");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let tree =
+        load(&bytes, &NoExternalResources, &LoadOptions::default()).expect("the street loads");
+    assert_eq!(tree.lights.punctual.len(), 97);
+    assert!(
+        tree.lights.punctual_tree.is_some(),
+        "96 point and spot lamps: a tree"
+    );
+    let mut power = tree.clone();
+    power.lights.choose_punctual_by_power();
+    let (m_tree, se_tree) = render(&tree, DirectStrategy::Mis, 64);
+    let (m_power, se_power) = render(&power, DirectStrategy::Mis, 64);
+    let z = (m_tree - m_power) / (se_tree * se_tree + se_power * se_power).sqrt();
+    eprintln!(
+        "street: tree {m_tree:.5} ± {se_tree:.5}, power {m_power:.5} ± {se_power:.5}: z = {z:+.2}"
+    );
+    assert!(z.abs() < 3.5, "z = {z:.2}");
+    assert!(
+        se_tree < 0.8 * se_power,
+        "tree {se_tree} against power {se_power}"
+    );
 }

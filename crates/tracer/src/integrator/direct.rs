@@ -53,8 +53,8 @@ fn spawn(p: Vec3, ng: Vec3, clearance: f32, wi: Vec3) -> Ray {
 /// Shadow rays stop this fraction short of the light so they do not hit the light's own triangle.
 pub(crate) const SHADOW_EPSILON: f32 = 1e-4;
 
-/// One punctual light chosen in proportion to power. Delta lights can only be reached this way, so
-/// every strategy calls it.
+/// One punctual light, chosen in proportion to power (by a light tree when there are many).
+/// Delta lights can only be reached this way, so every strategy calls it.
 pub(crate) fn direct_punctual(
     scene: &Scene,
     v: &Vertex,
@@ -105,7 +105,7 @@ pub(crate) fn punctual_at<const INLINED: bool>(
     eval: impl Fn(Vec3) -> Vec3,
     transmittance: impl Fn(f32) -> Vec3,
 ) -> Vec3 {
-    let Some((light, pmf)) = scene.lights.choose_punctual(at.u_select) else {
+    let Some((light, pmf)) = scene.lights.choose_punctual(at.p, at.ng, at.u_select) else {
         return Vec3::ZERO;
     };
     let Some(ls) = light.sample_li(at.p) else {

@@ -14,7 +14,8 @@ use std::f32::consts::PI;
 
 use super::tree::{LightBounds, LightTree};
 
-/// The most emissive triangles chosen by power alone; scenes with more choose by [`LightTree`].
+/// The most lights of a family (emissive triangles; point and spot lamps) chosen by power alone;
+/// scenes with more choose by a [`LightTree`] ([`super::chooses_by_tree`]).
 /// With a few lights the tree's per-point choice gains little (a Cornell box's light is two
 /// triangles of one quad) and costs a walk per sample; with many, lights that face away or lie far
 /// off take most power-chosen samples (docs/benchmarks.md, "A light tree"). The wavefront
@@ -160,7 +161,7 @@ impl AreaLights {
     /// Whether a scene with `lights` emissive triangles chooses them by a light tree (rather than
     /// by power alone): the one place that decides, from the count alone.
     pub fn uses_tree(lights: usize) -> bool {
-        lights > MAX_POWER_CHOSEN
+        super::chooses_by_tree(lights)
     }
 
     /// Whether these lights are chosen by a light tree.

@@ -8,7 +8,11 @@
 //!   probability [`Lights::environment_choice`] (by power), an area light otherwise;
 //! - punctual lights from `KHR_lights_punctual` ([`PunctualLight`]: point, spot, directional), each in
 //!   its own file; delta distributions, so they are reached by light sampling only, whatever the
-//!   direct-lighting strategy. They get a light sample of their own, chosen by power.
+//!   direct-lighting strategy. They get a light sample of their own: a few chosen by power, many
+//!   (a lit street) by a light tree over the point and spot lamps ([`PunctualTree`]).
+//!
+//! Whether a family is chosen by a tree is decided in one place, [`chooses_by_tree`], from the
+//! number of its lights alone.
 //!
 //! Units: radiometric, linear RGB. Emission and the environment are radiance (W/(m²·sr)), point and
 //! spot intensities W/sr, directional irradiance W/m²; pixels are radiance. glTF's photometric
@@ -18,6 +22,7 @@ mod area;
 mod directional;
 mod environment;
 mod point;
+mod punctual_choice;
 mod spot;
 mod tree;
 
@@ -28,11 +33,19 @@ pub use environment::{
     Environment, EnvironmentError, EnvironmentSample, MAX_DISTRIBUTION_SIZE, MAX_ENVIRONMENT_TEXELS,
 };
 pub use point::PointLight;
+pub use punctual_choice::PunctualTree;
 pub use spot::SpotLight;
 pub use tree::LightTree;
 
 use crate::sampling::Distribution1D;
 use glam::Vec3;
+
+/// Whether a family of `lights` lights (emissive triangles, or point and spot lamps) is chosen by
+/// a light tree rather than by power alone: the one place that decides, from the count alone
+/// (see [`MAX_POWER_CHOSEN`]).
+pub fn chooses_by_tree(lights: usize) -> bool {
+    lights > MAX_POWER_CHOSEN
+}
 
 /// Incident light from a punctual light at a point.
 #[derive(Clone, Copy, Debug)]
@@ -82,6 +95,8 @@ pub struct Lights {
     pub punctual: Vec<PunctualLight>,
     /// Choice among punctual lights, proportional to power.
     pub punctual_distribution: Distribution1D,
+    /// Many point and spot lamps: chosen by a light tree instead (see [`chooses_by_tree`]).
+    pub punctual_tree: Option<PunctualTree>,
     /// The environment, if the render has one (see [`Lights::set_environment`]).
     pub environment: Option<Environment>,
     /// Probability that a vertex's light sample goes to the environment rather than to an area
@@ -95,9 +110,17 @@ pub struct Lights {
 impl Lights {
     pub fn new(area: AreaLights, punctual: Vec<PunctualLight>, scene_radius: f32) -> Self {
         let powers: Vec<f32> = punctual.iter().map(|l| l.power(scene_radius)).collect();
+        let positional = punctual
+            .iter()
+            .filter(|l| !matches!(l, PunctualLight::Directional(_)))
+            .count();
+        let punctual_tree = chooses_by_tree(positional)
+            .then(|| PunctualTree::new(&punctual, &powers))
+            .flatten();
         Lights {
             area,
             punctual_distribution: Distribution1D::new(&powers),
+            punctual_tree,
             punctual,
             environment: None,
             environment_choice: 0.0,
@@ -128,13 +151,25 @@ impl Lights {
         !self.area.is_empty() || self.environment.is_some()
     }
 
-    /// Chooses a punctual light in proportion to power. Returns the light and its probability.
+    /// Chooses a punctual light for the point `p` with unit normal `n` (zero: none): by the tree
+    /// where there is one, in proportion to power otherwise. Returns the light and its
+    /// probability; None when no light can reach `p`.
     #[inline]
-    pub fn choose_punctual(&self, u: f32) -> Option<(&PunctualLight, f32)> {
+    pub fn choose_punctual(&self, p: Vec3, n: Vec3, u: f32) -> Option<(&PunctualLight, f32)> {
+        if let Some(tree) = &self.punctual_tree {
+            let (i, pmf) = tree.choose(p, n, u)?;
+            return Some((&self.punctual[i], pmf));
+        }
         if self.punctual_distribution.is_empty() {
             return None;
         }
         let (i, pmf) = self.punctual_distribution.sample_discrete(u);
         Some((&self.punctual[i], pmf))
+    }
+
+    /// Chooses the punctual lights by power alone even where [`chooses_by_tree`] says otherwise:
+    /// the same expected image, for tests and benchmarks that compare the two choices.
+    pub fn choose_punctual_by_power(&mut self) {
+        self.punctual_tree = None;
     }
 }

@@ -80,6 +80,40 @@ impl LightBounds {
         }
     }
 
+    /// A point light at `position`: no extent, light in every direction (a cone of normals that
+    /// is the whole sphere, as pbrt-v4 bounds it).
+    pub fn point(position: Vec3, phi: f32) -> Self {
+        LightBounds {
+            lo: position,
+            hi: position,
+            phi,
+            w: Vec3::Z,
+            cos_o: -1.0,
+            cos_e: 0.0,
+            two_sided: false,
+        }
+    }
+
+    /// A spot light at `position` pointing along unit `direction`, full inside the inner cone and
+    /// fading to nothing at the outer one (pbrt-v4's bounds: the normals' cone is the inner cone,
+    /// and the light reaches the outer angle beyond it), widened by [`CONE_SLACK`] so that
+    /// rounding never rules out a point the spot still lights.
+    pub fn spot(position: Vec3, direction: Vec3, cos_inner: f32, cos_outer: f32, phi: f32) -> Self {
+        let (inner, outer) = (
+            det::acos(cos_inner.clamp(-1.0, 1.0)),
+            det::acos(cos_outer.clamp(-1.0, 1.0)),
+        );
+        LightBounds {
+            lo: position,
+            hi: position,
+            phi,
+            w: direction,
+            cos_o: (cos_inner - CONE_SLACK).max(-1.0),
+            cos_e: (det::cos((outer - inner).max(0.0)) - CONE_SLACK).max(-1.0),
+            two_sided: false,
+        }
+    }
+
     /// The bounds of two nodes' lights together.
     fn union(&self, other: &LightBounds) -> LightBounds {
         let (w, cos_o) = cone_union((self.w, self.cos_o), (other.w, other.cos_o));
