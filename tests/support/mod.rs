@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use pathfarm_server::scheduler::pass_ranges;
-use pathfarm_wire::api::{JobState, JobView, TileProgress, WorkerView};
+use pathfarm_wire::api::{JobState, JobView, TileProgress, WorkerState, WorkerView};
 use pathfarm_worker::client::ApiClient;
 use std::fs::File;
 use std::future::Future;
@@ -476,6 +476,50 @@ impl Farm {
             ],
         )
     }
+}
+
+/// How every test that kills `worker-a` (SIGKILL) in the middle of a job ends: a second worker,
+/// `worker-b`, finishes it; the dead worker's lease came back by expiry (nothing else gives a dead
+/// worker's lease back), the dead worker is marked lost (one lease after its last heartbeat), and
+/// the two merged every planned sample exactly once between them, each some. Returns the finished
+/// job and the second worker.
+pub async fn finish_after_a_killed_worker(
+    farm: &Farm,
+    server: &Proc,
+    id: &str,
+    planned: u64,
+    timeout: Duration,
+) -> (JobView, Proc) {
+    let api = farm.api();
+    let worker_b = farm.worker("worker-b", 5);
+    let done = wait_completed(&api, id, timeout).await;
+    assert_eq!(
+        (done.samples_planned, done.samples_done, done.leased_tasks),
+        (planned, planned, 0),
+        "{done:?}"
+    );
+    assert!(
+        server.log_text().contains("lease expired"),
+        "the server never expired worker A's lease"
+    );
+    let ws = poll(
+        "worker A to be marked lost",
+        Duration::from_secs(15),
+        || async {
+            let ws = workers(&api).await;
+            (named(&ws, "worker-a")?.state == WorkerState::Lost).then_some(ws)
+        },
+    )
+    .await;
+    let merged = |name: &str| {
+        named(&ws, name)
+            .unwrap_or_else(|| panic!("{name} not listed: {ws:?}"))
+            .samples_done
+    };
+    let (a, b) = (merged("worker-a"), merged("worker-b"));
+    assert!(a > 0 && b > 0, "worker A merged {a}, worker B {b}");
+    assert_eq!(a + b, planned, "a sample was lost or merged twice: {ws:?}");
+    (done, worker_b)
 }
 
 /// The end state every fault test asserts: the named workers' merged samples add up to exactly
