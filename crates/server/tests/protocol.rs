@@ -714,3 +714,53 @@ async fn a_repeated_or_late_release_changes_nothing() {
         server.stop().await;
     }
 }
+
+/// A worker upgraded before its server: slices go out as `application/octet-stream`, which a
+/// server from before that change refuses with 415 before reading the body (as this one still
+/// answers an unknown type); the worker then sends the same bytes as the slice's own type,
+/// `application/x-pathfarm-slice`, and the upload goes through. The old server is stood in for by
+/// its slice route alone, answering as it did.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_uploads_to_a_server_that_predates_octet_stream_slices() {
+    use axum::http::{header, HeaderMap};
+    use pathfarm_wire::api::{SLICE_CONTENT_TYPE, SLICE_CONTENT_TYPE_LEGACY};
+    use std::sync::{Arc, Mutex};
+    type Seen = Arc<Mutex<Vec<(String, Vec<u8>)>>>;
+    let seen: Seen = Arc::default();
+    let old_server = axum::Router::new().route(
+        "/api/v1/tasks/{id}/slices",
+        axum::routing::post(
+            |axum::extract::State(seen): axum::extract::State<Seen>,
+             headers: HeaderMap,
+             body: axum::body::Bytes| async move {
+                let ct = headers[header::CONTENT_TYPE].to_str().unwrap().to_string();
+                seen.lock().unwrap().push((ct.clone(), body.to_vec()));
+                if ct == SLICE_CONTENT_TYPE_LEGACY {
+                    let ack = serde_json::json!({"duplicate": false, "task_samples_done": 4,
+                        "task_complete": true, "keep_going": true});
+                    (StatusCode::OK, ack.to_string())
+                } else {
+                    let error = serde_json::json!({"error": {"code": "unsupported_media_type",
+                        "message": format!("expected Content-Type {SLICE_CONTENT_TYPE_LEGACY}, got {ct:?}")}});
+                    (StatusCode::UNSUPPORTED_MEDIA_TYPE, error.to_string())
+                }
+            },
+        ),
+    );
+    let old_server = old_server.with_state(seen.clone());
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    tokio::spawn(async move { axum::serve(listener, old_server).await });
+    let client = pathfarm_worker::client::ApiClient::new(&url, None).unwrap();
+    let body = b"PFSL and the rest of a slice".to_vec();
+    let ack = client.upload_slice(7, "token", body.clone()).await.unwrap();
+    assert!(ack.task_complete && !ack.duplicate, "{ack:?}");
+    let seen = seen.lock().unwrap().clone();
+    assert_eq!(
+        seen,
+        [
+            (SLICE_CONTENT_TYPE.to_string(), body.clone()),
+            (SLICE_CONTENT_TYPE_LEGACY.to_string(), body)
+        ]
+    );
+}

@@ -18,7 +18,7 @@ use pathfarm_wire::api::{
     Convergence, ErrorBody, Heartbeat, HeartbeatReply, JobCreated, JobList, JobPatch, JobSettings,
     JobView, Lease, PreviewView, Release, SliceAck, WorkerList, WorkerRegistered,
     WorkerRegistration, LEASE_TOKEN_HEADER, SCALE_MAX_HEADER, SCALE_MIN_HEADER, SLICE_CONTENT_TYPE,
-    WORKER_CREDENTIAL_HEADER,
+    SLICE_CONTENT_TYPE_LEGACY, WORKER_CREDENTIAL_HEADER,
 };
 use reqwest::{Method, RequestBuilder, Response, StatusCode, Url};
 use serde::de::DeserializeOwned;
@@ -441,16 +441,27 @@ impl ApiClient {
         body: Vec<u8>,
     ) -> Result<SliceAck, ClientError> {
         let worker = self.worker_of_task(task_id);
-        let ack: SliceAck = Self::json(
+        let body = bytes::Bytes::from(body);
+        let upload = |content_type: &'static str| {
             self.as_worker(
                 self.request(Method::POST, &format!("/api/v1/tasks/{task_id}/slices")),
                 worker.as_deref(),
             )
-            .header(reqwest::header::CONTENT_TYPE, SLICE_CONTENT_TYPE)
+            .header(reqwest::header::CONTENT_TYPE, content_type)
             .header(LEASE_TOKEN_HEADER, token)
-            .body(body),
-        )
-        .await?;
+            .body(body.clone())
+        };
+        let ack: SliceAck = match Self::json(upload(SLICE_CONTENT_TYPE)).await {
+            // A server from before slices were `application/octet-stream` takes only the slice's
+            // own type, and says so before it reads the body: a worker upgraded before its
+            // server sends that one.
+            Err(ClientError::Api { status, .. })
+                if status == StatusCode::UNSUPPORTED_MEDIA_TYPE =>
+            {
+                Self::json(upload(SLICE_CONTENT_TYPE_LEGACY)).await?
+            }
+            other => other?,
+        };
         if ack.task_complete {
             self.forget_task(task_id);
         }
