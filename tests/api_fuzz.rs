@@ -19,10 +19,13 @@
 //! `PATHFARM_REQUIRE_SCHEMATHESIS=1` (CI), where it fails. Reports go to
 //! `target/schemathesis/`.
 
+mod support;
+
 use std::net::{Ipv4Addr, TcpListener};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
+use support::external_tool;
 
 const BIN: &str = env!("CARGO_BIN_EXE_pathfarm");
 const SPEC: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../openapi.yaml");
@@ -35,34 +38,20 @@ impl Drop for Kill {
     }
 }
 
-fn schemathesis() -> Option<String> {
-    let candidate =
-        std::env::var("PATHFARM_SCHEMATHESIS").unwrap_or_else(|_| "schemathesis".into());
-    let ok = Command::new(&candidate)
-        .arg("--version")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    ok.then_some(candidate)
-}
-
 fn report_dir() -> PathBuf {
-    let target = std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../target")));
-    let dir = target.join("schemathesis");
+    let dir = support::target_dir().join("schemathesis");
     std::fs::create_dir_all(&dir).expect("create target/schemathesis");
     dir
 }
 
 #[test]
 fn the_api_never_fails_and_always_matches_its_spec() {
-    let Some(st) = schemathesis() else {
-        if std::env::var("PATHFARM_REQUIRE_SCHEMATHESIS").as_deref() == Ok("1") {
-            panic!("schemathesis not found (PATHFARM_SCHEMATHESIS or PATH) and PATHFARM_REQUIRE_SCHEMATHESIS=1");
-        }
-        eprintln!("SKIPPED: schemathesis not found; `pip install schemathesis` or set PATHFARM_SCHEMATHESIS");
+    let Some(st) = external_tool(
+        "PATHFARM_SCHEMATHESIS",
+        "schemathesis",
+        "PATHFARM_REQUIRE_SCHEMATHESIS",
+        "`pip install schemathesis`",
+    ) else {
         return;
     };
     let port = TcpListener::bind((Ipv4Addr::LOCALHOST, 0))

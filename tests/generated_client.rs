@@ -15,7 +15,7 @@
 mod support;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use support::*;
 
 const SPEC: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../openapi.yaml");
@@ -24,26 +24,12 @@ const DRIVE: &str = concat!(
     "/../../tests/generated_client/drive.py"
 );
 
-/// The generator, and the Python of its virtualenv (`python3` on PATH when it has none).
-fn generator() -> Option<(PathBuf, PathBuf)> {
-    let exe = std::env::var_os("PATHFARM_OPENAPI_PYTHON_CLIENT")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("openapi-python-client"));
-    let ok = Command::new(&exe)
-        .arg("--version")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !ok {
-        return None;
-    }
-    let python = exe
-        .parent()
+/// The Python of the generator's virtualenv (`python3` on PATH when it has none).
+fn python_beside(exe: &Path) -> PathBuf {
+    exe.parent()
         .map(|bin| bin.join("python"))
         .filter(|p| p.exists())
-        .unwrap_or_else(|| PathBuf::from("python3"));
-    Some((exe, python))
+        .unwrap_or_else(|| PathBuf::from("python3"))
 }
 
 /// Generates the client into `dir` and returns the package's parent folder; panics on any
@@ -88,19 +74,15 @@ fn generate(exe: &Path, dir: &TestDir) -> PathBuf {
 
 #[tokio::test(flavor = "multi_thread")]
 async fn a_generated_python_client_drives_a_whole_job() {
-    let Some((exe, python)) = generator() else {
-        if std::env::var("PATHFARM_REQUIRE_OPENAPI_PYTHON_CLIENT").as_deref() == Ok("1") {
-            panic!(
-                "openapi-python-client not found (PATHFARM_OPENAPI_PYTHON_CLIENT or PATH) and \
-                 PATHFARM_REQUIRE_OPENAPI_PYTHON_CLIENT=1"
-            );
-        }
-        eprintln!(
-            "SKIPPED: openapi-python-client not found; `pip install openapi-python-client` or \
-             set PATHFARM_OPENAPI_PYTHON_CLIENT"
-        );
+    let Some(exe) = external_tool(
+        "PATHFARM_OPENAPI_PYTHON_CLIENT",
+        "openapi-python-client",
+        "PATHFARM_REQUIRE_OPENAPI_PYTHON_CLIENT",
+        "`pip install openapi-python-client`",
+    ) else {
         return;
     };
+    let python = python_beside(&exe);
     let farm = Farm::new("generated-client");
     let client_root = generate(&exe, &farm.dir);
     let _server = farm.serve("serve", &[]).await;

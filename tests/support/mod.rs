@@ -548,6 +548,35 @@ pub async fn assert_merged_once_and_identical(
     assert_same_bytes(&exr, &local, what);
 }
 
+/// An external program a test drives (schemathesis, openapi-python-client): the path in `var`,
+/// else `default` on PATH, if it answers `--version`. When it does not, the test is SKIPPED (it
+/// prints why and returns None), unless `require_var` is `1` (CI, where `.ci/run` installs the
+/// program): then it fails, saying how to install it.
+pub fn external_tool(
+    var: &str,
+    default: &str,
+    require_var: &str,
+    install: &str,
+) -> Option<PathBuf> {
+    let exe = std::env::var_os(var)
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(default));
+    let answers = Command::new(&exe)
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if answers {
+        return Some(exe);
+    }
+    if std::env::var(require_var).as_deref() == Ok("1") {
+        panic!("{default} not found ({var} or PATH) and {require_var}=1; {install}");
+    }
+    eprintln!("SKIPPED: {default} not found; {install} or set {var}");
+    None
+}
+
 /// The workspace's `target/` (or `CARGO_TARGET_DIR`): where tests leave reports.
 pub fn target_dir() -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR")
