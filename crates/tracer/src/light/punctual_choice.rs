@@ -9,13 +9,10 @@
 //! number is remapped, so no dimension is added). Both are unbiased: every lamp that can light a
 //! point has a non-zero probability there.
 
-use super::tree::{LightBounds, LightTree};
+use super::tree::{LightBounds, LightTree, ONE_BELOW};
 use super::PunctualLight;
 use crate::sampling::Distribution1D;
 use glam::Vec3;
-
-/// The largest f32 below 1.
-const ONE_BELOW: f32 = 1.0 - f32::EPSILON / 2.0;
 
 /// The tree over a scene's point and spot lights, and the directional lights beside it.
 #[derive(Clone, Debug)]

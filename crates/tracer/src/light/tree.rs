@@ -521,7 +521,7 @@ fn build_binary(
 }
 
 /// The largest f32 below 1.
-const ONE_BELOW: f32 = 1.0 - f32::EPSILON / 2.0;
+pub(super) const ONE_BELOW: f32 = 1.0 - f32::EPSILON / 2.0;
 
 /// Reorders `ids` so that the lights of the cheapest split (by [`LightBounds::cost`] over
 /// [`BUCKETS`] buckets of centroids on each axis) come first, and returns how many there are; None
