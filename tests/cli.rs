@@ -992,6 +992,61 @@ fn a_failed_store_start_does_not_print_the_password() {
     }
 }
 
+/// `pathfarm bench frames --quick` runs a frame job, the same frames in sequence and a still of
+/// the same total samples, each on a fresh `pathfarm up` (real processes), and reports every one
+/// whole: every sample merged, every frame's first pass seen, tasks and slices counted.
+#[test]
+fn bench_frames_measures_a_frame_job_against_a_still_one() {
+    let dir = TestDir::new("bench-frames");
+    let scenes = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes");
+    let out = command(&dir)
+        .args([
+            "bench",
+            "frames",
+            "--quick",
+            "--threads",
+            "1",
+            "--seed",
+            "3",
+        ])
+        .args(["--scenes-dir", scenes, "--out", &dir.arg("report")])
+        .output()
+        .expect("run pathfarm bench frames");
+    assert!(
+        out.status.success(),
+        "pathfarm bench frames failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json = std::fs::read(dir.path("report").join("frames.json")).expect("read frames.json");
+    let r: serde_json::Value = serde_json::from_slice(&json).expect("frames.json is JSON");
+    let rows = r["rows"].as_array().expect("rows");
+    let frames: Vec<u64> = rows
+        .iter()
+        .map(|row| row["frames"].as_u64().unwrap_or(0))
+        .collect();
+    assert_eq!(frames, [24, 24, 1], "{r}");
+    // --quick: 24 frames of 32×18 at 2 spp, and the still with all of them.
+    let samples = 32 * 18 * 2 * 24;
+    for row in rows {
+        assert_eq!(row["samples"].as_u64(), Some(samples), "{row}");
+        assert!(
+            row["samples_per_second"].as_f64().unwrap_or(0.0) > 0.0,
+            "{row}"
+        );
+        assert!(row["slices"].as_u64().unwrap_or(0) >= row["tasks"].as_u64().unwrap_or(0));
+    }
+    assert!(rows[0]["first_pass_seconds"].as_f64().is_some(), "{r}");
+    assert!(rows[0]["tasks"].as_u64().unwrap_or(0) >= 24, "{r}");
+    assert!(rows[2]["tasks"].as_u64().unwrap_or(0) >= 1, "{r}");
+    for key in ["ratio", "sequential_ratio"] {
+        let v = r[key].as_f64().unwrap_or(0.0);
+        assert!(v > 0.0 && v.is_finite(), "{key} {v}");
+    }
+    let md = std::fs::read_to_string(dir.path("report").join("frames.md")).expect("frames.md");
+    assert!(md.contains("24 frames"), "{md}");
+    assert!(!dir.path("report").join("frames-work").exists());
+}
+
 /// `pathfarm bench up --quick`: the direct render and `up` in both layouts, as real processes,
 /// give the same bytes; the report counts the farm's processes (up and its workers) and their
 /// memory.

@@ -297,7 +297,7 @@ async fn sigterm_worker_hands_back_and_exits_cleanly() {
 }
 
 /// `pathfarm up`: a server and two local worker processes render a submitted job; Ctrl-C stops the
-/// workers cleanly (they sign off) and then the server, leaving no process behind.
+/// workers cleanly (they sign off, every lane) and then the server, leaving no process behind.
 #[tokio::test(flavor = "multi_thread")]
 async fn up_runs_a_job_end_to_end() {
     let mut farm = Farm::new("up");
@@ -360,9 +360,10 @@ async fn up_runs_a_job_end_to_end() {
     farm.url = format!("http://127.0.0.1:{}", farm.port);
     let _server = farm.serve("server", &[]).await;
     let api = farm.api();
+    // Each process ran `up`'s default two task lanes: two workers of the farm each.
     let ws = workers(&api).await;
-    assert_eq!(ws.len(), 2, "{ws:?}");
-    for name in ["local-1", "local-2"] {
+    assert_eq!(ws.len(), 4, "{ws:?}");
+    for name in ["local-1", "local-1#2", "local-2", "local-2#2"] {
         let w = named(&ws, name).unwrap_or_else(|| panic!("{name} not listed: {ws:?}"));
         assert_eq!(w.state, WorkerState::Offline, "{w:?}");
     }

@@ -34,11 +34,11 @@ async fn postgres_restart_mid_job_loses_nothing() {
     let Some((admin_url, restart)) = settings_or_skip() else {
         return;
     };
-    let db = PgTestDatabase::create(&admin_url, "pg_restart");
+    let db = pg_test_database(&admin_url, "pg_restart");
     let dir = TestDir::new("pg-restart");
     let port = free_port();
     let listen = format!("127.0.0.1:{port}");
-    let db_url = db.url();
+    let db_url = db.url.clone();
     let mut server = Proc::start(
         "server",
         &dir,

@@ -1,6 +1,6 @@
 //! Soak (issue 6): a real `pathfarm serve` process under 200 simulated workers, 20 dashboard
 //! pollers and a steady churn of jobs for minutes, on SQLite, then on PostgreSQL. The driver is
-//! `pathfarm_bench::farm::soak` (real HTTP, the server's memory read from `/proc`); this test
+//! `pathfarm_testkit::soak` (real HTTP, the server's memory read from `/proc`); this test
 //! starts the servers, runs it and asserts on its report:
 //!
 //! - no request failed (no 5xx, no transport error, no unexpected 4xx);
@@ -20,7 +20,7 @@
 
 mod support;
 
-use pathfarm_bench::farm::soak::{self, SoakConfig, SoakReport};
+use pathfarm_testkit::soak::{self, SoakConfig, SoakReport};
 use std::time::{Duration, Instant};
 use support::*;
 
@@ -126,9 +126,9 @@ async fn soak_200_workers_20_dashboards_sqlite_then_postgres() {
     let mut failures = record(&soak_store(&dir, "sqlite", &dir.arg("soak.db"), seconds).await);
     match std::env::var("PATHFARM_TEST_POSTGRES_URL") {
         Ok(admin) if !admin.is_empty() => {
-            let db = PgTestDatabase::create(&admin, "soak");
+            let db = pg_test_database(&admin, "soak");
             failures.extend(record(
-                &soak_store(&dir, "postgres", &db.url(), seconds).await,
+                &soak_store(&dir, "postgres", &db.url, seconds).await,
             ));
         }
         _ => eprintln!("SKIPPED: the soak on PostgreSQL needs PATHFARM_TEST_POSTGRES_URL"),

@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 use pathfarm_server::scheduler::pass_ranges;
+pub use pathfarm_testkit::harness::PgDatabase;
 use pathfarm_wire::api::{JobState, JobView, TileProgress, WorkerState, WorkerView};
 use pathfarm_worker::client::ApiClient;
 use std::fs::File;
@@ -601,59 +602,9 @@ pub fn raise_fd_limit() {
     }
 }
 
-/// A PostgreSQL database of a test's own, created with `psql` beside the one `admin_url` names,
-/// and dropped (connections and all) when this is dropped.
-pub struct PgTestDatabase {
-    pub admin_url: String,
-    pub name: String,
-}
-
-impl PgTestDatabase {
-    pub fn psql(url: &str, sql: &str) -> Result<(), String> {
-        let out = Command::new("psql")
-            .args([url, "-v", "ON_ERROR_STOP=1", "-q", "-c", sql])
-            .output()
-            .map_err(|e| format!("psql: {e}"))?;
-        if out.status.success() {
-            Ok(())
-        } else {
-            Err(format!(
-                "psql {sql:?}: {}",
-                String::from_utf8_lossy(&out.stderr).trim()
-            ))
-        }
-    }
-
-    /// `pathfarm_TEST_PID`: unique per test and process.
-    pub fn create(admin_url: &str, test: &str) -> PgTestDatabase {
-        let name = format!("pathfarm_{test}_{}", std::process::id());
-        let _ = PgTestDatabase::psql(admin_url, &format!("DROP DATABASE IF EXISTS {name}"));
-        PgTestDatabase::psql(admin_url, &format!("CREATE DATABASE {name}"))
-            .unwrap_or_else(|e| panic!("cannot create the test database {name}: {e}"));
-        PgTestDatabase {
-            admin_url: admin_url.to_string(),
-            name,
-        }
-    }
-
-    /// The admin URL with its database name replaced (a query string is kept).
-    pub fn url(&self) -> String {
-        let (base, rest) = self
-            .admin_url
-            .rsplit_once('/')
-            .unwrap_or((self.admin_url.as_str(), ""));
-        let query = rest
-            .split_once('?')
-            .map_or(String::new(), |(_, q)| format!("?{q}"));
-        format!("{base}/{}{query}", self.name)
-    }
-}
-
-impl Drop for PgTestDatabase {
-    fn drop(&mut self) {
-        let _ = PgTestDatabase::psql(
-            &self.admin_url,
-            &format!("DROP DATABASE IF EXISTS {} WITH (FORCE)", self.name),
-        );
-    }
+/// A PostgreSQL database of a test's own (`pathfarm_TEST_…`), created beside the one `admin_url`
+/// names and dropped, connections and all, when the value is dropped: the test kit's.
+pub fn pg_test_database(admin_url: &str, test: &str) -> PgDatabase {
+    PgDatabase::create_blocking(admin_url, &format!("pathfarm_{test}"))
+        .unwrap_or_else(|e| panic!("cannot create the test database for {test}: {e}"))
 }

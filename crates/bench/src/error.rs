@@ -36,6 +36,11 @@ impl BenchError {
     }
 }
 
+/// A farm measurement's failure (`up`, `frames`, and the test kit's farm benchmarks).
+pub fn farm_err(what: impl std::fmt::Display) -> BenchError {
+    BenchError::Farm(what.to_string())
+}
+
 /// Writes `bytes` to `path`, creating its parent directory.
 pub fn write_file(path: &std::path::Path, bytes: &[u8]) -> Result<(), BenchError> {
     if let Some(dir) = path.parent() {

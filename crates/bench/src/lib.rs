@@ -1,15 +1,20 @@
 //! # pathfarm-bench
 //!
-//! The speed-against-accuracy study behind `pathfarm bench`: for every bench scene and estimator,
-//! error against time on a ladder of equal-time budgets, throughput, efficiency and stability; the
-//! lecture experiments; and the farm's scaling. Results go to `report.md`, `results.json` and SVG
-//! charts. Unlike the tracer, this crate measures wall-clock time and writes files.
+//! What `pathfarm bench` measures: for every bench scene and estimator, error against time on a
+//! ladder of equal-time budgets, throughput, efficiency and stability, and the lecture experiments
+//! (`report.md`, `results.json` and SVG charts); the tracer's speed targets ([`speed`]), scenes at
+//! scale ([`scale`]), the Blender suite ([`blender_suite`]), `pathfarm up` against `pathfarm
+//! render` ([`up`]) and frame jobs against a still ([`frames`]), the last two with real
+//! processes of the binary. Unlike the tracer, this crate measures wall-clock time and writes
+//! files. The farm's capacity benchmarks (simulated workers, soak, back-pressure) are test
+//! tooling and live in `pathfarm-testkit`, outside the shipped binary.
 
 pub mod blender_suite;
 pub mod chart;
 pub mod error;
 pub mod experiments;
-pub mod farm;
+pub mod frames;
+pub mod job_watch;
 pub mod metrics;
 pub mod reference;
 pub mod render;
@@ -18,6 +23,7 @@ pub mod scale;
 pub mod scenes;
 pub mod speed;
 pub mod study;
+pub mod up;
 
 pub use error::BenchError;
 
@@ -41,12 +47,6 @@ pub struct BenchOptions {
     pub cache_dir: PathBuf,
     pub threads: usize,
     pub seed: u64,
-    /// Run the estimator study and the lecture experiments.
-    pub tracer: bool,
-    /// Run the farm-scaling part.
-    pub farm: bool,
-    /// PostgreSQL for the farm part's simulated workers (SQLite is always measured).
-    pub postgres_url: Option<String>,
     /// The command line, written into the report.
     pub command_line: String,
 }
@@ -62,9 +62,6 @@ impl BenchOptions {
             cache_dir: default_cache_dir(),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             seed: 1,
-            tracer: true,
-            farm: true,
-            postgres_url: None,
             command_line: String::new(),
         }
     }
@@ -185,7 +182,6 @@ pub struct BenchResults {
     pub seed: u64,
     pub scenes: Vec<SceneResult>,
     pub experiments: Option<experiments::Experiments>,
-    pub farm: Option<farm::FarmResults>,
 }
 
 /// Runs the study and writes `report.md`, `results.json`, `charts/` and `images/` into
@@ -205,22 +201,8 @@ pub fn run(opts: &BenchOptions) -> Result<BenchResults, BenchError> {
         seed: opts.seed,
         scenes: Vec::new(),
         experiments: None,
-        farm: None,
     };
-    if opts.tracer {
-        pool.install(|| tracer_study(opts, &mut results))?;
-    }
-    if opts.farm {
-        let farm_opts = farm::FarmOptions {
-            quick: opts.quick,
-            scene_path: opts.scenes_dir.join("cornell.gltf"),
-            work_dir: opts.out_dir.join("farm-work"),
-            postgres_url: opts.postgres_url.clone(),
-            threads: opts.threads,
-        };
-        results.farm = Some(farm::run(&farm_opts)?);
-        let _ = std::fs::remove_dir_all(&farm_opts.work_dir);
-    }
+    pool.install(|| tracer_study(opts, &mut results))?;
     let json = serde_json::to_vec_pretty(&results)
         .map_err(|e| BenchError::Invalid(format!("results.json: {e}")))?;
     write_file(&opts.out_dir.join("results.json"), &json)?;

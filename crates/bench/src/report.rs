@@ -364,9 +364,5 @@ pub fn write(r: &BenchResults, dir: &Path) -> Result<String, BenchError> {
     if let Some(e) = &r.experiments {
         experiments_section(&mut out, e);
     }
-    if let Some(farm) = &r.farm {
-        let _ = writeln!(out);
-        out.push_str(&crate::farm::write_report(farm, dir)?);
-    }
     Ok(out)
 }

@@ -14,7 +14,6 @@ fn run_quick() -> (BenchResults, PathBuf) {
     opts.scenes = vec!["cornell".into(), "furnace".into()];
     opts.scenes_dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes"));
     opts.cache_dir = root.join("cache");
-    opts.farm = false;
     opts.threads = 2;
     let results = pathfarm_bench::run(&opts).expect("quick bench");
     (results, out)

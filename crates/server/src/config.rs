@@ -213,7 +213,7 @@ pub struct ServerConfig {
     /// Rows (tiles or tasks) a submission stores per transaction; `None`: the store's default
     /// ([`crate::store::Store::default_batch_rows`]: batches on SQLite, whose one writer makes
     /// every other write wait for a submission, the whole plan at once on PostgreSQL, where
-    /// inserting blocks nobody). `pathfarm bench submission` measures both on both.
+    /// inserting blocks nobody). `farm-bench submission` (the test kit) measures both on both.
     pub submission_batch_rows: Option<usize>,
     /// Most bytes job images take in this server, counted before they are spent: the images kept
     /// for the next request (least recently used let go first), the images requests are using,

@@ -2,7 +2,7 @@
 //! length the server asks for, which follows the active workers and the store's measured write
 //! capacity; `/metrics` shows the estimate. Real handlers through the router (`oneshot`) on the
 //! real stores. (The arithmetic is tested in `pacing.rs`; the load it holds is measured by
-//! `pathfarm bench farm --open-loop`.)
+//! `farm-bench pressure`, the test kit's.)
 
 mod common;
 

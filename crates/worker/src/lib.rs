@@ -58,6 +58,12 @@ pub struct WorkerConfig {
     pub slice_samples: Option<u32>,
     /// Longest wait between lease attempts while the queue is empty.
     pub idle_poll: Duration,
+    /// Task lanes (at least 1): each lane is a worker of the farm of its own (registered as
+    /// `name`, `name#2`, …) that leases and uploads on its own, while every lane renders on the
+    /// one pool of `threads` threads and shares one copy of each scene. With two, one lane's
+    /// round trips (lease, upload, the next task's scene) overlap the other's rendering, which
+    /// keeps the threads busy on tasks shorter than a round trip.
+    pub lanes: usize,
 }
 
 /// The default [`WorkerConfig::cache_max_bytes`]: 4 GiB.
@@ -76,6 +82,7 @@ impl WorkerConfig {
             slice_seconds: 1.5,
             slice_samples: None,
             idle_poll: Duration::from_millis(500),
+            lanes: 1,
         }
     }
 }
@@ -120,6 +127,18 @@ pub struct WorkerReport {
 }
 
 impl WorkerReport {
+    /// Adds another's counts to these (a worker's lanes, a farm's workers). `render_seconds` is
+    /// then a sum over lanes that may have rendered at the same time on the same threads.
+    pub fn add(&mut self, other: &WorkerReport) {
+        self.tasks += other.tasks;
+        self.slices += other.slices;
+        self.samples += other.samples;
+        self.invalid_samples += other.invalid_samples;
+        self.render_seconds += other.render_seconds;
+        self.invalid_jobs_reported
+            .extend(other.invalid_jobs_reported.iter().cloned());
+    }
+
     /// Counts a slice's invalid samples. The first slice of a job that has any logs one warning
     /// with the count and the first example; later ones only add to the count (given when the
     /// worker stops) and log at debug level, so a broken scene cannot flood the log.
@@ -161,10 +180,12 @@ struct Session {
     lease_duration: Duration,
 }
 
-/// Runs the worker until `stop` turns true (then cleanly) or registration is refused.
+/// Runs the worker until `stop` turns true (then cleanly) or registration is refused: its
+/// [`WorkerConfig::lanes`] lanes on one pool of render threads and one scene cache; the report is
+/// theirs summed, and the first lane's error (once every lane has ended) is the worker's.
 pub async fn run(
     config: WorkerConfig,
-    mut stop: watch::Receiver<bool>,
+    stop: watch::Receiver<bool>,
 ) -> Result<WorkerReport, WorkerError> {
     let pool = Arc::new(
         rayon::ThreadPoolBuilder::new()
@@ -173,6 +194,49 @@ pub async fn run(
             .build()
             .map_err(|e| WorkerError::Threads(e.to_string()))?,
     );
+    let cache = Arc::new(tokio::sync::Mutex::new(SceneCache::new(
+        config.cache_dir.clone(),
+        config.cache_max_bytes,
+    )));
+    let lanes = config.lanes.max(1);
+    if lanes == 1 {
+        return lane(config, stop, pool, cache).await;
+    }
+    let handles: Vec<_> = (1..=lanes)
+        .map(|k| {
+            let mut c = config.clone();
+            if k > 1 {
+                c.name = format!("{}#{k}", config.name);
+            }
+            tokio::spawn(lane(c, stop.clone(), pool.clone(), cache.clone()))
+        })
+        .collect();
+    let mut total = WorkerReport::default();
+    let mut first_error = None;
+    for h in handles {
+        match h.await {
+            Ok(Ok(r)) => total.add(&r),
+            Ok(Err(e)) => {
+                first_error.get_or_insert(e);
+            }
+            Err(e) => {
+                first_error.get_or_insert(WorkerError::Threads(format!("a lane failed: {e}")));
+            }
+        }
+    }
+    match first_error {
+        Some(e) => Err(e),
+        None => Ok(total),
+    }
+}
+
+/// One lane: register, then lease, render and upload until `stop` (see [`run`]).
+async fn lane(
+    config: WorkerConfig,
+    mut stop: watch::Receiver<bool>,
+    pool: Arc<rayon::ThreadPool>,
+    cache: Arc<tokio::sync::Mutex<SceneCache>>,
+) -> Result<WorkerReport, WorkerError> {
     let client = ApiClient::with_ca_cert(
         &config.server,
         config.token.as_ref().map(|t| t.expose().to_string()),
@@ -193,7 +257,6 @@ pub async fn run(
         ))
     };
     let mut heartbeat = beat(&session);
-    let mut cache = SceneCache::new(config.cache_dir.clone(), config.cache_max_bytes);
     let mut report = WorkerReport::default();
     let mut rate = Rate::default();
     let mut idle = Duration::from_millis(20);
@@ -274,7 +337,7 @@ pub async fn run(
             &session,
             &config,
             &pool,
-            &mut cache,
+            &cache,
             &lease,
             &mut previous,
             &mut next,
@@ -586,7 +649,7 @@ async fn work_on(
     session: &Session,
     config: &WorkerConfig,
     pool: &Arc<rayon::ThreadPool>,
-    cache: &mut SceneCache,
+    cache: &tokio::sync::Mutex<SceneCache>,
     lease: &Lease,
     previous: &mut Option<InFlight>,
     next: &mut Option<NextLease>,
@@ -596,7 +659,10 @@ async fn work_on(
     report: &mut WorkerReport,
 ) -> Result<Option<InFlight>, TaskError> {
     let client = &session.client;
+    // One lane loads a scene while the others wait for it: one copy, loaded once.
     let scene = match cache
+        .lock()
+        .await
         .get(
             client,
             &lease.scene_hash,

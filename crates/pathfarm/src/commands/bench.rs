@@ -1,4 +1,6 @@
-//! `pathfarm bench`: the speed-against-accuracy study and the farm's scaling (`pathfarm-bench`).
+//! `pathfarm bench`: the speed-against-accuracy study, the tracer's targets, and the farm against a
+//! direct render (`pathfarm-bench`). The farm's capacity benchmarks (simulated workers, soak,
+//! back-pressure, huge submissions) are test tooling: `pathfarm-testkit`'s `farm-bench`.
 
 use anyhow::Context as _;
 use clap::{Args, ValueEnum};
@@ -7,17 +9,11 @@ use std::path::PathBuf;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Suite {
-    /// The estimator study, the lecture experiments and the farm scaling.
+    /// The estimator study and the lecture experiments: error against time per scene and
+    /// estimator. Writes report.md, results.json, charts/ and images/.
     All,
-    /// The estimator study and the lecture experiments.
+    /// The same as `all`.
     Tracer,
-    /// Farm scaling only: workers, overhead against a direct render, first preview, simulated
-    /// workers on SQLite (and PostgreSQL with --postgres).
-    Farm,
-    /// A soak of a real `pathfarm serve` process: 200 simulated workers, 20 dashboard pollers and
-    /// a churn of jobs for --seconds on SQLite (and PostgreSQL with --postgres); latencies, the
-    /// server's memory, exactness. Writes soak-{store}.md and .json; fails if anything failed.
-    Soak,
     /// The tracer's speed targets: the million-triangle scene's build, throughput and peak memory;
     /// the 330k-triangle scene's BVH build and throughput; the Cornell box's throughput and its
     /// error against time versus ../shared/refs/cornell.exr. Writes speed.md and speed.json.
@@ -34,22 +30,10 @@ pub enum Suite {
     Scale,
     /// An animation on the farm: a frame job of scenes/suite/animated.glb (240 frames at 160×90,
     /// 16 spp; 24 frames at 32×18, 2 spp with --quick) against a still job of the same scene and
-    /// total samples, each on one in-process worker of --threads threads (default 2): samples/s,
+    /// total samples, each on a fresh `pathfarm up` with one worker process of --threads threads (default 2): samples/s,
     /// their ratio, and the time until every frame has its first pass. Writes frames.md and
     /// frames.json. Not part of `all`.
     Frames,
-    /// Back-pressure: 10,000 simulated workers (1,000 with --quick) register over real HTTP and
-    /// render open loop (--pace seconds a sample), with the server's back-pressure and without,
-    /// for --seconds each, on SQLite (and PostgreSQL with --postgres): uploads and leases a
-    /// second, latencies, 5xx, slow_down answers, the first complete pass, exactness. Writes
-    /// pressure.md and pressure.json. Not part of `all`.
-    Pressure,
-    /// A huge submission (2048², tile 16, 240,000 spp: 458,752 tasks; 512² with --quick) while 16
-    /// simulated workers lease and give back tasks in a closed loop, over real HTTP: lease
-    /// latency before and during it, the plan stored in one transaction and in batches, on
-    /// SQLite (and PostgreSQL with --postgres). Writes submission.md and submission.json. Not
-    /// part of `all`.
-    Submission,
     /// `pathfarm up` against `pathfarm render` on the same cores (--threads, default every
     /// core): the Cornell box at 512², 256 spp and a million-triangle sphere, rendered directly
     /// and by `up` (real processes, the job sent with `pathfarm submit --wait`) in its default
@@ -71,7 +55,7 @@ pub struct BenchArgs {
     /// Largest equal-time budget per configuration, in seconds (default 2; 0.25 with --quick).
     #[arg(long)]
     pub time_budget: Option<f64>,
-    /// Small images, fixed sample counts and short farm runs: a smoke run of a minute or two.
+    /// Small images and fixed sample counts: a smoke run of a minute or two.
     #[arg(long)]
     pub quick: bool,
     /// Render threads (default: every core; 2 for `speed` and `scale`, the threads their targets
@@ -87,9 +71,6 @@ pub struct BenchArgs {
     /// Where rendered references are kept between runs (default ~/.cache/pathfarm/bench).
     #[arg(long)]
     pub cache: Option<PathBuf>,
-    /// Also measure the farm's simulated workers on this PostgreSQL database.
-    #[arg(long, env = "PATHFARM_BENCH_POSTGRES")]
-    pub postgres: Option<String>,
     /// Samples per pixel (`blender` only; default 256, 32 with --quick).
     #[arg(long)]
     pub spp: Option<u32>,
@@ -104,49 +85,10 @@ pub struct BenchArgs {
     /// layout, for a before-and-after in one run.
     #[arg(long)]
     pub baseline: Option<PathBuf>,
-    /// The soak's window per store, in seconds (`soak` and `pressure` only).
-    #[arg(long, default_value_t = 120.0)]
-    pub seconds: f64,
-    /// Seconds a simulated worker takes per sample of its tile (`pressure` only).
-    #[arg(long, default_value_t = 1.5)]
-    pub pace: f64,
     /// Output directory: report.md, results.json, charts/, images/ (speed.md and speed.json for
     /// `speed`).
     #[arg(long)]
     pub out: PathBuf,
-}
-
-fn soak(args: BenchArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        args.seconds > 0.0 && args.seconds.is_finite(),
-        "--seconds must be a positive number"
-    );
-    let scene_path = args.scenes_dir.join("cornell.gltf");
-    anyhow::ensure!(
-        scene_path.is_file(),
-        "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
-        args.scenes_dir.display()
-    );
-    let opts = pathfarm_bench::farm::soak::SoakOptions {
-        server_exe: std::env::current_exe().context("cannot find this executable")?,
-        scene_path,
-        seconds: args.seconds,
-        postgres_url: args.postgres,
-        out_dir: args.out.clone(),
-    };
-    let reports = pathfarm_bench::farm::soak::run_with_servers(&opts).context("soak failed")?;
-    let mut failures = Vec::new();
-    for r in &reports {
-        println!("{}", r.markdown());
-        failures.extend(
-            r.failures()
-                .into_iter()
-                .map(|f| format!("{}: {f}", r.store)),
-        );
-    }
-    eprintln!("soak reports in {}", args.out.display());
-    anyhow::ensure!(failures.is_empty(), "soak failed:\n{}", failures.join("\n"));
-    Ok(())
 }
 
 fn speed(args: BenchArgs) -> anyhow::Result<()> {
@@ -228,7 +170,8 @@ fn blender(args: BenchArgs) -> anyhow::Result<()> {
 fn frames(args: BenchArgs) -> anyhow::Result<()> {
     let threads = args.threads.unwrap_or(2);
     anyhow::ensure!(threads > 0, "--threads must be at least 1");
-    let opts = pathfarm_bench::farm::frames::FramesOptions {
+    let opts = pathfarm_bench::frames::FramesOptions {
+        exe: std::env::current_exe().context("cannot find this executable")?,
         out_dir: args.out.clone(),
         scenes_dir: args.scenes_dir,
         threads,
@@ -236,8 +179,7 @@ fn frames(args: BenchArgs) -> anyhow::Result<()> {
         seed: args.seed,
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     };
-    let (_, markdown) =
-        pathfarm_bench::farm::frames::run(&opts).context("frames benchmark failed")?;
+    let (_, markdown) = pathfarm_bench::frames::run(&opts).context("frames benchmark failed")?;
     println!("{markdown}");
     eprintln!("report in {}", args.out.join("frames.md").display());
     Ok(())
@@ -253,7 +195,7 @@ fn up(args: BenchArgs) -> anyhow::Result<()> {
         "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
         args.scenes_dir.display()
     );
-    let opts = pathfarm_bench::farm::up::UpOptions {
+    let opts = pathfarm_bench::up::UpOptions {
         exe: std::env::current_exe().context("cannot find this executable")?,
         scenes_dir: args.scenes_dir,
         out_dir: args.out.clone(),
@@ -262,8 +204,7 @@ fn up(args: BenchArgs) -> anyhow::Result<()> {
         baseline: args.baseline,
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
     };
-    let (results, markdown) =
-        pathfarm_bench::farm::up::run(&opts).context("up benchmark failed")?;
+    let (results, markdown) = pathfarm_bench::up::run(&opts).context("up benchmark failed")?;
     println!("{markdown}");
     eprintln!("report in {}", args.out.join("up.md").display());
     let different: Vec<_> = results.rows.iter().filter(|r| !r.identical).collect();
@@ -274,71 +215,14 @@ fn up(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn submission(args: BenchArgs) -> anyhow::Result<()> {
-    let scene_path = args.scenes_dir.join("cornell.gltf");
-    anyhow::ensure!(
-        scene_path.is_file(),
-        "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
-        args.scenes_dir.display()
-    );
-    let opts = pathfarm_bench::farm::submission::SubmissionOptions {
-        out_dir: args.out.clone(),
-        scene_path,
-        work_dir: args.out.join("submission-work"),
-        postgres_url: args.postgres,
-        workers: 16,
-        quick: args.quick,
-        command_line: std::env::args().collect::<Vec<_>>().join(" "),
-    };
-    let (_, markdown) =
-        pathfarm_bench::farm::submission::run(&opts).context("submission benchmark failed")?;
-    let _ = std::fs::remove_dir_all(&opts.work_dir);
-    println!("{markdown}");
-    eprintln!("report in {}", args.out.join("submission.md").display());
-    Ok(())
-}
-
-fn pressure(args: BenchArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        args.seconds > 0.0 && args.seconds.is_finite() && args.pace > 0.0 && args.pace.is_finite(),
-        "--seconds and --pace must be positive numbers"
-    );
-    let scene_path = args.scenes_dir.join("cornell.gltf");
-    anyhow::ensure!(
-        scene_path.is_file(),
-        "{} has no cornell.gltf: run from the repository root or pass --scenes-dir",
-        args.scenes_dir.display()
-    );
-    let opts = pathfarm_bench::farm::pressure::PressureOptions {
-        out_dir: args.out.clone(),
-        scene_path,
-        work_dir: args.out.join("pressure-work"),
-        postgres_url: args.postgres,
-        workers: if args.quick { 1_000 } else { 10_000 },
-        seconds: args.seconds,
-        pace: args.pace,
-        job: pathfarm_bench::farm::pressure::PressureOptions::JOB,
-        command_line: std::env::args().collect::<Vec<_>>().join(" "),
-    };
-    let (_, markdown) =
-        pathfarm_bench::farm::pressure::run(&opts).context("pressure benchmark failed")?;
-    let _ = std::fs::remove_dir_all(&opts.work_dir);
-    println!("{markdown}");
-    eprintln!("report in {}", args.out.join("pressure.md").display());
-    Ok(())
-}
-
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     match args.suite {
-        Suite::Pressure => return pressure(args),
-        Suite::Submission => return submission(args),
         Suite::Up => return up(args),
         Suite::Frames => return frames(args),
-        Suite::Soak => return soak(args),
         Suite::Speed => return speed(args),
         Suite::Blender => return blender(args),
         Suite::Scale => return scale(args),
-        Suite::All | Suite::Tracer | Suite::Farm => {}
+        Suite::All | Suite::Tracer => {}
     }
     for s in &args.scenes {
         scenes::find(s)?;
@@ -361,9 +245,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     if let Some(c) = args.cache {
         opts.cache_dir = c;
     }
-    opts.postgres_url = args.postgres;
-    opts.tracer = args.suite != Suite::Farm;
-    opts.farm = args.suite != Suite::Tracer;
     opts.command_line = std::env::args().collect::<Vec<_>>().join(" ");
     anyhow::ensure!(
         opts.scenes_dir.join("cornell.gltf").is_file(),

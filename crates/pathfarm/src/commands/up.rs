@@ -28,6 +28,10 @@ pub struct UpArgs {
     /// Render threads per worker (default: the cores shared among the workers, at least one each).
     #[arg(long, env = "PATHFARM_THREADS_PER_WORKER")]
     pub threads_per_worker: Option<usize>,
+    /// Task lanes of each worker process (`pathfarm worker --lanes`): with two, one lane's round
+    /// trips to the server overlap the other's rendering on the same threads and scene copy.
+    #[arg(long, env = "PATHFARM_LANES", default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..=16))]
+    pub lanes: u16,
     /// Port to listen on (the dashboard and API at http://HOST:PORT).
     #[arg(long, env = "PATHFARM_PORT", default_value_t = 8080)]
     pub port: u16,
@@ -63,6 +67,8 @@ pub async fn run(args: UpArgs) -> Result<()> {
             .arg(threads.to_string())
             .arg("--name")
             .arg(format!("local-{}", i + 1))
+            .arg("--lanes")
+            .arg(args.lanes.to_string())
             // `up` failing (returning early) drops the workers started so far: killed with it.
             .kill_on_drop(true);
         for var in crate::config::SECRET_VARIABLES {

@@ -50,6 +50,11 @@ pub struct WorkerArgs {
     /// Fixed samples per pixel per slice (overrides --slice-seconds).
     #[arg(long, env = "PATHFARM_SLICE_SAMPLES")]
     pub slice_samples: Option<u32>,
+    /// Task lanes: each leases and uploads on its own (and is listed as a worker of its own:
+    /// NAME, NAME#2, …) while all render on the same threads with one copy of each scene, so
+    /// that one lane's round trips to the server overlap another's rendering.
+    #[arg(long, env = "PATHFARM_WORKER_LANES", default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=16))]
+    pub lanes: u16,
 }
 
 /// The first line of standard input, which must not be empty.
@@ -91,6 +96,7 @@ pub async fn run(args: WorkerArgs) -> Result<()> {
     c.slice_seconds = args.slice_seconds.clamp(0.01, 60.0);
     c.slice_samples = args.slice_samples.filter(|&n| n > 0);
     c.idle_poll = Duration::from_millis(500);
+    c.lanes = usize::from(args.lanes);
     let (tx, rx) = tokio::sync::watch::channel(false);
     tokio::spawn(async move {
         super::serve::shutdown_signal().await;

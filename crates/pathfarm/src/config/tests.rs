@@ -183,7 +183,7 @@ fn mistakes_in_the_file_name_the_file_table_and_key() {
 fn the_tables_keys_are_the_documented_ones() {
     assert_eq!(
         keys("up"),
-        ["workers", "threads-per-worker", "port", "host"]
+        ["workers", "threads-per-worker", "lanes", "port", "host"]
     );
     let serve = keys("serve");
     for k in [

@@ -1,11 +1,14 @@
 //! A farm in the test process: a real server on a real TCP port, real workers over real HTTP, on
-//! SQLite and (when `PATHFARM_TEST_POSTGRES_URL` is set) PostgreSQL.
+//! SQLite and (when `PATHFARM_TEST_POSTGRES_URL` is set) PostgreSQL — the test kit's
+//! (`pathfarm-testkit`), with the server's own in-process helpers (requests through `app` with
+//! `oneshot`, workers driven by hand).
 #![allow(dead_code)]
 
 use axum::body::{Body, Bytes};
 use axum::http::{Request, StatusCode};
 use http_body_util::BodyExt;
 use pathfarm_server::{app, AppState, ServerConfig};
+use pathfarm_testkit::harness::{PgDatabase, Server, Workers};
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
 use pathfarm_tracer::output::{encode_exr, ExrChannels};
 use pathfarm_tracer::{render_image, Accumulation};
@@ -16,8 +19,6 @@ use pathfarm_worker::{WorkerConfig, WorkerReport};
 use serde::de::DeserializeOwned;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
-use tokio::sync::watch;
-use tokio::task::JoinHandle;
 use tower::ServiceExt;
 
 pub fn cornell() -> Vec<u8> {
@@ -48,26 +49,13 @@ pub async fn stores(test: &str) -> Vec<(&'static str, String)> {
     out
 }
 
-/// Creates an empty database beside the one `base` names and returns its URL.
+/// Creates an empty database beside the one `base` names and returns its URL (the database is
+/// left for the machine's cleanup: a test's store outlives the handles it keeps).
 pub async fn fresh_postgres(base: &str) -> String {
-    use sqlx::Connection;
-    let name = format!("pathfarm_test_{}", uuid::Uuid::new_v4().simple());
-    let mut conn = sqlx::PgConnection::connect(base)
+    PgDatabase::create(base, "pathfarm_test")
         .await
-        .unwrap_or_else(|e| panic!("PATHFARM_TEST_POSTGRES_URL={base}: {e}"));
-    sqlx::query(sqlx::AssertSqlSafe(format!("CREATE DATABASE {name}")))
-        .execute(&mut conn)
-        .await
-        .unwrap();
-    let (prefix, _) = base
-        .rsplit_once('/')
-        .expect("a database URL with a database name");
-    let rest = base.rsplit_once('/').unwrap().1;
-    let query = rest
-        .split_once('?')
-        .map(|(_, q)| format!("?{q}"))
-        .unwrap_or_default();
-    format!("{prefix}/{name}{query}")
+        .unwrap_or_else(|e| panic!("PATHFARM_TEST_POSTGRES_URL={base}: {e}"))
+        .keep()
 }
 
 pub fn config(url: &str) -> ServerConfig {
@@ -76,11 +64,11 @@ pub fn config(url: &str) -> ServerConfig {
     c
 }
 
+/// The test kit's in-process server ([`Server`]), failing the test on any error.
 pub struct TestServer {
     pub url: String,
     pub state: AppState,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
-    handle: Option<JoinHandle<std::io::Result<()>>>,
+    server: Server,
 }
 
 impl TestServer {
@@ -89,51 +77,31 @@ impl TestServer {
     }
 
     pub async fn start_on(addr: &str, config: ServerConfig) -> TestServer {
-        // Tests build reqwest clients of their own against the server's URL.
-        pathfarm_worker::client::install_crypto_provider();
-        let scheme = if config.tls.is_some() {
-            "https"
-        } else {
-            "http"
-        };
-        let state = AppState::open(config).await.expect("open store");
-        let listener = tokio::net::TcpListener::bind(addr).await.expect("bind");
-        let url = format!("{scheme}://{}", listener.local_addr().unwrap());
-        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-        let handle = tokio::spawn(pathfarm_server::serve(
-            state.clone(),
-            listener,
-            async move {
-                let _ = rx.await;
-            },
-        ));
+        let server = Server::start_on(addr, config)
+            .await
+            .expect("start the server");
         TestServer {
-            url,
-            state,
-            stop: Some(tx),
-            handle: Some(handle),
+            url: server.url.clone(),
+            state: server.state.clone(),
+            server,
         }
     }
 
     pub fn client(&self, token: Option<&str>) -> ApiClient {
-        ApiClient::new(&self.url, token.map(str::to_string)).unwrap()
+        self.server.client(token).expect("an API client")
     }
 
     /// Graceful shutdown, as on SIGTERM.
-    pub async fn stop(mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
-        if let Some(h) = self.handle.take() {
-            h.await.unwrap().unwrap();
-        }
+    pub async fn stop(self) {
+        self.server
+            .stop()
+            .await
+            .expect("the server stopped cleanly");
     }
 }
 
-pub struct TestWorker {
-    stop: watch::Sender<bool>,
-    handle: JoinHandle<Result<WorkerReport, pathfarm_worker::WorkerError>>,
-}
+/// One in-process worker (the test kit's [`Workers`]).
+pub struct TestWorker(Workers);
 
 impl TestWorker {
     pub fn spawn(server: &str, token: Option<&str>, slice_samples: Option<u32>) -> TestWorker {
@@ -153,14 +121,11 @@ impl TestWorker {
     }
 
     pub fn spawn_with(c: WorkerConfig) -> TestWorker {
-        let (stop, rx) = watch::channel(false);
-        let handle = tokio::spawn(pathfarm_worker::run(c, rx));
-        TestWorker { stop, handle }
+        TestWorker(Workers::spawn(vec![c]))
     }
 
     pub async fn stop(self) -> WorkerReport {
-        let _ = self.stop.send(true);
-        self.handle.await.unwrap().expect("worker ran")
+        self.0.stop().await.expect("worker ran")
     }
 }
 

@@ -2,8 +2,8 @@
 
 use super::recorder::Kind;
 use super::{nap, Shared, SoakConfig};
-use crate::farm::harness::farm_err;
-use crate::farm::loadgen::synthetic;
+use crate::harness::farm_err;
+use crate::loadgen::synthetic;
 use crate::BenchError;
 use pathfarm_tracer::output::decode_exr;
 use pathfarm_wire::api::{JobSettings, JobState, JobView};

@@ -1,12 +1,12 @@
-//! `pathfarm bench submission`: what a huge submission costs the rest of the farm. Simulated
+//! `farm-bench submission`: what a huge submission costs the rest of the farm. Simulated
 //! workers lease and give back tasks of a small job in a closed loop, over real HTTP, while a
 //! client submits a job of the largest plan the default limits allow (458,752 tasks); the lease
 //! latencies during the submission are compared with those before it, for the plan stored in one
 //! transaction and in batches (`ServerConfig::submission_batch_rows`), on SQLite and, with a URL,
 //! PostgreSQL.
 
-use super::harness::{farm_err, quantile_ms, unique_suffix, Server, StoreSpec};
 use crate::error::write_file;
+use crate::harness::{farm_err, quantile_ms, unique_suffix, Server, StoreSpec};
 use crate::{BenchError, Machine};
 use pathfarm_server::ServerConfig;
 use pathfarm_wire::api::JobSettings;
@@ -192,7 +192,7 @@ async fn leases_around_a_submission(
     (width, height, tile, spp): (u32, u32, u32, u32),
     workers: usize,
 ) -> Result<Measured, BenchError> {
-    let client = server.client()?;
+    let client = server.client(None)?;
     // The job the simulated workers lease from: 4096 tasks of 8² tiles, never rendered.
     let mut small = JobSettings::new(512, 512, 1);
     small.tile_size = 8;
@@ -204,7 +204,7 @@ async fn leases_around_a_submission(
     let t0 = Instant::now();
     let mut handles = Vec::new();
     for i in 0..workers {
-        let (c, id) = super::harness::simulated_worker_client(server, i).await?;
+        let (c, id) = crate::harness::simulated_worker_client(server, i).await?;
         handles.push(tokio::spawn(lease_loop(c, id, probe.clone(), t0)));
     }
     // A second of leases before, the submission, a second after.

@@ -1,7 +1,7 @@
 //! The farm section of the report: charts under `charts/` and Markdown tables.
 
-use super::FarmResults;
 use crate::chart::{line_chart, ChartSpec, Scale, Series};
+use crate::farm::FarmResults;
 use crate::BenchError;
 use std::fmt::Write;
 use std::path::Path;
@@ -229,7 +229,7 @@ pub fn write_report(results: &FarmResults, out_dir: &Path) -> Result<String, Ben
             run.first_error.as_deref().unwrap_or_default()
         );
     }
-    let per_store = |f: &dyn Fn(&super::LoadgenRun) -> f64| -> Vec<Series> {
+    let per_store = |f: &dyn Fn(&crate::loadgen::LoadgenRun) -> f64| -> Vec<Series> {
         l.stores
             .iter()
             .map(|s| {

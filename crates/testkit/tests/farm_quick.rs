@@ -3,7 +3,7 @@
 //! speeds: the farm's image is bit-identical to a direct render, every run made progress, every
 //! acknowledged upload was merged exactly once, and the report links charts that exist.
 
-use pathfarm_bench::farm::{run, write_report, FarmOptions};
+use pathfarm_testkit::farm::{run, write_report, FarmOptions};
 use std::path::PathBuf;
 
 fn temp_dir(tag: &str) -> PathBuf {
@@ -109,7 +109,7 @@ fn run_and_check(quick: bool) {
 
     // The results survive a JSON round trip (the report's results.json).
     let json = serde_json::to_string(&r).unwrap();
-    let back: pathfarm_bench::farm::FarmResults = serde_json::from_str(&json).unwrap();
+    let back: pathfarm_testkit::farm::FarmResults = serde_json::from_str(&json).unwrap();
     assert_eq!(back.loadgen.runs.len(), r.loadgen.runs.len());
 
     // The report: its section, its tables, and every chart it links.
@@ -170,12 +170,12 @@ fn normal_farm_benchmark_measures_and_reports() {
     run_and_check(false);
 }
 
-/// `pathfarm bench submission --quick`, SQLite only: both ways of storing the plan store all of
+/// `farm-bench submission --quick`, SQLite only: both ways of storing the plan store all of
 /// it, the simulated workers were served before and during the submission without an error, and
 /// the report is written.
 #[test]
 fn quick_submission_benchmark_measures_and_reports() {
-    use pathfarm_bench::farm::submission::{run, SubmissionOptions};
+    use pathfarm_testkit::submission::{run, SubmissionOptions};
     let out = temp_dir("submission");
     let opts = SubmissionOptions {
         out_dir: out.clone(),
@@ -210,13 +210,13 @@ fn quick_submission_benchmark_measures_and_reports() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
-/// `pathfarm bench pressure` in small, SQLite only: 300 simulated workers that would each upload
+/// `farm-bench pressure` in small, SQLite only: 300 simulated workers that would each upload
 /// a sample every 50 ms (far past what the store takes). With back-pressure the server asks for
 /// longer slices and they are rendered, nothing fails, and every acknowledged sample is merged
 /// exactly once; without it, too, exactness holds.
 #[test]
 fn the_pressure_benchmark_holds_a_crowd_to_the_store_s_pace() {
-    use pathfarm_bench::farm::pressure::{run, PressureOptions};
+    use pathfarm_testkit::pressure::{run, PressureOptions};
     let out = temp_dir("pressure");
     let opts = PressureOptions {
         out_dir: out.clone(),

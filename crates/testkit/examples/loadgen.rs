@@ -1,10 +1,10 @@
 //! The simulated-worker load generator alone, for profiling the server's upload path:
-//! `cargo run --release -p pathfarm-bench --example loadgen -- [WORKERS] [SECONDS] [SCENE]`
+//! `cargo run --release -p pathfarm-testkit --example loadgen -- [WORKERS] [SECONDS] [SCENE]`
 //! (defaults: 64 workers, 5 s, `scenes/cornell.gltf`), on a fresh SQLite file in the temp dir, or on
 //! the database `PATHFARM_LOADGEN_DB` names (an empty PostgreSQL database: the run leaves its job
 //! there).
 
-use pathfarm_bench::farm::loadgen::{run, LoadgenConfig};
+use pathfarm_testkit::loadgen::{run, LoadgenConfig};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -2,7 +2,7 @@
 
 use super::recorder::{lock, status_key, Kind};
 use super::{nap, Shared};
-use crate::farm::loadgen::synthetic;
+use crate::loadgen::synthetic;
 use pathfarm_wire::api::{Lease, WorkerRegistered};
 use pathfarm_worker::client::ApiClient;
 use std::sync::atomic::Ordering;

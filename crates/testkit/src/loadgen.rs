@@ -13,7 +13,7 @@
 //! acknowledged as new is counted, and compared afterwards with what the server counted as merged
 //! and with the samples the store holds: a slice merged twice, or acknowledged and lost, shows.
 
-use super::harness::{farm_err, Server};
+use crate::harness::{farm_err, Server};
 use crate::BenchError;
 use glam::Vec3;
 use pathfarm_server::ServerConfig;
@@ -195,8 +195,8 @@ impl Shared {
 /// The `p` quantile (0..=1) of `v`, in milliseconds (NaN when empty).
 fn quantile_ms(v: &Mutex<Vec<f64>>, p: f64) -> f64 {
     match v.lock() {
-        Ok(v) => super::harness::quantile_ms(&v, p),
-        Err(poisoned) => super::harness::quantile_ms(&poisoned.into_inner(), p),
+        Ok(v) => crate::harness::quantile_ms(&v, p),
+        Err(poisoned) => crate::harness::quantile_ms(&poisoned.into_inner(), p),
     }
 }
 
@@ -370,7 +370,7 @@ async fn measure(
     scene: &[u8],
     cfg: &LoadgenConfig,
 ) -> Result<LoadgenRun, BenchError> {
-    let client = server.client()?;
+    let client = server.client(None)?;
     let mut s = JobSettings::new(cfg.width, cfg.height, cfg.spp);
     s.tile_size = cfg.tile_size;
     let job = client
@@ -388,7 +388,7 @@ async fn measure(
     for _ in 0..pools {
         let turns = (pools < cfg.workers)
             .then(|| Arc::new(tokio::sync::Semaphore::new(IN_FLIGHT_PER_SHARED_CLIENT)));
-        pool_clients.push((server.client()?, turns));
+        pool_clients.push((server.client(None)?, turns));
     }
     let mut ids = Vec::with_capacity(cfg.workers);
     let mut clients = Vec::with_capacity(cfg.workers);
@@ -397,7 +397,7 @@ async fn measure(
         for &i in chunk {
             let (c, turns) = pool_clients[i % pools].clone();
             set.spawn(async move {
-                let id = super::harness::register_simulated(&c, i).await?;
+                let id = crate::harness::register_simulated(&c, i).await?;
                 Ok::<_, BenchError>((i, (c, turns), id))
             });
         }

@@ -33,7 +33,7 @@ pub const MIN_JUDGED_SECONDS: f64 = 60.0;
 ///   SQLite: last quarter 307 MiB against a limit of 223, caught. Keeping half of every slice:
 ///   173 MiB against 140, caught, where the rule first suggested in issue 6 (25 % + 32 MiB)
 ///   allows 173 MiB and would have passed it. A leak of some hundred bytes per request is below
-///   what two minutes can tell from the allocator; longer runs (`pathfarm bench soak
+///   what two minutes can tell from the allocator; longer runs (`farm-bench soak
 ///   --seconds`) see proportionally more.
 ///
 /// Windows shorter than [`MIN_JUDGED_SECONDS`] get no verdict. Returns `None` without samples.
@@ -129,8 +129,8 @@ pub(super) fn mib(kib: u64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::farm::loadgen::synthetic;
-    use crate::farm::soak::SoakConfig;
+    use crate::loadgen::synthetic;
+    use crate::soak::SoakConfig;
 
     fn series(seconds: u32, rss: impl Fn(f64) -> f64) -> Vec<RssSample> {
         (0..=seconds)

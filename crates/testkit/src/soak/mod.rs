@@ -7,7 +7,7 @@
 //!
 //! - **Simulated workers** ([`SoakConfig::workers`], 200 by default) register, then loop: lease a
 //!   task and, for each of its samples, "render" for [`SoakConfig::pace`] seconds and upload a
-//!   one-sample slice of constant radiance (the slices of [`super::loadgen`]). Like `pathfarm
+//!   one-sample slice of constant radiance (the slices of [`crate::loadgen`]). Like `pathfarm
 //!   worker` they fetch a scene whose hash is new to them, heartbeat every quarter lease
 //!   (the interval the server hands out at registration), poll with a growing pause while the
 //!   queue is empty (not an error: jobs come and go), and when stopped give their lease back and
@@ -36,7 +36,7 @@ mod report;
 mod servers;
 mod workers;
 
-use super::harness::farm_err;
+use crate::harness::farm_err;
 use crate::BenchError;
 use churn::{churn, expected_pixel, Churn};
 use memory::{read_memory, sample_memory};

@@ -15,25 +15,15 @@
 //! [`run`] measures (synchronously, on its own tokio runtime); [`write_report`] charts and
 //! tabulates.
 
-pub mod frames;
-mod harness;
-pub mod loadgen;
-pub mod pressure;
-mod report;
-pub mod scaling;
-pub mod soak;
-pub mod submission;
-pub mod up;
-
+use crate::harness::{farm_err, unique_suffix, StoreSpec, WorkerSetup};
+use crate::loadgen::{self, LoadgenConfig, LoadgenRun};
+use crate::scaling::{self, JobSpec, OverheadResults, ThroughputResults};
 use crate::BenchError;
-use harness::{farm_err, unique_suffix, StoreSpec, WorkerSetup};
-use loadgen::{LoadgenConfig, LoadgenRun};
-use scaling::{JobSpec, OverheadResults, ThroughputResults};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-pub use report::write_report;
+pub use crate::farm_report::write_report;
 
 pub struct FarmOptions {
     pub quick: bool,

@@ -1,14 +1,14 @@
-//! `pathfarm bench soak`: the servers started here.
+//! `farm-bench soak`: the servers started here.
 
 use super::{run, SoakConfig, SoakReport};
 use crate::error::write_file;
-use crate::farm::harness::{farm_err, StoreSpec};
+use crate::harness::{farm_err, StoreSpec};
 use crate::BenchError;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-/// What `pathfarm bench soak` runs: for each store, a fresh `pathfarm serve` process (with tokens,
+/// What `farm-bench soak` runs: for each store, a fresh `pathfarm serve` process (with tokens,
 /// as a farm on a network runs) on a fresh database, soaked by [`run`], then stopped.
 #[derive(Clone, Debug)]
 pub struct SoakOptions {

@@ -2,7 +2,7 @@
 
 use super::recorder::Kind;
 use super::{Shared, SoakConfig};
-use crate::farm::harness::farm_err;
+use crate::harness::farm_err;
 use crate::BenchError;
 use std::time::Instant;
 

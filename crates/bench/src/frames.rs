@@ -1,16 +1,17 @@
 //! `pathfarm bench frames`: what an animation costs on the farm. A frame job of the Blender suite's
 //! animated export (a cube that slides and turns, a camera on an arc, a lamp that rises, a
 //! skinned bar, a morphed sphere) against a still job of the same scene with the same total
-//! samples (every frame's samples in one image), on one in-process farm with the same worker:
-//! the ratio of their samples per second is the cost of building the scene at each frame (and
+//! samples (every frame's samples in one image), each on a fresh `pathfarm up` (real processes:
+//! the server and one worker process of `threads` render threads): the ratio of their samples per second is the cost of building the scene at each frame (and
 //! of a frame job's extra tiles and tasks); the time until every frame has its first pass is
 //! what an artist waits for a first look at the whole shot.
 
-use super::harness::{farm_err, unique_suffix, watch_job, Server, StoreSpec, WorkerSetup, Workers};
-use crate::error::write_file;
+use crate::error::{farm_err, write_file};
+use crate::job_watch::watch_job;
+use crate::up::UpProcess;
 use crate::{BenchError, Machine};
-use pathfarm_server::ServerConfig;
 use pathfarm_wire::api::{FrameOrder, JobSettings, JobState, JobView};
+use pathfarm_worker::client::ApiClient;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -21,10 +22,12 @@ const SCENE: &str = "suite/animated.glb";
 
 #[derive(Clone, Debug)]
 pub struct FramesOptions {
+    /// The `pathfarm` binary, run as `up`.
+    pub exe: PathBuf,
     pub out_dir: PathBuf,
     /// The shipped scenes (`scenes/` of the repository).
     pub scenes_dir: PathBuf,
-    /// Render threads of the one worker.
+    /// Render threads of the one worker process.
     pub threads: usize,
     pub quick: bool,
     pub seed: u64,
@@ -66,6 +69,7 @@ pub struct FramesRow {
     /// From just before the submission until the job view first showed every tile (of every
     /// frame) with at least one sample per pixel.
     pub first_pass_seconds: Option<f64>,
+    /// Tasks the job was planned in and slices merged into it (from the server's metrics).
     pub tasks: u64,
     pub slices: u64,
 }
@@ -92,42 +96,62 @@ fn job_seconds(view: &JobView) -> Result<f64, BenchError> {
     Ok((end - start).max(1) as f64 / 1e3)
 }
 
-/// Renders `settings` on a fresh worker of the farm at `server` and measures it.
-async fn measure(
-    server: &Server,
+/// The server's counts of finished tasks and merged slices (`/metrics`).
+async fn task_and_slice_counts(url: &str) -> Result<(u64, u64), BenchError> {
+    let text = reqwest::get(format!("{url}/metrics"))
+        .await
+        .and_then(reqwest::Response::error_for_status)
+        .map_err(|e| farm_err(format!("reading {url}/metrics: {e}")))?
+        .text()
+        .await
+        .map_err(|e| farm_err(format!("reading {url}/metrics: {e}")))?;
+    let value = |name: &str| {
+        text.lines()
+            .find_map(|l| l.strip_prefix(name)?.trim().parse::<f64>().ok())
+            .map(|v| v as u64)
+            .ok_or_else(|| farm_err(format!("{url}/metrics has no {name}")))
+    };
+    Ok((
+        value("pathfarm_tasks{state=\"done\"}")?,
+        value("pathfarm_slice_uploads_merged_total")?,
+    ))
+}
+
+/// Renders `settings` on a fresh `pathfarm up` with one worker process of `threads` threads and
+/// measures it.
+fn measure(
+    exe: &Path,
     scene: &[u8],
     settings: &JobSettings,
     threads: usize,
     dir: &Path,
     label: &str,
 ) -> Result<FramesRow, BenchError> {
-    let client = server.client()?;
-    let setup = WorkerSetup {
-        threads,
-        slice_seconds: 1.0,
-        idle_poll: Duration::from_millis(20),
-    };
-    let tag = unique_suffix();
-    let ws = Workers::start(server, 1, &setup, &dir.join(format!("cache-{tag}")), &tag).await?;
-    let t0 = Instant::now();
-    let watched = async {
+    let farm = UpProcess::start(exe, dir, Some((1, threads)), 1)?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| farm_err(format!("cannot start the async runtime: {e}")))?;
+    let (watched, tasks, slices) = rt.block_on(async {
+        let client =
+            ApiClient::new(&farm.url, None).map_err(|e| farm_err(format!("HTTP client: {e}")))?;
+        let t0 = Instant::now();
         let created = client
             .submit(scene.to_vec(), "animated.glb", settings)
             .await
             .map_err(|e| farm_err(format!("submitting the {label}: {e}")))?;
-        watch_job(
+        let watched = watch_job(
             &client,
             &created.id,
             t0,
             Duration::from_millis(20),
             Duration::from_secs(3600),
         )
-        .await
-    }
-    .await;
-    let report = ws.stop().await;
-    let watched = watched?;
-    let report = report?;
+        .await?;
+        let (tasks, slices) = task_and_slice_counts(&farm.url).await?;
+        Ok::<_, BenchError>((watched, tasks, slices))
+    })?;
+    drop(farm);
     let view = &watched.view;
     if view.state != JobState::Completed || view.samples_done != view.samples_planned {
         return Err(farm_err(format!(
@@ -149,8 +173,8 @@ async fn measure(
         seconds,
         samples_per_second: view.samples_planned as f64 / seconds,
         first_pass_seconds: watched.first_preview.map(|d| d.as_secs_f64()),
-        tasks: report.tasks,
-        slices: report.slices,
+        tasks,
+        slices,
     };
     tracing::info!(
         job = label,
@@ -168,43 +192,27 @@ pub fn run(opts: &FramesOptions) -> Result<(FramesResults, String), BenchError> 
     let scene_path = opts.scenes_dir.join(SCENE);
     let scene = std::fs::read(&scene_path).map_err(|e| BenchError::io(&scene_path, e))?;
     std::fs::create_dir_all(&opts.out_dir).map_err(|e| BenchError::io(&opts.out_dir, e))?;
-    let dir = std::env::temp_dir().join(format!("pathfarm-bench-frames-{}", unique_suffix()));
+    let dir = opts.out_dir.join("frames-work");
     std::fs::create_dir_all(&dir).map_err(|e| BenchError::io(&dir, e))?;
     let threads = opts.threads.max(1);
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .thread_name("frames-bench")
-        .enable_all()
-        .build()
-        .map_err(|e| farm_err(format!("cannot start the async runtime: {e}")))?;
     let (width, height, spp) = opts.frame_size();
     let frames = opts.frames();
-    let rows = rt.block_on(async {
-        let store = StoreSpec::sqlite(&dir, "frames.db")?;
-        let server = Server::start(ServerConfig::new(store.url())).await?;
-        let result = async {
-            let mut animation = JobSettings::new(width, height, spp);
-            animation.seed = opts.seed;
-            animation.frames = Some(format!("1-{frames}"));
-            animation.fps = Some(24.0);
-            let label = format!("{frames} frames, interleaved");
-            let frame_row = measure(&server, &scene, &animation, threads, &dir, &label).await?;
-            // Frame after frame: each frame's scene built once by the worker, not once a pass.
-            animation.frame_order = Some(FrameOrder::Sequential);
-            let label = format!("{frames} frames, sequential");
-            let sequential = measure(&server, &scene, &animation, threads, &dir, &label).await?;
-            let mut still = JobSettings::new(width, height, spp * frames);
-            still.seed = opts.seed;
-            let still_row = measure(&server, &scene, &still, threads, &dir, "still").await?;
-            Ok::<_, BenchError>(vec![frame_row, sequential, still_row])
-        }
-        .await;
-        let stopped = server.stop().await;
-        let rows = result?;
-        stopped?;
-        Ok::<_, BenchError>(rows)
-    });
-    drop(rt);
+    let rows = (|| {
+        let mut animation = JobSettings::new(width, height, spp);
+        animation.seed = opts.seed;
+        animation.frames = Some(format!("1-{frames}"));
+        animation.fps = Some(24.0);
+        let label = format!("{frames} frames, interleaved");
+        let frame_row = measure(&opts.exe, &scene, &animation, threads, &dir, &label)?;
+        // Frame after frame: each frame's scene built once by the worker, not once a pass.
+        animation.frame_order = Some(FrameOrder::Sequential);
+        let label = format!("{frames} frames, sequential");
+        let sequential = measure(&opts.exe, &scene, &animation, threads, &dir, &label)?;
+        let mut still = JobSettings::new(width, height, spp * frames);
+        still.seed = opts.seed;
+        let still_row = measure(&opts.exe, &scene, &still, threads, &dir, "still")?;
+        Ok::<_, BenchError>(vec![frame_row, sequential, still_row])
+    })();
     if let Err(e) = std::fs::remove_dir_all(&dir) {
         tracing::warn!(dir = %dir.display(), error = %e, "cannot remove the frames benchmark's scratch files");
     }
@@ -230,8 +238,8 @@ fn markdown(r: &FramesResults) -> String {
     let _ = writeln!(md, "# Frame jobs\n");
     let _ = writeln!(
         md,
-        "`{}` on {} ({} threads of {} cores), {}. Scene `scenes/{}`, one in-process worker, \
-         SQLite.\n",
+        "`{}` on {} ({} threads of {} cores), {}. Scene `scenes/{}`, each job on a fresh \
+         `pathfarm up` with one worker process, SQLite.\n",
         r.command_line,
         r.machine.cpu,
         r.machine.threads,
@@ -272,46 +280,4 @@ fn markdown(r: &FramesResults) -> String {
         r.ratio, r.sequential_ratio
     );
     md
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The quick run measures both jobs whole (every sample merged, every frame's first pass
-    /// seen) and writes its report.
-    #[test]
-    fn the_quick_run_measures_a_frame_job_against_a_still_one() {
-        let out = std::env::temp_dir().join(format!("pathfarm-frames-bench-{}", unique_suffix()));
-        let opts = FramesOptions {
-            out_dir: out.clone(),
-            scenes_dir: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes")),
-            threads: 1,
-            quick: true,
-            seed: 3,
-            command_line: "test".into(),
-        };
-        let (r, md) = run(&opts).unwrap();
-        let (w, h, spp) = opts.frame_size();
-        let samples = u64::from(w * h * spp * opts.frames());
-        assert_eq!(r.rows.len(), 3);
-        let frames: Vec<u32> = r.rows.iter().map(|row| row.frames).collect();
-        assert_eq!(frames, [opts.frames(), opts.frames(), 1]);
-        assert!(
-            r.rows.iter().all(|row| row.samples == samples),
-            "{:?}",
-            r.rows
-        );
-        assert!(r.rows[0].first_pass_seconds.is_some(), "{:?}", r.rows[0]);
-        assert!(
-            r.rows[0].tasks >= u64::from(opts.frames()),
-            "{:?}",
-            r.rows[0]
-        );
-        assert!(r.ratio > 0.0 && r.ratio.is_finite(), "{}", r.ratio);
-        assert!(r.sequential_ratio > 0.0 && r.sequential_ratio.is_finite());
-        assert!(md.contains("24 frames"), "{md}");
-        assert!(out.join("frames.json").is_file() && out.join("frames.md").is_file());
-        let _ = std::fs::remove_dir_all(&out);
-    }
 }

@@ -1,7 +1,7 @@
 //! Real renders through the farm: throughput against the number of workers, and the farm against
 //! a direct render of the same job (overhead, time to first preview, bit-identity).
 
-use super::harness::{farm_err, watch_job, Server, StoreSpec, Watched, WorkerSetup, Workers};
+use crate::harness::{farm_err, watch_job, Server, StoreSpec, Watched, WorkerSetup, Workers};
 use crate::BenchError;
 use pathfarm_server::ServerConfig;
 use pathfarm_tracer::gltf::{self, LoadOptions, NoExternalResources};
@@ -162,7 +162,7 @@ pub(crate) async fn throughput(
     let store = StoreSpec::sqlite(dir, "throughput.db")?;
     let server = Server::start(ServerConfig::new(store.url())).await?;
     let result = async {
-        let client = server.client()?;
+        let client = server.client(None)?;
         let mut rows = Vec::new();
         for &(workers, threads) in configs {
             let label = format!(
@@ -264,7 +264,7 @@ pub(crate) async fn overhead(
     let store = StoreSpec::sqlite(dir, "overhead.db")?;
     let server = Server::start(ServerConfig::new(store.url())).await?;
     let result = async {
-        let client = server.client()?;
+        let client = server.client(None)?;
         let ws = Workers::start(
             &server,
             workers,

@@ -6,8 +6,7 @@
 //! core, one copy of the scene) and one process per core, each with its own copy (`up`'s
 //! default before it).
 
-use crate::error::write_file;
-use crate::farm::harness::farm_err;
+use crate::error::{farm_err, write_file};
 use crate::scale::{sphere_glb, status_kib};
 use crate::{BenchError, Machine};
 use serde::{Deserialize, Serialize};
@@ -260,10 +259,12 @@ fn render(
     })
 }
 
-/// `pathfarm up` on a port of the system's choosing; killed when dropped.
-struct UpProcess {
+/// `pathfarm up` on a port of the system's choosing, on a fresh SQLite file; killed when dropped.
+pub(crate) struct UpProcess {
     child: Child,
-    url: String,
+    pub url: String,
+    /// Where its standard error goes.
+    pub log: PathBuf,
 }
 
 impl Drop for UpProcess {
@@ -274,7 +275,79 @@ impl Drop for UpProcess {
 }
 
 /// (worker processes, threads each) of an `up`.
-type Shape = (usize, usize);
+pub(crate) type Shape = (usize, usize);
+
+impl UpProcess {
+    /// Starts `exe up` with `shape` (its default layout if `None`) and returns once it listens
+    /// and its `workers` worker processes have started (and had half a second to register: their
+    /// start is not a job's time). Its database and log are `work/up.db` and `work/up.log`.
+    pub(crate) fn start(
+        exe: &Path,
+        work: &Path,
+        shape: Option<Shape>,
+        workers: usize,
+    ) -> Result<UpProcess, BenchError> {
+        let db = work.join("up.db");
+        for suffix in ["", "-wal", "-shm"] {
+            let _ = std::fs::remove_file(format!("{}{suffix}", db.display()));
+        }
+        let log = work.join("up.log");
+        let log_file = std::fs::File::create(&log).map_err(|e| BenchError::io(&log, e))?;
+        let mut cmd = pathfarm(exe);
+        cmd.args(["up", "--port", "0", "--db"])
+            .arg(format!("sqlite://{}", db.display()));
+        if let Some((workers, threads)) = shape {
+            cmd.args(["--workers", &workers.to_string()])
+                .args(["--threads-per-worker", &threads.to_string()]);
+        }
+        let mut child = cmd
+            .stdout(Stdio::piped())
+            .stderr(log_file)
+            .spawn()
+            .map_err(|e| farm_err(format!("cannot start {}: {e}", exe.display())))?;
+        let stdout = child.stdout.take();
+        let mut farm = UpProcess {
+            child,
+            url: String::new(),
+            log,
+        };
+        let Some(stdout) = stdout else {
+            return Err(farm_err("up's stdout is not piped"));
+        };
+        // `up` prints `pathfarm is up: dashboard and API at http://ADDR (…)` once it listens.
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in std::io::BufReader::new(stdout)
+                .lines()
+                .map_while(Result::ok)
+            {
+                if let Some(rest) = line.strip_prefix("pathfarm is up: dashboard and API at ") {
+                    let url = rest.split_whitespace().next().unwrap_or_default();
+                    let _ = tx.send(url.to_string());
+                }
+            }
+        });
+        farm.url = rx.recv_timeout(Duration::from_secs(60)).map_err(|_| {
+            farm_err(format!(
+                "pathfarm up did not start within a minute; see {}",
+                farm.log.display()
+            ))
+        })?;
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while children_of(farm.pid()).len() < workers {
+            if Instant::now() > deadline {
+                return Err(farm_err("up's workers did not start within a minute"));
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        std::thread::sleep(Duration::from_millis(500));
+        Ok(farm)
+    }
+
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
+    }
+}
 
 /// `exe`'s `up` with `shape`, or in its default layout.
 fn up(
@@ -285,63 +358,10 @@ fn up(
     case: &UpCase,
     shape: Option<Shape>,
 ) -> Result<Rendered, BenchError> {
-    let db = work.join("up.db");
-    for suffix in ["", "-wal", "-shm"] {
-        let _ = std::fs::remove_file(format!("{}{suffix}", db.display()));
-    }
-    let log = work.join("up.log");
-    let log_file = std::fs::File::create(&log).map_err(|e| BenchError::io(&log, e))?;
-    let mut cmd = pathfarm(exe);
-    cmd.args(["up", "--port", "0", "--db"])
-        .arg(format!("sqlite://{}", db.display()));
-    if let Some((workers, threads)) = shape {
-        cmd.args(["--workers", &workers.to_string()])
-            .args(["--threads-per-worker", &threads.to_string()]);
-    }
-    // Its workers register before the job comes; their start is not the job's time. (Before
-    // this build, `up` started one worker process per core.)
+    // (Before this build, `up` started one worker process per core.)
     let workers = shape.map_or(opts.threads.max(1), |(w, _)| w);
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .stderr(log_file)
-        .spawn()
-        .map_err(|e| farm_err(format!("cannot start {}: {e}", exe.display())))?;
-    let stdout = child.stdout.take();
-    let mut farm = UpProcess {
-        child,
-        url: String::new(),
-    };
-    let Some(stdout) = stdout else {
-        return Err(farm_err("up's stdout is not piped"));
-    };
-    // `up` prints `pathfarm is up: dashboard and API at http://ADDR (…)` once it listens.
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for line in std::io::BufReader::new(stdout)
-            .lines()
-            .map_while(Result::ok)
-        {
-            if let Some(rest) = line.strip_prefix("pathfarm is up: dashboard and API at ") {
-                let url = rest.split_whitespace().next().unwrap_or_default();
-                let _ = tx.send(url.to_string());
-            }
-        }
-    });
-    farm.url = rx.recv_timeout(Duration::from_secs(60)).map_err(|_| {
-        farm_err(format!(
-            "pathfarm up did not start within a minute; see {}",
-            log.display()
-        ))
-    })?;
-    let up_pid = farm.child.id();
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while children_of(up_pid).len() < workers {
-        if Instant::now() > deadline {
-            return Err(farm_err("up's workers did not start within a minute"));
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    std::thread::sleep(Duration::from_millis(500));
+    let farm = UpProcess::start(exe, work, shape, workers)?;
+    let up_pid = farm.pid();
     let out = work.join(format!("{}-farm.exr", case.name));
     let mut submit = pathfarm(&opts.exe)
         .arg("submit")
@@ -372,7 +392,7 @@ fn up(
     if !status.success() {
         return Err(farm_err(format!(
             "pathfarm submit --wait exited {status}: {answer}; see {}",
-            log.display()
+            farm.log.display()
         )));
     }
     let view: serde_json::Value = serde_json::from_str(&answer)
@@ -390,7 +410,7 @@ fn up(
 }
 
 /// The children of `pid` (from `/proc/PID/task/*/children`).
-fn children_of(pid: u32) -> Vec<u32> {
+pub(crate) fn children_of(pid: u32) -> Vec<u32> {
     let mut out = Vec::new();
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
         return out;
@@ -447,7 +467,9 @@ fn markdown(r: &UpResults) -> String {
     let _ = writeln!(
         md,
         "\nrender: the process's wall time; up: the job's time on the server's clock (both with \
-         the scene's load). Peak memory: the largest resident set of each process, summed.\n"
+         the scene's load). up W×T: W worker processes of T render threads each, each with \
+         `up`'s default task lanes. Peak memory: the largest resident set of each process, \
+         summed.\n"
     );
     let _ = writeln!(
         md,

@@ -1,4 +1,4 @@
-//! `pathfarm bench pressure`: a big farm against one server, with the server's back-pressure and
+//! `farm-bench pressure`: a big farm against one server, with the server's back-pressure and
 //! without. Simulated workers (10,000; 1,000 with `--quick`) register over real HTTP and render
 //! open loop: each sample of a tile takes `pace` seconds whatever the server does, and a worker
 //! uploads a slice of the longer of one sample and the slice length the server asks for, waiting
@@ -8,9 +8,9 @@
 //! sample (the first complete preview) and whether every acknowledged sample was merged exactly
 //! once.
 
-use super::harness::{farm_err, unique_suffix, StoreSpec};
-use super::loadgen::{self, LoadgenConfig, LoadgenRun};
 use crate::error::write_file;
+use crate::harness::{farm_err, unique_suffix, StoreSpec};
+use crate::loadgen::{self, LoadgenConfig, LoadgenRun};
 use crate::{BenchError, Machine};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
