@@ -358,8 +358,9 @@ fn up(
     case: &UpCase,
     shape: Option<Shape>,
 ) -> Result<Rendered, BenchError> {
-    // (Before this build, `up` started one worker process per core.)
-    let workers = shape.map_or(opts.threads.max(1), |(w, _)| w);
+    // Another build's default layout: at least one worker process (builds before November 29
+    // started one per core, later ones one in all).
+    let workers = shape.map_or(1, |(w, _)| w);
     let farm = UpProcess::start(exe, work, shape, workers)?;
     let up_pid = farm.pid();
     let out = work.join(format!("{}-farm.exr", case.name));
