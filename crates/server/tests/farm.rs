@@ -4,6 +4,8 @@
 mod common;
 
 use common::*;
+use pathfarm_wire::api::WorkerView;
+use pathfarm_worker::{WorkerConfig, WorkerReport};
 use std::time::Duration;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -38,14 +40,19 @@ async fn farm_images_are_bit_identical_to_a_local_render() {
     }
 }
 
-/// A worker of two lanes is two workers of the farm (NAME and NAME#2) rendering on one pool of
-/// threads: both lease and merge samples, stopped mid-job it accounts for every slice it was told
-/// were merged and holds no lease, and the job finished by another two-lane worker is the local
-/// render's bits.
-#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-async fn a_worker_of_two_lanes_is_two_workers_on_one_pool() {
+/// A job rendered by a worker that `worker` configures (from the server's URL and the samples a
+/// slice), stopped once `1 / stop_at` of the samples are merged: the worker reports exactly what
+/// the server merged from it (every accepted slice counted once, none of the slices it dropped)
+/// and leaves nothing leased; `check` sees its report and the workers listed just before the
+/// stop; then a second worker of the same kind finishes the job to a local render's bytes.
+async fn stop_mid_job_and_finish(
+    test: &str,
+    worker: impl Fn(&str, Option<u32>) -> WorkerConfig,
+    stop_at: u64,
+    check: impl Fn(&str, &WorkerReport, &[WorkerView]),
+) {
     let scene = cornell();
-    for (store, url) in stores("two-lanes").await {
+    for (store, url) in stores(test).await {
         let server = TestServer::start(config(&url)).await;
         let client = server.client(None);
         let s = settings(48, 48, 24, 16);
@@ -54,27 +61,14 @@ async fn a_worker_of_two_lanes_is_two_workers_on_one_pool() {
             .submit(scene.clone(), "cornell.gltf", &s)
             .await
             .unwrap();
-        let mut c = TestWorker::config(&server.url, None, Some(2));
-        c.lanes = 2;
-        c.threads = 2;
-        let name = c.name.clone();
-        let first = TestWorker::spawn_with(c);
+        // Two samples a slice: most tasks take several slices.
+        let first = TestWorker::spawn_with(worker(&server.url, Some(2)));
         let planned = job.samples_planned;
         wait_until(&client, &job.id, Duration::from_secs(120), |j| {
-            j.samples_done * 2 >= planned
+            j.samples_done * stop_at >= planned
         })
         .await;
         let listed = client.workers().await.unwrap().workers;
-        let lanes: Vec<_> = [name.clone(), format!("{name}#2")]
-            .iter()
-            .map(|n| {
-                listed
-                    .iter()
-                    .find(|w| &w.name == n)
-                    .unwrap_or_else(|| panic!("{store}: lane {n} not registered: {listed:?}"))
-                    .clone()
-            })
-            .collect();
         let report = first.stop().await;
         let midway = client.job(&job.id).await.unwrap();
         assert!(
@@ -83,15 +77,9 @@ async fn a_worker_of_two_lanes_is_two_workers_on_one_pool() {
         );
         assert_eq!(
             report.samples, midway.samples_done,
-            "{store}: the lanes' accepted samples against the server's merged ones ({report:?})"
+            "{store}: the worker's accepted samples against the server's merged ones ({report:?})"
         );
-        for lane in &lanes {
-            assert!(
-                lane.samples_done > 0,
-                "{store}: a lane merged nothing: {lanes:?}"
-            );
-            assert_eq!(lane.threads, 2, "{store}: {lane:?}");
-        }
+        check(store, &report, &listed);
         let leased = client
             .workers()
             .await
@@ -100,11 +88,9 @@ async fn a_worker_of_two_lanes_is_two_workers_on_one_pool() {
             .iter()
             .filter(|w| w.current_task.is_some())
             .count();
-        assert_eq!(leased, 0, "{store}: a stopped lane still holds a task");
+        assert_eq!(leased, 0, "{store}: a stopped worker still holds a task");
 
-        let mut c = TestWorker::config(&server.url, None, None);
-        c.lanes = 2;
-        let second = TestWorker::spawn_with(c);
+        let second = TestWorker::spawn_with(worker(&server.url, None));
         let done = wait_final(&client, &job.id, Duration::from_secs(120)).await;
         second.stop().await;
         assert_completed(&done);
@@ -118,59 +104,51 @@ async fn a_worker_of_two_lanes_is_two_workers_on_one_pool() {
 }
 
 /// A worker uploads each slice while it renders the next and asks for its next task while it
-/// renders the last slice of the one in hand. Stopped in the middle of a job, it still reports
-/// exactly what the server merged from it (every accepted slice counted once, none of the slices
-/// it dropped), leaves nothing leased, and a second worker finishes the job to the same bytes as
-/// a local render.
+/// renders the last slice of the one in hand; stopped in the middle of a job it accounts for
+/// every slice ([`stop_mid_job_and_finish`]).
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_pipelined_worker_stopped_mid_job_accounts_for_every_slice() {
-    let scene = cornell();
-    for (store, url) in stores("pipelined-stop").await {
-        let server = TestServer::start(config(&url)).await;
-        let client = server.client(None);
-        let s = settings(48, 48, 24, 16);
-        let expected = exr(&local_render(&scene, &s));
-        let job = client
-            .submit(scene.clone(), "cornell.gltf", &s)
-            .await
-            .unwrap();
-        // Two samples a slice: most tasks take several slices.
-        let first = TestWorker::spawn(&server.url, None, Some(2));
-        let planned = job.samples_planned;
-        wait_until(&client, &job.id, Duration::from_secs(120), |j| {
-            j.samples_done * 3 >= planned
-        })
-        .await;
-        let report = first.stop().await;
-        let midway = client.job(&job.id).await.unwrap();
-        assert!(
-            midway.samples_done < planned,
-            "{store}: the job ended before the worker was stopped: {midway:?}"
-        );
-        assert_eq!(
-            report.samples, midway.samples_done,
-            "{store}: the worker's accepted samples against the server's merged ones ({report:?})"
-        );
-        assert!(report.slices > report.tasks, "{store}: {report:?}");
-        let leased = client
-            .workers()
-            .await
-            .unwrap()
-            .workers
-            .iter()
-            .filter(|w| w.current_task.is_some())
-            .count();
-        assert_eq!(leased, 0, "{store}: a stopped worker still holds a task");
+    stop_mid_job_and_finish(
+        "pipelined-stop",
+        |url, slice| TestWorker::config(url, None, slice),
+        3,
+        |store, report, _| assert!(report.slices > report.tasks, "{store}: {report:?}"),
+    )
+    .await;
+}
 
-        let second = TestWorker::spawn(&server.url, None, None);
-        let done = wait_final(&client, &job.id, Duration::from_secs(120)).await;
-        second.stop().await;
-        assert_completed(&done);
-        let got = client.image_exr(&job.id, false).await.unwrap();
-        assert!(
-            got == expected,
-            "{store}: the image differs from the local render"
-        );
-        server.stop().await;
-    }
+/// A worker of two lanes is two workers of the farm (NAME and NAME#2) rendering on one pool of
+/// threads: both lease and merge samples, and stopped mid-job the two account for every slice
+/// together ([`stop_mid_job_and_finish`]).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_worker_of_two_lanes_is_two_workers_on_one_pool() {
+    stop_mid_job_and_finish(
+        "two-lanes",
+        |url, slice| {
+            let mut c = TestWorker::config(url, None, slice);
+            c.lanes = 2;
+            c.threads = 2;
+            c
+        },
+        2,
+        |store, _, listed| {
+            let second = listed
+                .iter()
+                .find(|w| w.name.ends_with("#2"))
+                .unwrap_or_else(|| panic!("{store}: no second lane registered: {listed:?}"));
+            let base = second.name.trim_end_matches("#2");
+            let first = listed
+                .iter()
+                .find(|w| w.name == base)
+                .unwrap_or_else(|| panic!("{store}: no first lane {base}: {listed:?}"));
+            for lane in [first, second] {
+                assert!(
+                    lane.samples_done > 0,
+                    "{store}: a lane merged nothing: {listed:?}"
+                );
+                assert_eq!(lane.threads, 2, "{store}: {lane:?}");
+            }
+        },
+    )
+    .await;
 }
