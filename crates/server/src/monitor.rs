@@ -249,13 +249,15 @@ pub async fn refresh_estimate(
         samples,
         last: target_reached || ended || samples >= job.samples_planned || job.state.is_final(),
     };
-    store.record_estimate(&job.id, &estimate).await?;
-    if job.settings.frames.is_some() && !images.is_empty() {
-        let ended = |i: &ImageEstimate| i.samples_per_pixel >= spp || at_target(i.relative_error);
-        store
-            .record_frame_estimates(&job.id, &images, ended)
-            .await?;
-    }
+    let frames: &[ImageEstimate] = if job.settings.frames.is_some() {
+        &images
+    } else {
+        &[]
+    };
+    let ended = |i: &ImageEstimate| i.samples_per_pixel >= spp || at_target(i.relative_error);
+    store
+        .record_estimates(&job.id, &estimate, frames, ended)
+        .await?;
     Ok(err)
 }
 

@@ -48,7 +48,37 @@ impl Store {
     /// Stores the job's current error estimate (unless a newer one is already stored, as another
     /// server may have made it) and adds a point to its history when enough time has passed.
     pub async fn record_estimate(&self, id: &str, e: &Estimate) -> StoreResult<()> {
+        self.record_estimates(id, e, &[], |_| false).await
+    }
+
+    /// [`Store::record_estimate`], and a point in the history of each frame of a frame job
+    /// (`frames`, as the tiles sum them) that has samples since its last point, when one is due
+    /// by the job's spacing or the frame has ended (`ended`: every planned sample merged, or its
+    /// noise target reached). One transaction: a reader that sees the job's estimate at a version
+    /// (`GET /jobs/{id}` refreshes a finished job's only while it is older) also sees every
+    /// frame's history as of that version.
+    pub async fn record_estimates(
+        &self,
+        id: &str,
+        e: &Estimate,
+        frames: &[ImageEstimate],
+        ended: impl Fn(&ImageEstimate) -> bool,
+    ) -> StoreResult<()> {
         let mut w = self.write().await?;
+        self.job_point(&mut w.tx, id, e).await?;
+        if !frames.is_empty() {
+            self.frame_points(&mut w.tx, id, frames, ended).await?;
+        }
+        w.commit().await?;
+        Ok(())
+    }
+
+    async fn job_point(
+        &self,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+        id: &str,
+        e: &Estimate,
+    ) -> StoreResult<()> {
         let row = sqlx::query(
             "UPDATE jobs SET rel_error = NULLIF($1, -1.0), rel_error_version = $2 \
              WHERE id = $3 AND rel_error_version < $2 RETURNING started_ms, finished_ms",
@@ -56,7 +86,7 @@ impl Store {
         .bind(bindable_error(e.relative_error))
         .bind(e.version)
         .bind(id)
-        .fetch_optional(&mut *w.tx)
+        .fetch_optional(&mut **tx)
         .await?;
         let Some(row) = row else {
             return Ok(()); // deleted, or a newer estimate won
@@ -69,7 +99,7 @@ impl Store {
             let last: Option<i64> =
                 sqlx::query("SELECT MAX(elapsed_ms) AS last FROM job_progress WHERE job_id = $1")
                     .bind(id)
-                    .fetch_one(&mut *w.tx)
+                    .fetch_one(&mut **tx)
                     .await?
                     .try_get("last")?;
             let due = due(last, elapsed);
@@ -88,27 +118,23 @@ impl Store {
                 .bind(elapsed)
                 .bind(e.samples as i64)
                 .bind(bindable_error(e.relative_error))
-                .execute(&mut *w.tx)
+                .execute(&mut **tx)
                 .await?;
             }
         }
-        w.commit().await?;
         Ok(())
     }
 
-    /// Adds a point to the history of each frame of a frame job (`frames`, as the tiles sum
-    /// them) that has samples since its last point, when one is due by the job's spacing or the
-    /// frame has ended (`ended`: every planned sample merged, or its noise target reached).
-    pub async fn record_frame_estimates(
+    async fn frame_points(
         &self,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
         id: &str,
         frames: &[ImageEstimate],
         ended: impl Fn(&ImageEstimate) -> bool,
     ) -> StoreResult<()> {
-        let mut w = self.write().await?;
         let row = sqlx::query("SELECT started_ms, finished_ms FROM jobs WHERE id = $1")
             .bind(id)
-            .fetch_optional(&mut *w.tx)
+            .fetch_optional(&mut **tx)
             .await?;
         let Some(row) = row else {
             return Ok(()); // deleted meanwhile
@@ -124,7 +150,7 @@ impl Store {
              FROM frame_progress WHERE job_id = $1 GROUP BY frame",
         )
         .bind(id)
-        .fetch_all(&mut *w.tx)
+        .fetch_all(&mut **tx)
         .await?
         .iter()
         .map(|r| {
@@ -157,11 +183,10 @@ impl Store {
                 .bind(elapsed)
                 .bind(samples)
                 .bind(bindable_error(f.relative_error))
-                .execute(&mut *w.tx)
+                .execute(&mut **tx)
                 .await?;
             }
         }
-        w.commit().await?;
         Ok(())
     }
 
