@@ -1,14 +1,15 @@
-//! The light tree against choosing lights by power alone, at equal time, on a scene of many
-//! emitters or many punctual lamps (both families are switched to power for the comparison):
+//! The scene's own light choice (a light tree for many emitters or many lamps, each lamp's
+//! contribution at the point for a few lamps) against choosing lights by power alone, at equal
+//! time (both families are switched to power for the comparison):
 //! `cargo run --release -p pathfarm-bench --example light_choice -- FILE.glb [THREADS] [SPP]
 //! [ROUNDS] [FAMILY]`, FAMILY `all` (the default), `area` or `lamps`: which family the power
-//! side chooses by power (the other keeps its tree).
+//! side chooses by power (the other keeps the scene's choice).
 //!
 //! Each choice renders the scene (256 × 256, MIS) with two seeds per round, the choices
 //! alternating so that the VM's drift touches both alike. The noise of one render is estimated
 //! without a reference, from the two seeds: RMSE² = mean over pixels of (a − b)² / 2 (luminance,
-//! relative to the image mean). Equal-time error ratio = √(RMSE²_tree · t_tree / (RMSE²_power ·
-//! t_power)): below 1, the tree reaches a lower error in the same time. The image means are
+//! relative to the image mean). Equal-time error ratio = √(RMSE²_scene · t_scene / (RMSE²_power ·
+//! t_power)): below 1, the scene's choice reaches a lower error in the same time. The image means are
 //! compared too (both choices are unbiased: they must agree within their noise).
 
 use pathfarm_bench::render::render_range;
@@ -54,31 +55,36 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let bytes = std::fs::read(path)?;
     let parts = load_parts(&bytes, &NoExternalResources, &LoadOptions::default())?;
-    let tree = Scene::build(parts)?;
-    if !tree.lights.area.has_tree() && tree.lights.punctual_tree.is_none() {
+    let scene = Scene::build(parts)?;
+    if !scene.lights.area.has_tree()
+        && scene.lights.punctual_tree.is_none()
+        && !scene.lights.punctual_per_point
+    {
         return Err(format!(
             "{path}: its {} light triangles and {} punctual lamps are chosen by power already",
-            tree.lights.area.triangles.len(),
-            tree.lights.punctual.len()
+            scene.lights.area.triangles.len(),
+            scene.lights.punctual.len()
         )
         .into());
     }
     println!(
         "{path}: {} light triangles ({}), {} punctual lamps ({})",
-        tree.lights.area.triangles.len(),
-        if tree.lights.area.has_tree() {
+        scene.lights.area.triangles.len(),
+        if scene.lights.area.has_tree() {
             "tree"
         } else {
             "power"
         },
-        tree.lights.punctual.len(),
-        if tree.lights.punctual_tree.is_some() {
+        scene.lights.punctual.len(),
+        if scene.lights.punctual_tree.is_some() {
             "tree"
+        } else if scene.lights.punctual_per_point {
+            "per point"
         } else {
             "power"
         },
     );
-    let mut power = tree.clone();
+    let mut power = scene.clone();
     if family != "lamps" {
         power.lights.area.choose_by_power();
     }
@@ -90,7 +96,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build()?;
     let (mut t_tree, mut t_power) = (Tally::default(), Tally::default());
     for round in 0..rounds {
-        for (scene, tally) in [(&tree, &mut t_tree), (&power, &mut t_power)] {
+        for (scene, tally) in [(&scene, &mut t_tree), (&power, &mut t_power)] {
             let seeds = [2 * round as u64 + 1, 2 * round as u64 + 2];
             let (a, ta) = pool.install(|| luminances(scene, seeds[0], spp));
             let (b, tb) = pool.install(|| luminances(scene, seeds[1], spp));
@@ -119,10 +125,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
         (noise2 * secs, mean)
     };
-    let (e_tree, m_tree) = report("tree", &t_tree);
+    let (e_tree, m_tree) = report("scene", &t_tree);
     let (e_power, m_power) = report("power", &t_power);
     println!(
-        "equal-time error, tree ÷ power: {:.3}; image means differ by {:+.2} %",
+        "equal-time error, scene's choice ÷ power: {:.3}; image means differ by {:+.2} %",
         (e_tree / e_power).sqrt(),
         100.0 * (m_tree / m_power - 1.0)
     );

@@ -3,7 +3,8 @@
 //! and for MIS, with one-sided and two-sided emitters of different powers, some facing away from
 //! everything they could light. Many punctual lamps (a lit street: points, spots, some pointing
 //! away, and a sun) likewise: the same image as choosing them by power, with less noise, also on
-//! the street Blender exports (`scenes/suite/lit_street.glb`, `make_street.py`).
+//! the street Blender exports (`scenes/suite/lit_street.glb`, `make_street.py`). A few lamps, chosen
+//! at each point by what each sends there: the same image as by power, with less noise.
 
 mod common;
 
@@ -222,4 +223,100 @@ fn the_blender_street_chooses_its_lamps_by_the_tree() {
         se_tree < 0.8 * se_power,
         "tree {se_tree} against power {se_power}"
     );
+}
+
+/// A floor lit by a few lamps of every kind (`light::chooses_per_point`): a point lamp, a spot
+/// on part of the floor, a spot pointing away, a bright lamp below the floor, and a sun. Chosen
+/// at each point by what each lamp sends there, the image is the one of choosing them by power,
+/// with much less noise (spot, lamp below and the far side of the cone take no samples).
+fn few_lamps() -> Scene {
+    let mut mesh = Mesh::default();
+    let (a, b, c, d) = (
+        Vec3::new(-3.0, -3.0, 0.0),
+        Vec3::new(3.0, -3.0, 0.0),
+        Vec3::new(3.0, 3.0, 0.0),
+        Vec3::new(-3.0, 3.0, 0.0),
+    );
+    for t in [[a, b, c], [a, c, d]] {
+        mesh.positions.push(t);
+        mesh.material.push(0);
+    }
+    let lamps = vec![
+        PunctualLight::Point(PointLight {
+            position: Vec3::new(-1.0, 0.5, 1.5),
+            intensity: Vec3::new(3.0, 2.5, 2.0),
+        }),
+        PunctualLight::Spot(SpotLight {
+            position: Vec3::new(1.0, -0.5, 2.0),
+            direction: Vec3::new(0.1, 0.2, -1.0).normalize(),
+            intensity: Vec3::new(30.0, 20.0, 10.0),
+            cos_inner: 0.97,
+            cos_outer: 0.9,
+        }),
+        PunctualLight::Spot(SpotLight {
+            position: Vec3::new(0.0, 0.0, 2.0),
+            direction: Vec3::Z,
+            intensity: Vec3::splat(50.0),
+            cos_inner: 0.9,
+            cos_outer: 0.7,
+        }),
+        PunctualLight::Point(PointLight {
+            position: Vec3::new(0.0, 0.0, -1.0),
+            intensity: Vec3::splat(200.0),
+        }),
+        PunctualLight::Directional(DirectionalLight {
+            direction: Vec3::new(0.3, 0.2, -1.0).normalize(),
+            illuminance: Vec3::new(0.3, 0.35, 0.4),
+        }),
+    ];
+    Scene::build(SceneParts {
+        mesh,
+        materials: vec![lambert(0.6, 0.0)],
+        punctual_lights: lamps,
+        camera: Some(camera_at(Vec3::new(0.0, 0.0, 3.0))),
+        ..SceneParts::default()
+    })
+    .expect("scene builds")
+}
+
+/// Per-point choice (`per point`, 64 spp) against power (`power_spp`) on `scene`: the same mean
+/// within the noise, and a standard error below `ratio` × power's at the same samples.
+fn per_point_against_power(name: &str, per_point: &Scene, power_spp: u32, ratio: f64) {
+    assert!(per_point.lights.punctual_per_point, "{name}: a few lamps");
+    let mut power = per_point.clone();
+    power.lights.choose_punctual_by_power();
+    let (m_pp, se_pp) = render(per_point, DirectStrategy::Mis, 64);
+    let (m_power, se_power) = render(&power, DirectStrategy::Mis, power_spp);
+    let z = (m_pp - m_power) / (se_pp * se_pp + se_power * se_power).sqrt();
+    // Power's error at 64 spp, as it falls with the square root of the samples.
+    let se_power_64 = se_power * (f64::from(power_spp) / 64.0).sqrt();
+    eprintln!(
+        "{name}: per point {m_pp:.5} ± {se_pp:.5}, power at {power_spp} spp {m_power:.5} ± \
+         {se_power:.5}: z = {z:+.2}; at 64 spp power's error is {se_power_64:.5}"
+    );
+    assert!(m_pp > 0.0);
+    assert!(z.abs() < 3.5, "{name}: z = {z:.2}");
+    assert!(
+        se_pp < ratio * se_power_64,
+        "{name}: per point {se_pp} against power {se_power_64}"
+    );
+}
+
+#[test]
+fn a_few_lamps_are_chosen_per_point_with_the_image_of_choosing_by_power_and_less_noise() {
+    // Power's noise at 64 spp is 1 % of the mean here: 4096 spp for a tight reference.
+    per_point_against_power("few lamps", &few_lamps(), 4096, 0.5);
+}
+
+/// Blender's instancing scene (a sun and a point lamp over 200 instanced monkeys and spheres).
+#[test]
+fn the_blender_instances_choose_their_two_lamps_per_point() {
+    use pathfarm_tracer::gltf::{load, LoadOptions, NoExternalResources};
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes/suite/instanced.glb");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let scene =
+        load(&bytes, &NoExternalResources, &LoadOptions::default()).expect("the scene loads");
+    assert_eq!(scene.lights.punctual.len(), 2);
+    per_point_against_power("instanced", &scene, 256, 0.9);
 }

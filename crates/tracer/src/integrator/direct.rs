@@ -3,6 +3,7 @@
 
 use crate::bsdf::Bsdf;
 use crate::geometry::Ray;
+use crate::light::choose_by_contribution;
 use crate::math::{is_black, offset_ray_origin, Frame};
 use crate::sampler::{dims, PixelSampler};
 use crate::sampling::{
@@ -105,16 +106,28 @@ pub(crate) fn punctual_at<const INLINED: bool>(
     eval: impl Fn(Vec3) -> Vec3,
     transmittance: impl Fn(f32) -> Vec3,
 ) -> Vec3 {
-    let Some((light, pmf)) = scene.lights.choose_punctual(at.p, at.ng, at.u_select) else {
-        return Vec3::ZERO;
+    let lights = &scene.lights;
+    let (ls, unshadowed, pmf) = if lights.punctual_per_point {
+        // What each lamp sends here, unshadowed: the value this sample returns when visible.
+        let Some(c) = choose_by_contribution(&lights.punctual, at.p, at.u_select, |ls| {
+            eval(ls.wi) * ls.li * transmittance(ls.dist)
+        }) else {
+            return Vec3::ZERO;
+        };
+        (c.sample, c.contribution, c.pmf)
+    } else {
+        let Some((light, pmf)) = lights.choose_punctual(at.p, at.ng, at.u_select) else {
+            return Vec3::ZERO;
+        };
+        let Some(ls) = light.sample_li(at.p) else {
+            return Vec3::ZERO;
+        };
+        let f = eval(ls.wi);
+        if is_black(f) {
+            return Vec3::ZERO;
+        }
+        (ls, f * ls.li * transmittance(ls.dist), pmf)
     };
-    let Some(ls) = light.sample_li(at.p) else {
-        return Vec3::ZERO;
-    };
-    let f = eval(ls.wi);
-    if is_black(f) {
-        return Vec3::ZERO;
-    }
     let ray = spawn(at.p, at.ng, at.clearance, ls.wi);
     *rays += 1;
     let t_max = if ls.dist.is_finite() {
@@ -125,7 +138,7 @@ pub(crate) fn punctual_at<const INLINED: bool>(
     if !scene.visible_in::<INLINED>(&ray, t_max, at.alpha_u) {
         return Vec3::ZERO;
     }
-    f * ls.li * transmittance(ls.dist) / pmf
+    unshadowed / pmf
 }
 
 /// A shadow ray whose answer is still to come, and what it adds to the path's radiance if the

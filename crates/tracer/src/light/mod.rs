@@ -8,11 +8,12 @@
 //!   probability [`Lights::environment_choice`] (by power), an area light otherwise;
 //! - punctual lights from `KHR_lights_punctual` ([`PunctualLight`]: point, spot, directional), each in
 //!   its own file; delta distributions, so they are reached by light sampling only, whatever the
-//!   direct-lighting strategy. They get a light sample of their own: a few chosen by power, many
-//!   (a lit street) by a light tree over the point and spot lamps ([`PunctualTree`]).
+//!   direct-lighting strategy. They get a light sample of their own: a few chosen at each point
+//!   by what each sends there ([`choose_by_contribution`]), many (a lit street) by a light tree
+//!   over the point and spot lamps ([`PunctualTree`]).
 //!
 //! Whether a family is chosen by a tree is decided in one place, [`chooses_by_tree`], from the
-//! number of its lights alone.
+//! number of its lights alone; whether lamps are chosen per point, in [`chooses_per_point`].
 //!
 //! Units: radiometric, linear RGB. Emission and the environment are radiance (W/(m²·sr)), point and
 //! spot intensities W/sr, directional irradiance W/m²; pixels are radiance. glTF's photometric
@@ -21,6 +22,7 @@
 mod area;
 mod directional;
 mod environment;
+mod per_point_choice;
 mod point;
 mod punctual_choice;
 mod spot;
@@ -32,6 +34,7 @@ pub use directional::DirectionalLight;
 pub use environment::{
     Environment, EnvironmentError, EnvironmentSample, MAX_DISTRIBUTION_SIZE, MAX_ENVIRONMENT_TEXELS,
 };
+pub use per_point_choice::{choose_by_contribution, ChosenLamp};
 pub use point::PointLight;
 pub use punctual_choice::PunctualTree;
 pub use spot::SpotLight;
@@ -45,6 +48,14 @@ use glam::Vec3;
 /// (see [`MAX_POWER_CHOSEN`]).
 pub fn chooses_by_tree(lights: usize) -> bool {
     lights > MAX_POWER_CHOSEN
+}
+
+/// Whether a scene's punctual lamps (`lamps` of them, all kinds) are chosen at each shading point
+/// by what each sends there ([`choose_by_contribution`]) rather than by power or a tree: the one
+/// place that decides. From two lamps (one needs no choice) up to [`MAX_POWER_CHOSEN`], where
+/// evaluating every lamp at every vertex stays cheaper than the shadow ray.
+pub fn chooses_per_point(lamps: usize) -> bool {
+    (2..=MAX_POWER_CHOSEN).contains(&lamps)
 }
 
 /// Incident light from a punctual light at a point.
@@ -97,6 +108,9 @@ pub struct Lights {
     pub punctual_distribution: Distribution1D,
     /// Many point and spot lamps: chosen by a light tree instead (see [`chooses_by_tree`]).
     pub punctual_tree: Option<PunctualTree>,
+    /// A few lamps: chosen at each point by what each sends there instead (see
+    /// [`chooses_per_point`]).
+    pub punctual_per_point: bool,
     /// The environment, if the render has one (see [`Lights::set_environment`]).
     pub environment: Option<Environment>,
     /// Probability that a vertex's light sample goes to the environment rather than to an area
@@ -120,6 +134,7 @@ impl Lights {
         Lights {
             area,
             punctual_distribution: Distribution1D::new(&powers),
+            punctual_per_point: punctual_tree.is_none() && chooses_per_point(punctual.len()),
             punctual_tree,
             punctual,
             environment: None,
@@ -153,7 +168,8 @@ impl Lights {
 
     /// Chooses a punctual light for the point `p` with unit normal `n` (zero: none): by the tree
     /// where there is one, in proportion to power otherwise. Returns the light and its
-    /// probability; None when no light can reach `p`.
+    /// probability; None when no light can reach `p`. (Where [`Lights::punctual_per_point`] holds,
+    /// the integrator chooses by [`choose_by_contribution`] instead.)
     #[inline]
     pub fn choose_punctual(&self, p: Vec3, n: Vec3, u: f32) -> Option<(&PunctualLight, f32)> {
         if let Some(tree) = &self.punctual_tree {
@@ -167,9 +183,11 @@ impl Lights {
         Some((&self.punctual[i], pmf))
     }
 
-    /// Chooses the punctual lights by power alone even where [`chooses_by_tree`] says otherwise:
-    /// the same expected image, for tests and benchmarks that compare the two choices.
+    /// Chooses the punctual lights by power alone even where [`chooses_by_tree`] or
+    /// [`chooses_per_point`] says otherwise: the same expected image, for tests and benchmarks
+    /// that compare the choices.
     pub fn choose_punctual_by_power(&mut self) {
         self.punctual_tree = None;
+        self.punctual_per_point = false;
     }
 }
