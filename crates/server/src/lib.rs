@@ -27,6 +27,7 @@ pub mod single_flight;
 pub mod states;
 pub mod store;
 pub mod tls;
+pub mod work_signal;
 
 pub use config::{ConnectionLimits, Limits, Quotas, ServerConfig, SqliteSynchronous};
 pub use store::Store;
@@ -55,6 +56,8 @@ pub struct Inner {
     pub pacing: pacing::Pacing,
     /// When each running job's error was last estimated, and what it cost ([`monitor`]).
     pub estimates: monitor::EstimateClock,
+    /// Wakes lease requests waiting for work ([`work_signal`]).
+    pub work: work_signal::WorkSignal,
 }
 
 impl std::ops::Deref for AppState {
@@ -88,6 +91,7 @@ impl AppState {
             images,
             metrics: Default::default(),
             estimates: Default::default(),
+            work: Default::default(),
         })))
     }
 }
@@ -189,6 +193,13 @@ pub async fn serve(
     );
     let app = app_listening_on(state.clone(), listen)
         .into_make_service_with_connect_info::<connections::ConnHandle>();
+    // Waiting lease requests answer at once when shutdown begins: in-flight requests are waited
+    // for, and a long poll would hold shutdown up for its whole wait.
+    let closing = state.clone();
+    let shutdown = async move {
+        shutdown.await;
+        closing.work.close();
+    };
     let result = axum::serve(listener, app)
         .with_graceful_shutdown(shutdown)
         .await;

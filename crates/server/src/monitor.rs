@@ -1,5 +1,5 @@
 //! The background loop every server runs: expires leases, marks silent workers lost, collects
-//! registrations idle past the worker expiry, keeps each
+//! registrations idle past the worker expiry, wakes lease requests waiting for work, keeps each
 //! job's error estimate current, and ends jobs at their noise target or time limit; and, less
 //! often, keeps the store from growing forever ([`housekeeping`]). Every step is a transaction on
 //! the shared store, so any number of servers can run it side by side.
@@ -186,6 +186,11 @@ pub async fn step(state: &AppState) -> Result<(), crate::error::ApiError> {
                 }
             }
         }
+    }
+    // Leases that expired, workers lost, jobs another server took in: any of them may have
+    // queued work that lease requests are waiting for.
+    if state.work.has_waiters() && store.has_queued_work().await? {
+        state.work.notify();
     }
     let now = store.now_ms();
     for job in store.jobs_in_states(&[JobState::Running]).await? {

@@ -764,3 +764,122 @@ async fn a_worker_uploads_to_a_server_that_predates_octet_stream_slices() {
         ]
     );
 }
+
+/// A lease request with `wait_ms` is held while there is no work, and answered with a task as
+/// soon as one may be leased: a job submitted, a paused job resumed, a task released, a lease
+/// expired (the monitor's wake-up); without work it is answered 204 when its wait is over, and
+/// at once when the server shuts down.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_long_polled_lease_waits_for_work_and_wakes_when_some_is_queued() {
+    let bytes = cornell();
+    for (store, url) in stores("long-poll").await {
+        let mut cfg = config(&url);
+        cfg.lease_duration = Duration::from_millis(500);
+        cfg.monitor_interval = Duration::from_millis(50);
+        let server = TestServer::start(cfg).await;
+        let c = server.client(None);
+        let a = register(&c, "a").await;
+        let b = register(&c, "b").await;
+        let long = Duration::from_secs(20);
+
+        // Nothing queued: 204 once the wait is over, not before.
+        let t0 = std::time::Instant::now();
+        let none = c
+            .lease_waiting(&a, Duration::from_millis(300))
+            .await
+            .unwrap();
+        assert!(none.is_none(), "{store}");
+        assert!(t0.elapsed() >= Duration::from_millis(300), "{store}");
+
+        // A submission wakes a waiting request with the job's first task.
+        let waiting = {
+            let (c, a) = (c.clone(), a.clone());
+            tokio::spawn(async move {
+                let lease = c.lease_waiting(&a, long).await;
+                (lease, std::time::Instant::now())
+            })
+        };
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(
+            !waiting.is_finished(),
+            "{store}: answered before there was work"
+        );
+        let s = settings(16, 16, 1, 16); // one tile, one sample: one task
+        let submitted_at = std::time::Instant::now();
+        let job = c.submit(bytes.clone(), "c.gltf", &s).await.unwrap();
+        let (lease, answered_at) = waiting.await.unwrap();
+        let l0 = lease.unwrap().expect("the submitted job's task");
+        assert!(answered_at >= submitted_at, "{store}");
+        assert_eq!((l0.job_id.as_str(), l0.sample_begin), (job.id.as_str(), 0));
+
+        // Its one task is leased: a lease released wakes the waiter with it.
+        let waiting = {
+            let (c, b) = (c.clone(), b.clone());
+            tokio::spawn(async move { c.lease_waiting(&b, long).await })
+        };
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        assert!(
+            !waiting.is_finished(),
+            "{store}: a leased task leased again"
+        );
+        c.release(l0.task_id, &l0.lease_token).await.unwrap();
+        let again = waiting.await.unwrap().unwrap().expect("the released task");
+        assert_eq!(again.task_id, l0.task_id, "{store}");
+
+        // b goes silent: its lease expires, and the monitor wakes a's waiting request with it.
+        let waiting = {
+            let (c, a) = (c.clone(), a.clone());
+            tokio::spawn(async move { c.lease_waiting(&a, long).await })
+        };
+        let expired = waiting.await.unwrap().unwrap().expect("the expired task");
+        assert_eq!(expired.task_id, l0.task_id, "{store}");
+
+        // Paused with its tasks queued: no work until it is resumed.
+        c.release(expired.task_id, &expired.lease_token)
+            .await
+            .unwrap();
+        c.job_action(&job.id, "pause").await.unwrap();
+        let waiting = {
+            let (c, b) = (c.clone(), b.clone());
+            tokio::spawn(async move { c.lease_waiting(&b, long).await })
+        };
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(!waiting.is_finished(), "{store}: leased from a paused job");
+        c.job_action(&job.id, "resume").await.unwrap();
+        let resumed = waiting
+            .await
+            .unwrap()
+            .unwrap()
+            .expect("a task of the resumed job");
+        assert_eq!(resumed.job_id, job.id, "{store}");
+        c.release(resumed.task_id, &resumed.lease_token)
+            .await
+            .unwrap();
+
+        // More than the contract's maximum: 400 naming it.
+        let err = c
+            .lease_waiting(&a, Duration::from_millis(60_001))
+            .await
+            .unwrap_err();
+        assert_eq!(code(&err), (StatusCode::BAD_REQUEST, "bad_query".into()));
+
+        // Shutdown answers a waiting request at once instead of waiting it out.
+        c.job_action(&job.id, "cancel").await.unwrap();
+        let waiting = {
+            let (c, a) = (c.clone(), a.clone());
+            tokio::spawn(async move { c.lease_waiting(&a, long).await })
+        };
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let t0 = std::time::Instant::now();
+        server.stop().await;
+        let answer = waiting.await.unwrap();
+        assert!(
+            matches!(answer, Ok(None)),
+            "{store}: a waiting lease at shutdown: {answer:?}"
+        );
+        assert!(
+            t0.elapsed() < long,
+            "{store}: shutdown waited out the long poll"
+        );
+    }
+}

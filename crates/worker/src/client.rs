@@ -395,11 +395,25 @@ impl ApiClient {
 
     /// A lease, or `None` when the queue is empty.
     pub async fn lease(&self, worker_id: &str) -> Result<Option<Lease>, ClientError> {
-        let resp = Self::send(self.as_worker(
-            self.request(Method::POST, &format!("/api/v1/workers/{worker_id}/lease")),
-            Some(worker_id),
-        ))
-        .await?;
+        self.lease_waiting(worker_id, Duration::ZERO).await
+    }
+
+    /// [`ApiClient::lease`], the server holding the request up to `wait` until there is work
+    /// (a long poll: `wait_ms`). A server that does not wait answers at once.
+    pub async fn lease_waiting(
+        &self,
+        worker_id: &str,
+        wait: Duration,
+    ) -> Result<Option<Lease>, ClientError> {
+        let path = format!("/api/v1/workers/{worker_id}/lease");
+        let request = if wait.is_zero() {
+            self.request(Method::POST, &path)
+        } else {
+            self.request(Method::POST, &path)
+                .query(&[("wait_ms", wait.as_millis() as u64)])
+                .timeout(self.timeout + wait)
+        };
+        let resp = Self::send(self.as_worker(request, Some(worker_id))).await?;
         if resp.status() == StatusCode::NO_CONTENT {
             return Ok(None);
         }

@@ -56,8 +56,13 @@ pub struct WorkerConfig {
     pub slice_seconds: f64,
     /// Fixed samples per pixel per slice instead of timing (tests use it to vary the split).
     pub slice_samples: Option<u32>,
-    /// Longest wait between lease attempts while the queue is empty.
+    /// Longest wait between lease attempts while the queue is empty and the server answers
+    /// at once (one that does not hold lease requests: see `lease_wait`).
     pub idle_poll: Duration,
+    /// How long a lease request asks the server to wait for work when there is none (a long
+    /// poll: the worker starts on a new job as soon as it is submitted, and an idle farm sends
+    /// no requests meanwhile). Zero: ask at once, and wait `idle_poll` between asks.
+    pub lease_wait: Duration,
     /// Task lanes (at least 1): each lane is a worker of the farm of its own (registered as
     /// `name`, `name#2`, …) that leases and uploads on its own, while every lane renders on the
     /// one pool of `threads` threads and shares one copy of each scene. With two, one lane's
@@ -65,6 +70,10 @@ pub struct WorkerConfig {
     /// keeps the threads busy on tasks shorter than a round trip.
     pub lanes: usize,
 }
+
+/// The default [`WorkerConfig::lease_wait`]: below the server's cap (20 s), short enough that a
+/// connection that died silently is noticed soon.
+pub const DEFAULT_LEASE_WAIT: Duration = Duration::from_secs(15);
 
 /// The default [`WorkerConfig::cache_max_bytes`]: 4 GiB.
 pub const DEFAULT_CACHE_MAX_BYTES: u64 = 4 << 30;
@@ -82,6 +91,7 @@ impl WorkerConfig {
             slice_seconds: 1.5,
             slice_samples: None,
             idle_poll: Duration::from_millis(500),
+            lease_wait: DEFAULT_LEASE_WAIT,
             lanes: 1,
         }
     }
@@ -271,19 +281,31 @@ async fn lane(
             Some(asked) => asked.await.ok().and_then(|r| r.ok()).flatten(),
             None => None,
         };
+        // When the (last) lease request went out, if it asked the server to wait for work.
+        let mut long_poll = None;
         let lease = match prefetched {
             Some(lease) => Ok(Some(lease)),
             None => {
-                retry::retry(
+                let wait = config.lease_wait;
+                long_poll = (!wait.is_zero()).then(Instant::now);
+                let asked = retry::retry(
                     retry::LEASE,
                     Limits {
                         deadline: None,
                         stop: Some(stop.clone()),
                     },
-                    || session.client.lease(&session.worker_id),
+                    || {
+                        long_poll = long_poll.map(|_| Instant::now());
+                        session.client.lease_waiting(&session.worker_id, wait)
+                    },
                     |e, d| tracing::warn!(error = %e, retry_in = ?d, "lease failed; retrying"),
-                )
-                .await
+                );
+                // A long poll is not waited out when the worker is asked to stop.
+                let mut stopping = stop.clone();
+                tokio::select! {
+                    answer = asked => answer,
+                    _ = stopping.wait_for(|s| *s) => break,
+                }
             }
         };
         if !matches!(lease, Ok(Some(_))) {
@@ -325,8 +347,13 @@ async fn lane(
             }
         };
         let Some(lease) = lease else {
-            wait(&mut stop, idle).await;
-            idle = (idle * 2).min(config.idle_poll);
+            // A server that held the request has waited already; one that answered at once
+            // (it does not wait, or it is shutting down) is asked again after a pause.
+            let waited = long_poll.is_some_and(|t| t.elapsed() >= config.lease_wait / 2);
+            if !waited {
+                wait(&mut stop, idle).await;
+                idle = (idle * 2).min(config.idle_poll);
+            }
             continue;
         };
         idle = Duration::from_millis(20);
@@ -890,7 +917,9 @@ mod tests {
                     return;
                 }
                 let mut parts = line.split_whitespace();
-                let (method, path) = (parts.next().unwrap_or(""), parts.next().unwrap_or(""));
+                let (method, target) = (parts.next().unwrap_or(""), parts.next().unwrap_or(""));
+                // The route without its query (an idle lease asks `?wait_ms=…`).
+                let path = target.split('?').next().unwrap_or("");
                 let route = match (method, path) {
                     ("POST", "/api/v1/workers") => "register",
                     ("POST", p) if p.ends_with("/lease") => "lease",

@@ -223,5 +223,7 @@ pub async fn resume(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<JobView>> {
-    event(&state, &id, JobEvent::Resume { started: false }).await
+    let view = event(&state, &id, JobEvent::Resume { started: false }).await?;
+    state.work.notify();
+    Ok(view)
 }

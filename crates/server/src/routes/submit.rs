@@ -299,6 +299,7 @@ pub async fn submit(
         )
         .await?;
     tracing::info!(job = %id, scene = %hash, tasks = task_count, "job submitted");
+    state.work.notify();
     Ok((
         StatusCode::CREATED,
         Json(JobCreated {

@@ -257,5 +257,6 @@ pub async fn release(
         .store
         .release_by(task_id, &r.lease_token, &me.id)
         .await?;
+    state.work.notify();
     Ok(StatusCode::NO_CONTENT)
 }

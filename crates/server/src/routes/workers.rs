@@ -4,6 +4,7 @@ use super::{no_control, no_nul, JsonBody, OptionalJsonBody, Page};
 use crate::auth::{ReadAuth, WorkerAuth, WorkerIdentity};
 use crate::error::{ApiError, ApiResult};
 use crate::pacing::Write;
+use crate::work_signal::{Woken, MAX_LEASE_WAIT};
 use crate::AppState;
 use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
@@ -12,6 +13,7 @@ use axum::Json;
 use pathfarm_wire::api::{
     Heartbeat, HeartbeatReply, WorkerList, WorkerRegistered, WorkerRegistration,
 };
+use std::time::Duration;
 
 pub async fn register(
     _: WorkerAuth,
@@ -117,32 +119,68 @@ pub async fn heartbeat(
     }))
 }
 
-/// `200` with a lease, or `204` when there is no work; `429 too_many_leases` when the worker
-/// already holds [`crate::ServerConfig::max_leases_per_worker`].
+/// The most `wait_ms` a lease request may give (the contract's `maximum`).
+const MAX_WAIT_MS: u64 = 60_000;
+
+#[derive(serde::Deserialize)]
+pub struct LeaseQuery {
+    /// How long to wait for work when there is none (long poll), in ms; capped to
+    /// [`MAX_LEASE_WAIT`].
+    wait_ms: Option<u64>,
+}
+
+/// `200` with a lease, or `204` when there is no work (after waiting up to `wait_ms` for some:
+/// [`crate::work_signal`]); `429 too_many_leases` when the worker already holds
+/// [`crate::ServerConfig::max_leases_per_worker`].
 pub async fn lease(
     me: WorkerIdentity,
     State(state): State<AppState>,
     Path(id): Path<String>,
+    query: Result<Query<LeaseQuery>, axum::extract::rejection::QueryRejection>,
 ) -> ApiResult<Response> {
     me.must_be(&id)?;
+    let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
+    let wait_ms = q.wait_ms.unwrap_or(0);
+    if wait_ms > MAX_WAIT_MS {
+        return Err(ApiError::bad_request(
+            "bad_query",
+            format!("wait_ms must be at most {MAX_WAIT_MS}, not {wait_ms}"),
+        ));
+    }
+    let wait = Duration::from_millis(wait_ms).min(MAX_LEASE_WAIT);
+    let deadline = tokio::time::Instant::now() + wait;
+    // Subscribed before the first try: work queued between a try and the wait wakes it.
+    let mut waiter = (!wait.is_zero()).then(|| state.work.waiter());
+    loop {
+        if let Some(lease) = try_lease(&state, &id).await? {
+            return Ok(Json(lease).into_response());
+        }
+        let Some(w) = waiter.as_mut() else {
+            return Ok(StatusCode::NO_CONTENT.into_response());
+        };
+        if w.wait(deadline).await == Woken::Done {
+            return Ok(StatusCode::NO_CONTENT.into_response());
+        }
+    }
+}
+
+/// One try at leasing a task for worker `id`.
+async fn try_lease(state: &AppState, id: &str) -> ApiResult<Option<pathfarm_wire::api::Lease>> {
     let lease_ms = state.config.lease_duration.as_millis() as u64;
     let started = std::time::Instant::now();
     let write = state
         .pacing
-        .begin(Write::Lease, &id)
+        .begin(Write::Lease, id)
         .map_err(|slow| ApiError::slow_down(slow.retry_after_seconds))?;
     let lease = state
         .store
-        .lease(&id, lease_ms, state.config.max_leases_per_worker)
+        .lease(id, lease_ms, state.config.max_leases_per_worker)
         .await?;
     drop(write);
     state.metrics.observe_lease(started.elapsed());
-    Ok(match lease {
-        Some(mut l) => {
-            state.pacing.seen(&id);
-            l.slice_seconds = Some(state.pacing.slice_seconds());
-            Json(l).into_response()
-        }
-        None => StatusCode::NO_CONTENT.into_response(),
-    })
+    Ok(lease.map(|mut l| {
+        state.pacing.seen(id);
+        l.slice_seconds = Some(state.pacing.slice_seconds());
+        l
+    }))
 }

@@ -50,6 +50,19 @@ struct Picked {
 }
 
 impl Store {
+    /// Whether any job has a queued task (one some worker may lease: paused jobs and tasks
+    /// refused to particular workers aside). What wakes long-polled leases from the monitor
+    /// ([`crate::work_signal`]).
+    pub async fn has_queued_work(&self) -> StoreResult<bool> {
+        Ok(sqlx::query(
+            "SELECT 1 AS one FROM jobs WHERE state IN ('queued', 'running') AND queued_tasks > 0 \
+             LIMIT 1",
+        )
+        .fetch_optional(self.pool())
+        .await?
+        .is_some())
+    }
+
     /// Leases the next task for `worker_id`, or `None` when there is no work; refused
     /// ([`Error::TooManyLeases`]) when the worker already holds `max_leases`.
     /// On SQLite leases share transactions with merges (group commit).
