@@ -79,6 +79,10 @@ fn the_api_never_fails_and_always_matches_its_spec() {
             "fuzz-client",
             "--worker-token",
             "fuzz-worker",
+            // Lease requests are long polls: held at most this long when there is no work,
+            // well inside schemathesis' request timeout (10 s).
+            "--lease-wait-seconds",
+            "0.2",
         ])
         .env("RUST_LOG", "warn")
         .stdout(log.try_clone().expect("log"))

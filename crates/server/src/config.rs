@@ -170,6 +170,10 @@ pub struct ServerConfig {
     pub worker_tokens: Vec<String>,
     /// A lease lasts this long without a heartbeat.
     pub lease_duration: Duration,
+    /// The longest an idle worker's lease request is held waiting for work
+    /// ([`crate::work_signal`]; `wait_ms` beyond it is cut to it; zero: never held). Default
+    /// [`crate::work_signal::MAX_LEASE_WAIT`].
+    pub max_lease_wait: Duration,
     /// How often each server expires leases, marks lost workers and updates error estimates.
     pub monitor_interval: Duration,
     /// Most tasks one worker may hold leased at once. The worker daemon holds one; the cap keeps
@@ -252,6 +256,7 @@ impl ServerConfig {
             client_tokens: Vec::new(),
             worker_tokens: Vec::new(),
             lease_duration: Duration::from_secs(30),
+            max_lease_wait: crate::work_signal::MAX_LEASE_WAIT,
             monitor_interval: Duration::from_millis(500),
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             worker_expiry: DEFAULT_WORKER_EXPIRY,

@@ -16,8 +16,9 @@
 use std::time::Duration;
 use tokio::sync::watch;
 
-/// The longest a lease request may wait (`wait_ms` is capped to it): below the clients'
-/// request timeouts, and short enough that a worker whose connection silently died notices.
+/// The default longest wait of a lease request ([`crate::ServerConfig::max_lease_wait`],
+/// `--lease-wait-seconds`; `wait_ms` is cut to it): below common proxies' idle timeouts, and short
+/// enough that a worker whose connection silently died notices.
 pub const MAX_LEASE_WAIT: Duration = Duration::from_secs(20);
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

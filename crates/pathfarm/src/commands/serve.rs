@@ -93,6 +93,10 @@ pub struct ServerArgs {
     /// upload) expires: its leases are queued again, its row deleted, its credential void.
     #[arg(long, env = "PATHFARM_WORKER_EXPIRY_SECONDS", default_value_t = 600.0)]
     pub worker_expiry_seconds: f64,
+    /// Most seconds an idle worker's lease request is held waiting for work (a long poll; 0:
+    /// answered at once). Below the idle timeout of any proxy in front of the server.
+    #[arg(long, env = "PATHFARM_LEASE_WAIT_SECONDS", default_value_t = 20.0)]
+    pub lease_wait_seconds: f64,
     /// Days after which a finished job (completed, cancelled or failed) is deleted, with its
     /// tiles and its scene once no job uses it; 0 keeps finished jobs until deleted.
     #[arg(long, env = "PATHFARM_JOB_RETENTION_DAYS", default_value_t = 30.0)]
@@ -184,6 +188,10 @@ impl ServerArgs {
             bail!("--worker-expiry-seconds must be at least --lease-seconds (and at most 1e9)");
         }
         c.worker_expiry = Duration::from_secs_f64(self.worker_expiry_seconds);
+        if !(0.0..=60.0).contains(&self.lease_wait_seconds) {
+            bail!("--lease-wait-seconds must be between 0 (no waiting) and 60");
+        }
+        c.max_lease_wait = Duration::from_secs_f64(self.lease_wait_seconds);
         if !(self.job_retention_days.is_finite() && (0.0..=1e6).contains(&self.job_retention_days))
         {
             bail!("--job-retention-days must be between 0 (keep) and 1000000");

@@ -4,7 +4,7 @@ use super::{no_control, no_nul, JsonBody, OptionalJsonBody, Page};
 use crate::auth::{ReadAuth, WorkerAuth, WorkerIdentity};
 use crate::error::{ApiError, ApiResult};
 use crate::pacing::Write;
-use crate::work_signal::{Woken, MAX_LEASE_WAIT};
+use crate::work_signal::Woken;
 use crate::AppState;
 use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
@@ -124,8 +124,8 @@ const MAX_WAIT_MS: u64 = 60_000;
 
 #[derive(serde::Deserialize)]
 pub struct LeaseQuery {
-    /// How long to wait for work when there is none (long poll), in ms; capped to
-    /// [`MAX_LEASE_WAIT`].
+    /// How long to wait for work when there is none (long poll), in ms; cut to
+    /// [`crate::ServerConfig::max_lease_wait`].
     wait_ms: Option<u64>,
 }
 
@@ -147,7 +147,7 @@ pub async fn lease(
             format!("wait_ms must be at most {MAX_WAIT_MS}, not {wait_ms}"),
         ));
     }
-    let wait = Duration::from_millis(wait_ms).min(MAX_LEASE_WAIT);
+    let wait = Duration::from_millis(wait_ms).min(state.config.max_lease_wait);
     let deadline = tokio::time::Instant::now() + wait;
     // Subscribed before the first try: work queued between a try and the wait wakes it.
     let mut waiter = (!wait.is_zero()).then(|| state.work.waiter());
