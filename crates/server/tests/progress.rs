@@ -342,6 +342,59 @@ async fn the_last_image_ends_the_history_even_in_the_same_millisecond() {
     }
 }
 
+/// On PostgreSQL an estimate can read the job still running and time its point at "now" while
+/// the finishing merge, which stamped `finished_ms` a moment earlier, has not committed yet: the
+/// final estimate, timed at `finished_ms`, is then *earlier* than the point before it. It must
+/// still end the history (it replaces that point), not be dropped. (Found by CI on the frame
+/// tests: a frame's history ended at 1008 of its 1152 samples.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_last_image_ends_the_history_even_when_timed_before_the_point_before_it() {
+    use pathfarm_server::store::{now_ms, Estimate};
+    for (store, url) in stores("last_before").await {
+        let (server, client, job) = server_without_monitor(&url).await;
+        let pool = server.state.store.pool();
+        let now = now_ms();
+        // Running for a second: the point is at about 1 s.
+        sqlx::query("UPDATE jobs SET started_ms = $1, finished_ms = NULL WHERE id = $2")
+            .bind(now - 1000)
+            .bind(&job.id)
+            .execute(pool)
+            .await
+            .unwrap();
+        let record = |version: i64, samples: u64, last: bool| Estimate {
+            version,
+            relative_error: Some(1.0 / (version + 1) as f64),
+            samples,
+            last,
+        };
+        let store_ = &server.state.store;
+        store_
+            .record_estimate(&job.id, &record(1, 700, false))
+            .await
+            .unwrap();
+        let before = client.convergence(&job.id).await.unwrap().points;
+        assert_eq!(before.len(), 1, "{store}: {before:?}");
+        assert!(before[0].elapsed_s >= 1.0, "{store}: {before:?}");
+        // …and it had finished at 0.5 s.
+        sqlx::query("UPDATE jobs SET finished_ms = $1 WHERE id = $2")
+            .bind(now - 500)
+            .bind(&job.id)
+            .execute(pool)
+            .await
+            .unwrap();
+        store_
+            .record_estimate(&job.id, &record(2, 1024, true))
+            .await
+            .unwrap();
+        let points = client.convergence(&job.id).await.unwrap().points;
+        assert_eq!(points.len(), 1, "{store}: {points:?}");
+        assert_eq!(points[0].samples_done, 1024, "{store}: {points:?}");
+        assert_eq!(points[0].elapsed_s, before[0].elapsed_s, "{store}");
+        assert_eq!(points[0].relative_error, Some(1.0 / 3.0), "{store}");
+        server.stop().await;
+    }
+}
+
 /// Tiles merged before the server kept error sums (migration 0010 left them NULL) are summed
 /// when the monitor starts, for the jobs that have not ended, to the sums a merge would have
 /// written: the estimate is the same to the bit. A job that ended is left as it ended.

@@ -33,6 +33,22 @@ fn due(last: Option<i64>, elapsed: i64) -> bool {
     })
 }
 
+/// The time of a point: `elapsed`, except that an image's last point is never earlier than the
+/// point before it, so that it replaces that point rather than being dropped and the history
+/// always ends with the final image.
+///
+/// It can be earlier: the last image may land in the same millisecond as the point before it (a
+/// job's final merges come close together), and on PostgreSQL an estimate can read the job
+/// still running and time its point at "now" while the finishing merge, which stamped
+/// `finished_ms` a moment before, has not yet committed; the final estimate is then timed at
+/// `finished_ms`, before that point.
+fn final_elapsed(last_image: bool, last: Option<i64>, elapsed: i64) -> i64 {
+    match last {
+        Some(last) if last_image => elapsed.max(last),
+        _ => elapsed,
+    }
+}
+
 /// An optional error as a bindable number: −1 (which no relative error is) for none, turned back
 /// into NULL by the SQL (`NULLIF(…, -1.0)`).
 ///
@@ -102,10 +118,8 @@ impl Store {
                     .fetch_one(&mut **tx)
                     .await?
                     .try_get("last")?;
+            let elapsed = final_elapsed(e.last, last, elapsed);
             let due = due(last, elapsed);
-            // The last image may land in the same millisecond as the point before it (a job's
-            // final merges come close together): it then replaces that point, so the history
-            // always ends with the final image.
             let later = last.is_none_or(|last| elapsed > last || (e.last && elapsed == last));
             if (due || e.last) && later {
                 sqlx::query(
@@ -169,6 +183,7 @@ impl Store {
             }
             let ended = ended(f);
             let last_ms = last.map(|(t, _)| t);
+            let elapsed = final_elapsed(ended, last_ms, elapsed);
             let later = last_ms.is_none_or(|t| elapsed > t || (ended && elapsed == t));
             if (due(last_ms, elapsed) || ended) && later {
                 sqlx::query(
