@@ -36,8 +36,7 @@ pub struct PressureOptions {
 
 impl PressureOptions {
     /// 4,096 tiles of 8² (more than a first pass of 10,000 workers needs), 256 spp: passes of
-    /// 1, 2, 4, … samples (the load generator's tasks of any size), so the first passes are tasks
-    /// of a sample or two, as a real job's first pass is.
+    /// 1, 2, 4, … samples, so the first passes are tasks of a sample or two, as a real job's are.
     pub const JOB: (u32, u32, u32, u32) = (512, 512, 8, 256);
 }
 
