@@ -1048,8 +1048,8 @@ fn bench_frames_measures_a_frame_job_against_a_still_one() {
 }
 
 /// `pathfarm bench up --quick`: the direct render and `up` in both layouts, as real processes,
-/// give the same bytes; the report counts the farm's processes (up and its workers) and their
-/// memory.
+/// give the same bytes; the report counts the farm's processes (up and its workers), their
+/// memory and their CPU time.
 #[test]
 fn bench_up_compares_the_farm_with_a_direct_render() {
     let dir = TestDir::new("bench-up");
@@ -1096,6 +1096,14 @@ fn bench_up_compares_the_farm_with_a_direct_render() {
                 row["peak_rss_mib"].as_f64().unwrap_or_default() > 1.0,
                 "{row}"
             );
+        }
+        // CPU time: the render's or the farm's (rendering took some), and the server's part of
+        // the farm's (a part: the workers rendered).
+        let cpu = row["cpu_seconds"].as_f64().expect("CPU seconds");
+        assert!(cpu > 0.0, "{row}");
+        match row["server_cpu_seconds"].as_f64() {
+            None => assert_eq!(layout, "render", "{row}"),
+            Some(server) => assert!((0.0..cpu).contains(&server), "{row}"),
         }
     }
     assert!(dir.path("report").join("up.md").is_file());

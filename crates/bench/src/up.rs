@@ -58,6 +58,13 @@ pub struct UpRow {
     /// processes: `up` and its workers.
     pub peak_rss_mib: f64,
     pub processes: usize,
+    /// CPU seconds (user + system) of all its processes: the render's whole run; the farm's from
+    /// the submission until `submit --wait` has the image (the server's and its workers').
+    #[serde(default)]
+    pub cpu_seconds: Option<f64>,
+    /// The farm's server's part of `cpu_seconds` (merges, leases, the database, the API).
+    #[serde(default)]
+    pub server_cpu_seconds: Option<f64>,
     /// The farm's EXR is byte for byte the direct render's.
     pub identical: bool,
 }
@@ -136,6 +143,8 @@ pub fn run(opts: &UpOptions) -> Result<(UpResults, String), BenchError> {
                 ratio: 1.0,
                 peak_rss_mib: direct.peak_rss_mib,
                 processes: 1,
+                cpu_seconds: direct.cpu_seconds,
+                server_cpu_seconds: None,
                 identical: true,
             });
             let mut farms: Vec<(String, &Path, Option<Shape>)> = layouts
@@ -163,6 +172,8 @@ pub fn run(opts: &UpOptions) -> Result<(UpResults, String), BenchError> {
                     ratio: farm.seconds / direct.seconds,
                     peak_rss_mib: farm.peak_rss_mib,
                     processes: farm.processes,
+                    cpu_seconds: farm.cpu_seconds,
+                    server_cpu_seconds: farm.server_cpu_seconds,
                     identical,
                 });
             }
@@ -188,7 +199,25 @@ struct Rendered {
     seconds: f64,
     peak_rss_mib: f64,
     processes: usize,
+    cpu_seconds: Option<f64>,
+    server_cpu_seconds: Option<f64>,
     exr: Vec<u8>,
+}
+
+/// A process's CPU time (user + system) so far, and whether it has exited (a zombie, not yet
+/// reaped: its times are final).
+fn cpu_of(pid: u32) -> Option<(f64, bool)> {
+    let stat = procfs::process::Process::new(i32::try_from(pid).ok()?)
+        .ok()?
+        .stat()
+        .ok()?;
+    let seconds = (stat.utime + stat.stime) as f64 / procfs::ticks_per_second() as f64;
+    Some((seconds, stat.state == 'Z'))
+}
+
+/// The CPU seconds of `pids` together (`None` if one cannot be read).
+fn cpu_sum(pids: &[u32]) -> Option<f64> {
+    pids.iter().map(|&p| cpu_of(p).map(|(s, _)| s)).sum()
 }
 
 fn job_args(case: &UpCase) -> Vec<String> {
@@ -236,10 +265,16 @@ fn render(
         .spawn()
         .map_err(|e| farm_err(format!("cannot start {}: {e}", opts.exe.display())))?;
     let mut peak = PeakRss::default();
-    let status = loop {
+    // Reaped only once its times are final (a zombie's stat), so that they are exact.
+    let (status, cpu_seconds) = loop {
         peak.sample(&[child.id()]);
+        let cpu = cpu_of(child.id());
+        if matches!(cpu, Some((_, false))) {
+            std::thread::sleep(Duration::from_millis(50));
+            continue;
+        }
         match child.try_wait() {
-            Ok(Some(status)) => break status,
+            Ok(Some(status)) => break (status, cpu.map(|(s, _)| s)),
             Ok(None) => std::thread::sleep(Duration::from_millis(50)),
             Err(e) => return Err(farm_err(format!("waiting for the render: {e}"))),
         }
@@ -255,6 +290,8 @@ fn render(
         seconds,
         peak_rss_mib: peak.total_mib(),
         processes: 1,
+        cpu_seconds,
+        server_cpu_seconds: None,
         exr: std::fs::read(&out).map_err(|e| BenchError::io(&out, e))?,
     })
 }
@@ -364,6 +401,9 @@ fn up(
     let farm = UpProcess::start(exe, work, shape, workers)?;
     let up_pid = farm.pid();
     let out = work.join(format!("{}-farm.exr", case.name));
+    let workers_of = || children_of(up_pid);
+    let server_before = cpu_sum(&[up_pid]);
+    let workers_before = cpu_sum(&workers_of());
     let mut submit = pathfarm(&opts.exe)
         .arg("submit")
         .arg(scene)
@@ -385,6 +425,12 @@ fn up(
             Err(e) => return Err(farm_err(format!("waiting for pathfarm submit: {e}"))),
         }
     };
+    let server_cpu = cpu_sum(&[up_pid])
+        .zip(server_before)
+        .map(|(after, before)| after - before);
+    let workers_cpu = cpu_sum(&workers_of())
+        .zip(workers_before)
+        .map(|(after, before)| after - before);
     let mut answer = String::new();
     if let Some(mut s) = submit.stdout.take() {
         use std::io::Read;
@@ -406,6 +452,8 @@ fn up(
         seconds: (finished - created).max(1) as f64 / 1e3,
         peak_rss_mib: peak.total_mib(),
         processes: peak.max_kib.len(),
+        cpu_seconds: server_cpu.zip(workers_cpu).map(|(s, w)| s + w),
+        server_cpu_seconds: server_cpu,
         exr: std::fs::read(&out).map_err(|e| BenchError::io(&out, e))?,
     })
 }
@@ -470,22 +518,26 @@ fn markdown(r: &UpResults) -> String {
         "\nrender: the process's wall time; up: the job's time on the server's clock (both with \
          the scene's load). up W×T: W worker processes of T render threads each, each with \
          `up`'s default task lanes. Peak memory: the largest resident set of each process, \
-         summed.\n"
+         summed. CPU: user + system seconds of all its processes (the farm's from the \
+         submission until the client has the image), and the server's part of it.\n"
     );
     let _ = writeln!(
         md,
-        "| case | layout | round | seconds | ÷ render | peak MiB | processes | identical |"
+        "| case | layout | round | seconds | ÷ render | CPU s | server CPU s | peak MiB | processes | identical |"
     );
-    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|---|");
+    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|---:|---:|---|");
+    let secs = |s: Option<f64>| s.map_or_else(|| "–".to_string(), |s| format!("{s:.2}"));
     for row in &r.rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {:.2} | {:.3} | {:.0} | {} | {} |",
+            "| {} | {} | {} | {:.2} | {:.3} | {} | {} | {:.0} | {} | {} |",
             row.case,
             row.layout,
             row.round,
             row.seconds,
             row.ratio,
+            secs(row.cpu_seconds),
+            secs(row.server_cpu_seconds),
             row.peak_rss_mib,
             row.processes,
             if row.identical { "yes" } else { "**no**" }
