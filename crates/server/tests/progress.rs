@@ -299,40 +299,47 @@ async fn estimates_with_and_without_a_value_are_stored_on_every_connection() {
     }
 }
 
+/// Sets the job's start and end on the store's clock (no end: still running).
+async fn set_times(server: &TestServer, job: &str, started_ms: i64, finished_ms: Option<i64>) {
+    let q = match finished_ms {
+        Some(f) => sqlx::query("UPDATE jobs SET started_ms = $1, finished_ms = $2 WHERE id = $3")
+            .bind(started_ms)
+            .bind(f),
+        None => sqlx::query("UPDATE jobs SET started_ms = $1, finished_ms = NULL WHERE id = $2")
+            .bind(started_ms),
+    };
+    q.bind(job)
+        .execute(server.state.store.pool())
+        .await
+        .unwrap();
+}
+
+/// Records an estimate of the job's image at `version` (its error 1 / (version + 1)).
+async fn record(server: &TestServer, job: &str, version: i64, samples: u64, last: bool) {
+    let e = pathfarm_server::store::Estimate {
+        version,
+        relative_error: Some(1.0 / (version + 1) as f64),
+        samples,
+        last,
+    };
+    server.state.store.record_estimate(job, &e).await.unwrap();
+}
+
 /// A job's last image can land in the same millisecond as the point recorded before it (its final
 /// merges come close together, all the more as the tracer gets faster): the history must still end
 /// with the final image. (Found by CI: the point before the last merge stayed the last one, and
 /// the final image's point, at the same elapsed time, was dropped.)
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn the_last_image_ends_the_history_even_in_the_same_millisecond() {
-    use pathfarm_server::store::{now_ms, Estimate};
+    use pathfarm_server::store::now_ms;
     for (store, url) in stores("same_millisecond").await {
         let (server, client, job) = server_without_monitor(&url).await;
         // Started a second ago and finished half a second later: every estimate from now on is
         // at elapsed 500 ms.
         let now = now_ms();
-        sqlx::query("UPDATE jobs SET started_ms = $1, finished_ms = $2 WHERE id = $3")
-            .bind(now - 1000)
-            .bind(now - 500)
-            .bind(&job.id)
-            .execute(server.state.store.pool())
-            .await
-            .unwrap();
-        let record = |version: i64, samples: u64, last: bool| Estimate {
-            version,
-            relative_error: Some(1.0 / (version + 1) as f64),
-            samples,
-            last,
-        };
-        let store_ = &server.state.store;
-        store_
-            .record_estimate(&job.id, &record(1, 700, false))
-            .await
-            .unwrap();
-        store_
-            .record_estimate(&job.id, &record(2, 1024, true))
-            .await
-            .unwrap();
+        set_times(&server, &job.id, now - 1000, Some(now - 500)).await;
+        record(&server, &job.id, 1, 700, false).await;
+        record(&server, &job.id, 2, 1024, true).await;
         let points = client.convergence(&job.id).await.unwrap().points;
         assert_eq!(points.len(), 1, "{store}: {points:?}");
         assert_eq!(points[0].samples_done, 1024, "{store}: {points:?}");
@@ -349,43 +356,19 @@ async fn the_last_image_ends_the_history_even_in_the_same_millisecond() {
 /// tests: a frame's history ended at 1008 of its 1152 samples.)
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn the_last_image_ends_the_history_even_when_timed_before_the_point_before_it() {
-    use pathfarm_server::store::{now_ms, Estimate};
+    use pathfarm_server::store::now_ms;
     for (store, url) in stores("last_before").await {
         let (server, client, job) = server_without_monitor(&url).await;
-        let pool = server.state.store.pool();
         let now = now_ms();
         // Running for a second: the point is at about 1 s.
-        sqlx::query("UPDATE jobs SET started_ms = $1, finished_ms = NULL WHERE id = $2")
-            .bind(now - 1000)
-            .bind(&job.id)
-            .execute(pool)
-            .await
-            .unwrap();
-        let record = |version: i64, samples: u64, last: bool| Estimate {
-            version,
-            relative_error: Some(1.0 / (version + 1) as f64),
-            samples,
-            last,
-        };
-        let store_ = &server.state.store;
-        store_
-            .record_estimate(&job.id, &record(1, 700, false))
-            .await
-            .unwrap();
+        set_times(&server, &job.id, now - 1000, None).await;
+        record(&server, &job.id, 1, 700, false).await;
         let before = client.convergence(&job.id).await.unwrap().points;
         assert_eq!(before.len(), 1, "{store}: {before:?}");
         assert!(before[0].elapsed_s >= 1.0, "{store}: {before:?}");
         // …and it had finished at 0.5 s.
-        sqlx::query("UPDATE jobs SET finished_ms = $1 WHERE id = $2")
-            .bind(now - 500)
-            .bind(&job.id)
-            .execute(pool)
-            .await
-            .unwrap();
-        store_
-            .record_estimate(&job.id, &record(2, 1024, true))
-            .await
-            .unwrap();
+        set_times(&server, &job.id, now - 1000, Some(now - 500)).await;
+        record(&server, &job.id, 2, 1024, true).await;
         let points = client.convergence(&job.id).await.unwrap().points;
         assert_eq!(points.len(), 1, "{store}: {points:?}");
         assert_eq!(points[0].samples_done, 1024, "{store}: {points:?}");
