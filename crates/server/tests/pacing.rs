@@ -79,19 +79,21 @@ async fn leases_and_acks_carry_a_slice_length_that_follows_the_workers() {
 async fn leases_beyond_the_store_s_pace_are_told_to_come_back_later() {
     for (store, url) in stores("pacing-admission").await {
         let state = AppState::open(config(&url)).await.unwrap();
-        let s = serde_json::to_string(&settings(128, 128, 64, 8)).unwrap();
+        // 16 tiles, 64 tasks.
+        let s = serde_json::to_string(&settings(128, 128, 32, 8)).unwrap();
         submit_ok(&state, None, &cornell(), &s).await;
         let mut workers = Vec::new();
         for _ in 0..100 {
             workers.push(register_in_process(&state).await);
         }
-        // A measured window: a task each for a few workers, then the window closes.
-        for w in &workers[..10] {
+        // A measured window: a task each for 40 workers (80 writes: busy for longer than a window
+        // must be to measure the store, however fast its writes), then the window closes.
+        for w in &workers[..40] {
             let l = lease_in_process(&state, w).await.expect("a task");
             upload_grey(&state, w, &l, (l.sample_begin, l.sample_end)).await;
         }
         tokio::time::sleep(pathfarm_server::pacing::WINDOW + Duration::from_millis(50)).await;
-        let late = lease_in_process(&state, &workers[10])
+        let late = lease_in_process(&state, &workers[40])
             .await
             .expect("a task");
         assert!(late.slice_seconds.unwrap() > 0.0, "{store}: measured");
@@ -153,7 +155,7 @@ async fn leases_beyond_the_store_s_pace_are_told_to_come_back_later() {
         // Uploads are never refused.
         upload_grey(
             &state,
-            &workers[10],
+            &workers[40],
             &late,
             (late.sample_begin, late.sample_end),
         )
