@@ -80,6 +80,19 @@ async fn soak_store(dir: &TestDir, store: &str, db: &str, seconds: f64) -> SoakR
     );
     server.signal(libc::SIGTERM);
     let status = server.wait_exit(Duration::from_secs(30)).await;
+    if !report.failures().is_empty() {
+        // What the server said of the failed requests (a dropped connection leaves only this).
+        let log = server.log_text();
+        let said: Vec<&str> = log
+            .lines()
+            .filter(|l| l.contains("WARN") || l.contains("ERROR") || l.contains("panic"))
+            .collect();
+        eprintln!(
+            "the {store} server's warnings and errors (last 60 of {}):\n{}",
+            said.len(),
+            said[said.len().saturating_sub(60)..].join("\n")
+        );
+    }
     assert!(
         status.success(),
         "the {store} server did not stop cleanly after the soak ({status})"

@@ -131,10 +131,11 @@ impl Default for Limits {
 /// crowd of them cannot take more than [`ConnectionLimits::max_connections`] sockets.
 #[derive(Clone, Debug)]
 pub struct ConnectionLimits {
-    /// A request's header must arrive within this much time of its first byte (of the accept, for
-    /// a connection's first request); else the connection is closed.
+    /// A request's header must arrive within this much time of its first byte (and a TLS
+    /// handshake within this much of the accept); else the connection is closed.
     pub header_timeout: Duration,
-    /// A keep-alive connection with no request under way is closed after this much silence.
+    /// A connection with no request under way (between requests, or new and silent) is closed
+    /// after this much silence.
     pub keep_alive_timeout: Duration,
     /// A request body is cut off (408 `body_timeout`, the connection closed) when no byte of it
     /// arrives for this long, or when it falls behind [`ConnectionLimits::body_min_rate`]: the

@@ -7,8 +7,11 @@
 //!   client that connects at such a time is served late, not turned away). The permit is held by
 //!   the connection's socket ([`GuardedIo`]) and given back when it closes.
 //! - [`GuardedIo`] closes a connection whose client keeps it waiting: a request's header must
-//!   arrive within `header_timeout` of its first byte (of the accept, for the first request), and
-//!   a connection with no request under way is closed after `keep_alive_timeout` of silence. It
+//!   arrive within `header_timeout` of its first byte, and a connection with no request under way
+//!   is closed after `keep_alive_timeout` of silence — a new one that has sent nothing yet too:
+//!   HTTP clients open connections ahead of need (hyper's pool keeps one it connected for a
+//!   request that another connection took; browsers preconnect), and closing those at the header
+//!   timeout races the request the client sends on one at that moment. It
 //!   knows which of the two applies from [`Connection`], which [`track`] keeps up to date: a
 //!   request under way (from its header until its response's body is sent) sets no deadline on
 //!   the connection.
@@ -18,7 +21,7 @@
 //!
 //! With TLS ([`crate::tls`]) the handshake runs on the accepted socket inside [`GuardedIo`]
 //! ([`Transport`]), so it holds a connection permit and must finish within `header_timeout` of the
-//! accept like a first request's header; a client that speaks plain HTTP to the TLS port is
+//! accept, as a header must; the connection is then idle until its first request. A client that speaks plain HTTP to the TLS port is
 //! answered a plain 400 that says to use `https://`, then closed.
 //!
 //! How much of a body the server reads at all is decided before it reads any: each route's limit
@@ -58,7 +61,8 @@ use tokio_rustls::TlsAcceptor;
 enum Phase {
     /// Reading a request's header, since the accept or since its first byte.
     Header(Instant),
-    /// No request under way, since the last response was sent.
+    /// No request under way: since the last response was sent, or since the connection was
+    /// established (accepted; with TLS, its handshake done) when none came yet.
     Idle(Instant),
     /// This many requests under way (more than one only with HTTP/2): no deadline on the
     /// connection; their bodies have their own.
@@ -91,10 +95,16 @@ enum Expired {
 }
 
 impl Connection {
-    fn new(limits: &ConnectionLimits) -> Connection {
+    /// A connection just accepted: idle, or for TLS in its handshake, which is timed as a header.
+    fn new(limits: &ConnectionLimits, tls: bool) -> Connection {
+        let now = Instant::now();
         Connection {
             state: Mutex::new(ConnState {
-                phase: Phase::Header(Instant::now()),
+                phase: if tls {
+                    Phase::Header(now)
+                } else {
+                    Phase::Idle(now)
+                },
                 reader: None,
             }),
             header_timeout: limits.header_timeout,
@@ -120,6 +130,15 @@ impl Connection {
                 Phase::Header(since) => Some((since + self.header_timeout, Expired::Header)),
                 Phase::Idle(since) => Some((since + self.keep_alive_timeout, Expired::KeepAlive)),
                 Phase::Busy(_) => None,
+            }
+        })
+    }
+
+    /// The TLS handshake is done: the connection is idle until its first request's first byte.
+    fn established(&self) {
+        self.with_state(|s| {
+            if let Phase::Header(_) = s.phase {
+                s.phase = Phase::Idle(Instant::now());
             }
         })
     }
@@ -229,7 +248,10 @@ impl axum::serve::Listener for GuardedListener {
         loop {
             match self.listener.accept().await {
                 Ok((io, remote)) => {
-                    let conn = Arc::new(Connection::new(&self.state.config.connections));
+                    let conn = Arc::new(Connection::new(
+                        &self.state.config.connections,
+                        self.tls.is_some(),
+                    ));
                     let io = match &self.tls {
                         // The handshake is left to the connection's task (a slow client must not
                         // hold up the accept loop), on its first read.
@@ -268,6 +290,8 @@ async fn accept_error(e: io::Error) {
 pub struct GuardedIo {
     io: Transport,
     conn: Arc<Connection>,
+    /// A TLS connection whose handshake [`Connection::established`] has not been told of yet.
+    handshaking: bool,
     sleep: Pin<Box<Sleep>>,
     state: AppState,
     _permit: OwnedSemaphorePermit,
@@ -288,6 +312,7 @@ impl GuardedIo {
             .deadline(Waker::noop())
             .map_or_else(Instant::now, |(at, _)| at);
         GuardedIo {
+            handshaking: !io.is_established(),
             io,
             conn,
             sleep: Box::pin(tokio::time::sleep_until(first)),
@@ -314,7 +339,13 @@ impl AsyncRead for GuardedIo {
     ) -> Poll<io::Result<()>> {
         let this = self.get_mut();
         let before = buf.filled().len();
-        match Pin::new(&mut this.io).poll_read(cx, buf) {
+        let read = Pin::new(&mut this.io).poll_read(cx, buf);
+        if this.handshaking && this.io.is_established() {
+            // Before `bytes_read`: a request sent with the handshake's last flight begins a header.
+            this.handshaking = false;
+            this.conn.established();
+        }
+        match read {
             Poll::Ready(Ok(())) => {
                 if buf.filled().len() > before {
                     this.conn.bytes_read();
@@ -404,6 +435,11 @@ pub enum Transport {
 }
 
 impl Transport {
+    /// Plain TCP, or TLS past its handshake: what it reads is HTTP.
+    fn is_established(&self) -> bool {
+        matches!(self, Transport::Plain(_) | Transport::Tls(_))
+    }
+
     /// Drives a TLS connection to its `Tls` stage (a no-op for the others); an error ends it.
     fn poll_established(&mut self, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
         loop {

@@ -283,3 +283,57 @@ async fn postgres_is_reached_over_tls_with_sslmode_require() {
     assert_completed(&done);
     server.stop().await;
 }
+
+/// A TLS handshake must finish within the header timeout of the accept; once it is done, the
+/// connection is idle until its first request, as a plain one is from its accept (clients
+/// connect ahead of need), so the header timeout does not close it while it waits.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_handshake_is_let_go_and_a_finished_one_waits_for_its_first_request() {
+    use rustls::pki_types::{pem::PemObject, CertificateDer, ServerName};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let (files, cert_pem) = Files::new("tls-idle");
+    let db = format!("sqlite://{}", files.dir.join("farm.db").display());
+    let mut c = tls_config(&db, &files);
+    c.connections.header_timeout = Duration::from_millis(300);
+    c.connections.keep_alive_timeout = Duration::from_secs(30);
+    let server = TestServer::start(c).await;
+    let addr = server.url.trim_start_matches("https://").to_string();
+
+    // A handshake record's first bytes, then nothing: closed at the header timeout.
+    let opened = Instant::now();
+    let mut stalled = tokio::net::TcpStream::connect(&addr).await.unwrap();
+    stalled.write_all(&[0x16, 0x03, 0x01]).await.unwrap();
+    let mut rest = Vec::new();
+    tokio::time::timeout(Duration::from_secs(20), stalled.read_to_end(&mut rest))
+        .await
+        .expect("the stalled handshake was let go")
+        .ok();
+    assert!(rest.is_empty(), "{rest:?}");
+    assert!(opened.elapsed() >= Duration::from_millis(300));
+
+    // A finished handshake, then five header timeouts of silence: the request is still served.
+    let mut roots = rustls::RootCertStore::empty();
+    roots
+        .add(CertificateDer::from_pem_slice(cert_pem.as_bytes()).unwrap())
+        .unwrap();
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let client = rustls::ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .unwrap()
+        .with_root_certificates(roots)
+        .with_no_client_auth();
+    let tcp = tokio::net::TcpStream::connect(&addr).await.unwrap();
+    let mut tls = tokio_rustls::TlsConnector::from(Arc::new(client))
+        .connect(ServerName::try_from("localhost").unwrap(), tcp)
+        .await
+        .expect("handshake");
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    tls.write_all(b"GET /healthz HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n")
+        .await
+        .unwrap();
+    let mut answer = Vec::new();
+    tls.read_to_end(&mut answer).await.ok();
+    let answer = String::from_utf8_lossy(&answer);
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    server.stop().await;
+}

@@ -68,11 +68,12 @@ pub struct ServerArgs {
     /// length before it is read; one that finds no room within 10 s is answered 503 `busy`.
     #[arg(long, env = "PATHFARM_BODY_BUDGET_MIB", default_value_t = 1024)]
     pub body_budget_mib: u64,
-    /// Seconds a request's header may take from its first byte (from the accept, for a
-    /// connection's first request); a client slower than this is disconnected.
+    /// Seconds a request's header may take from its first byte (a TLS handshake, from the
+    /// accept); a client slower than this is disconnected.
     #[arg(long, env = "PATHFARM_HEADER_TIMEOUT_SECONDS", default_value_t = 10.0)]
     pub header_timeout_seconds: f64,
-    /// Seconds an idle keep-alive connection is kept open.
+    /// Seconds a connection with no request under way (between requests, or new and silent) is
+    /// kept open.
     #[arg(long, env = "PATHFARM_KEEP_ALIVE_SECONDS", default_value_t = 60.0)]
     pub keep_alive_seconds: f64,
     /// Seconds a request body may go without a byte; past this grace it must also keep up

@@ -14,6 +14,8 @@ pub(super) struct Counters {
     pub(super) duplicate_uploads: u64,
     pub(super) rejected_uploads: u64,
     pub(super) lease_expiries: u64,
+    pub(super) header_timeouts: u64,
+    pub(super) keep_alive_timeouts: u64,
 }
 
 /// Reads the counters from `GET /metrics` (Prometheus text, `crates/server/src/metrics.rs`).
@@ -55,5 +57,7 @@ pub(super) async fn scrape(
         duplicate_uploads: get("pathfarm_slice_uploads_duplicate_total")?,
         rejected_uploads: get("pathfarm_slice_uploads_rejected_total")?,
         lease_expiries: get("pathfarm_lease_expiries_total")?,
+        header_timeouts: get("pathfarm_http_header_timeouts_total")?,
+        keep_alive_timeouts: get("pathfarm_http_keep_alive_timeouts_total")?,
     })
 }

@@ -214,6 +214,10 @@ pub struct SoakReport {
     pub server_duplicate_uploads: u64,
     pub server_rejected_uploads: u64,
     pub server_lease_expiries: u64,
+    /// Connections the server closed because a request's header did not come in time (none
+    /// expected: every client here sends whole requests at once), and for keep-alive silence.
+    pub server_header_timeouts: u64,
+    pub server_keep_alive_timeouts: u64,
     /// Samples the store holds: completed jobs (read before deletion) plus jobs live at the end.
     pub store_samples: u64,
     pub jobs_submitted: u64,
@@ -487,6 +491,10 @@ pub async fn run(cfg: &SoakConfig, scene: &[u8]) -> Result<SoakReport, BenchErro
             .rejected_uploads
             .saturating_sub(before.rejected_uploads),
         server_lease_expiries: after.lease_expiries.saturating_sub(before.lease_expiries),
+        server_header_timeouts: after.header_timeouts.saturating_sub(before.header_timeouts),
+        server_keep_alive_timeouts: after
+            .keep_alive_timeouts
+            .saturating_sub(before.keep_alive_timeouts),
         store_samples,
         jobs_submitted: churned.submitted,
         jobs_completed: churned.completed,

@@ -66,9 +66,10 @@ impl Browser {
             Ok(r) => r,
             Err(e) => {
                 self.shared.rec.observe(kind, t, "transport");
-                self.shared
-                    .rec
-                    .error(kind, format!("poller-{}: GET {path}: {e}", self.i));
+                self.shared.rec.error(
+                    kind,
+                    format!("poller-{}: GET {path}: {}", self.i, with_causes(&e)),
+                );
                 return None;
             }
         };
@@ -83,9 +84,10 @@ impl Browser {
             Ok(b) => b.to_vec(),
             Err(e) => {
                 self.shared.rec.observe(kind, t, "transport");
-                self.shared
-                    .rec
-                    .error(kind, format!("poller-{}: GET {path}: body: {e}", self.i));
+                self.shared.rec.error(
+                    kind,
+                    format!("poller-{}: GET {path}: body: {}", self.i, with_causes(&e)),
+                );
                 return None;
             }
         };
@@ -304,4 +306,17 @@ impl Browser {
 
 fn remaining(until: Instant) -> Duration {
     until.saturating_duration_since(Instant::now())
+}
+
+/// An error and its causes, outermost first: reqwest's own text ("error sending request") says
+/// only which step failed, its causes say why (a reset, a closed connection, a timeout).
+fn with_causes(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        text.push_str(": ");
+        text.push_str(&c.to_string());
+        cause = c.source();
+    }
+    text
 }

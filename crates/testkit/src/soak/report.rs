@@ -47,6 +47,13 @@ impl SoakReport {
                 self.server_lease_expiries
             ));
         }
+        if self.server_header_timeouts > 0 {
+            f.push(format!(
+                "the server closed {} connections for a late request header, though every client \
+                 sends whole requests",
+                self.server_header_timeouts
+            ));
+        }
         if self.jobs_completed == 0 {
             f.push("no job completed".into());
         }
@@ -115,6 +122,13 @@ impl SoakReport {
                 self.uploads_duplicate + self.server_duplicate_uploads,
                 self.server_rejected_uploads,
                 self.server_lease_expiries
+            ),
+        );
+        row(
+            "connections closed: header timeout / keep-alive timeout",
+            format!(
+                "{} / {}",
+                self.server_header_timeouts, self.server_keep_alive_timeouts
             ),
         );
         row(
