@@ -2,7 +2,7 @@
 //! polling, and a farm of real `pathfarm` processes. Each test crate uses a part of it.
 #![allow(dead_code)]
 
-use pathfarm_server::scheduler::pass_ranges;
+use pathfarm_server::scheduler::{max_per_pixel, opening_passes, pass_ranges};
 pub use pathfarm_testkit::harness::PgDatabase;
 use pathfarm_wire::api::{JobState, JobView, TileProgress, WorkerState, WorkerView};
 use pathfarm_worker::client::ApiClient;
@@ -299,10 +299,16 @@ pub fn named<'a>(list: &'a [WorkerView], name: &str) -> Option<&'a WorkerView> {
 
 /// A tile whose task of the current pass is partly merged (its samples per pixel lie strictly
 /// inside one of the job's passes), with the samples per pixel that task still lacks. The passes
-/// are the server's own plan (`pathfarm_server::scheduler`), uncapped: the server caps a task at
-/// `max_task_samples / tile pixels` samples per pixel (≥ 1024 here), far above these jobs' spp.
+/// are the server's own plan (`pathfarm_server::scheduler`) at the task sizes `serve` has by
+/// default, as these tests' servers do.
 pub fn partial_tile(j: &JobView) -> Option<(TileProgress, u64)> {
-    let passes = pass_ranges(j.settings.spp, 1, u32::MAX);
+    let sizes = pathfarm_server::ServerConfig::new("sqlite::memory:").task_sizes();
+    let tile = j.settings.tile_size;
+    let passes = pass_ranges(
+        j.settings.spp,
+        opening_passes(tile, sizes, j.settings.frames.is_some()),
+        max_per_pixel(tile, sizes.max),
+    );
     j.tiles.as_ref()?.iter().find_map(|t| {
         let s = t.samples_per_pixel;
         passes

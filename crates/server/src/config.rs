@@ -188,12 +188,13 @@ pub struct ServerConfig {
     /// Most samples per pixel in one task of the last passes, capped further so that a task stays
     /// a few seconds of work.
     pub max_task_samples: u64,
-    /// Fewest samples in a frame job's first-pass task of a full tile (its first pass is then
-    /// this over the tile's pixels, in samples per pixel): a task costs the farm about the same
-    /// whatever its samples, and small frames at one sample a pixel would spend the job on that
-    /// (`scheduler::first_pass`). 65,536: a few tens of milliseconds of one thread's rendering,
-    /// 16 samples a pixel in a 64-pixel tile.
-    pub min_frame_task_samples: u64,
+    /// Fewest samples in a task of a full tile, but for a still's one-sample preview pass (a
+    /// still's second pass and a frame job's first are then this over the tile's pixels, in
+    /// samples per pixel, and later passes double): a task costs the farm a lease, an upload and
+    /// a merge whatever its samples, and passes of one or two samples a pixel spend the job on
+    /// that (`scheduler::opening_passes`). 65,536: a few tens of milliseconds of one thread's
+    /// rendering, 16 samples a pixel in a 64-pixel tile.
+    pub min_task_samples: u64,
     pub limits: Limits,
     /// Finished jobs (completed, cancelled or failed) are deleted this long after they finished,
     /// with their tiles, tasks and convergence history, and their scene and environment image
@@ -247,7 +248,7 @@ impl ServerConfig {
     pub fn task_sizes(&self) -> crate::scheduler::TaskSizes {
         crate::scheduler::TaskSizes {
             max: self.max_task_samples,
-            min_frame: self.min_frame_task_samples,
+            min: self.min_task_samples,
         }
     }
 
@@ -262,7 +263,7 @@ impl ServerConfig {
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             worker_expiry: DEFAULT_WORKER_EXPIRY,
             max_task_samples: 4 << 20,
-            min_frame_task_samples: 1 << 16,
+            min_task_samples: 1 << 16,
             limits: Limits::default(),
             job_retention: Some(DEFAULT_JOB_RETENTION),
             quotas: Quotas::default(),

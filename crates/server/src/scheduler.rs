@@ -1,16 +1,18 @@
 //! Splits a job into tiles and progressive passes of tasks (pure; the store persists the plan).
 //!
-//! Pass 0 gives every tile one sample, so a complete preview appears after one sample per pixel;
-//! each later pass covers twice the samples of the one before, so the image sharpens everywhere at
-//! once. A task's samples are capped so that it stays a few seconds of single-thread work: long
-//! tasks would leave workers idle at the end of a job.
+//! Pass 0 of a still gives every tile one sample, so a complete preview appears after one sample
+//! per pixel; each later pass covers twice the samples of the one before, so the image sharpens
+//! everywhere at once. A task's samples are capped so that it stays a few seconds of
+//! single-thread work: long tasks would leave workers idle at the end of a job.
 //!
-//! A frame job's first pass is longer: its tasks of a full tile take at least
-//! [`TaskSizes::min_frame`] samples. Each task costs the farm a lease, an upload and a merge
-//! (about 14 ms, docs/benchmarks.md) whatever its samples, and an animation's small frames at one
-//! sample a pixel would spend most of the job on that; a frame job's preview is each frame's first
-//! pass, which comes early either way in the interleaved order.
-
+//! Every other pass is long enough for its tasks of a full tile to take at least
+//! [`TaskSizes::min`] samples: a still's pass 1, and a frame job's pass 0 (an animation's preview
+//! is each frame's first pass, which comes early either way in the interleaved order). Each task
+//! costs the farm a lease, an upload and a merge (about 14 ms, docs/benchmarks.md) whatever its
+//! samples: passes of 2, 4 and 8 samples a pixel after the preview were 44 % of a 256-spp job's
+//! tasks for 6 % of its samples, and an animation's small frames at one sample a pixel spent most
+//! of the job on that. For the same reason a pass that would leave a last one shorter than half
+//! its doubled length takes those samples itself (256 spp: 1, 16, 32, 64, then 143, not 128 and 15).
 //!
 //! A frame job (an animation) plans each frame's tiles apart: tile `slot × tiles_per_frame + i`
 //! is tile `i` of the frame in slot `slot` of the job's frame list. Its tasks are frame × tile ×
@@ -43,51 +45,115 @@ pub struct PlannedTile {
 pub struct TaskSizes {
     /// Most samples in a task of a full tile ([`crate::ServerConfig::max_task_samples`]).
     pub max: u64,
-    /// Fewest samples in a frame job's first-pass task of a full tile
-    /// ([`crate::ServerConfig::min_frame_task_samples`]).
-    pub min_frame: u64,
+    /// Fewest samples in a task of a full tile, but for a still's one-sample preview pass
+    /// ([`crate::ServerConfig::min_task_samples`]).
+    pub min: u64,
 }
 
-/// The samples per pixel of the first pass: one for a still job (a complete preview at one sample
-/// a pixel), enough for [`TaskSizes::min_frame`] samples in a full tile for a frame job.
-pub fn first_pass(tile_size: u32, sizes: TaskSizes, frame_job: bool) -> u32 {
-    if !frame_job {
-        return 1;
-    }
+/// How a plan's passes open: the samples per pixel of the first two, from which the later ones
+/// double.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Opening {
+    pub first: u32,
+    pub second: u32,
+    /// The first pass is a preview of its own (a still's one sample a pixel): the samples after
+    /// it are never folded into it.
+    pub preview: bool,
+}
+
+/// A still's first pass is one sample a pixel (a complete preview at once); every other pass is
+/// long enough for [`TaskSizes::min`] samples in a full tile (and at least twice the one before).
+pub fn opening_passes(tile_size: u32, sizes: TaskSizes, frame_job: bool) -> Opening {
     let tile_pixels = (tile_size.max(1) as u64).pow(2);
-    sizes
-        .min_frame
-        .div_ceil(tile_pixels)
-        .clamp(1, u32::MAX as u64) as u32
-}
-
-/// The sample ranges of the passes: [0,first), then each twice as long as the one before
-/// ([0,1), [1,3), [3,7), … for `first` 1), each at most `max_per_pixel` long.
-pub fn pass_ranges(spp: u32, first: u32, max_per_pixel: u32) -> Vec<(u32, u32)> {
-    let max_per_pixel = max_per_pixel.max(1);
-    let mut out = Vec::new();
-    let mut begin = 0u32;
-    let mut len = first.max(1);
-    while begin < spp {
-        let end = begin.saturating_add(len.min(max_per_pixel)).min(spp);
-        out.push((begin, end));
-        begin = end;
-        len = len.saturating_mul(2);
+    let min = sizes.min.div_ceil(tile_pixels).clamp(1, u32::MAX as u64) as u32;
+    if frame_job {
+        Opening {
+            first: min,
+            second: min.saturating_mul(2),
+            preview: false,
+        }
+    } else {
+        Opening {
+            first: 1,
+            second: min.max(2),
+            preview: true,
+        }
     }
-    out
 }
 
-/// How many passes [`pass_ranges`] makes, computed without building them: the passes that double
-/// (at most 32 of them), then the rest in steps of `max_per_pixel`.
-pub fn pass_count(spp: u32, first: u32, max_per_pixel: u32) -> u64 {
-    let (spp, cap) = (spp as u64, max_per_pixel.max(1) as u64);
-    let (mut begin, mut len, mut n) = (0u64, first.max(1) as u64, 0u64);
-    while begin < spp && len < cap {
-        begin = (begin + len).min(spp);
-        len *= 2;
+/// The passes of `spp` samples, one after the other.
+struct Passes {
+    spp: u32,
+    max_per_pixel: u32,
+    begin: u32,
+    /// The nominal lengths of this pass and the next.
+    len: u32,
+    next: u32,
+    /// This pass may take the samples after it (see [`Passes::end`]).
+    may_fold: bool,
+}
+
+impl Passes {
+    fn new(spp: u32, opening: Opening, max_per_pixel: u32) -> Passes {
+        Passes {
+            spp,
+            max_per_pixel: max_per_pixel.max(1),
+            begin: 0,
+            len: opening.first.max(1),
+            next: opening.second.max(1),
+            may_fold: !opening.preview,
+        }
+    }
+
+    /// The end of the current pass: at most `max_per_pixel` long, and taking the rest of the
+    /// samples when they would make a last pass shorter than half its nominal length (and fit in
+    /// one task with this pass's).
+    fn end(&self) -> u32 {
+        let (begin, spp, cap) = (self.begin, self.spp, self.max_per_pixel);
+        let end = begin.saturating_add(self.len.min(cap)).min(spp);
+        let rest = spp - end;
+        let short = rest > 0 && rest < self.next.min(cap) / 2;
+        if self.may_fold && short && spp - begin <= cap {
+            spp
+        } else {
+            end
+        }
+    }
+}
+
+impl Iterator for Passes {
+    type Item = (u32, u32);
+
+    fn next(&mut self) -> Option<(u32, u32)> {
+        if self.begin >= self.spp {
+            return None;
+        }
+        let range = (self.begin, self.end());
+        self.begin = range.1;
+        (self.len, self.next) = (self.next, self.next.saturating_mul(2));
+        self.may_fold = true;
+        Some(range)
+    }
+}
+
+/// The sample ranges of the passes: the [`opening_passes`], then each twice as long as the one
+/// before ([0,1), [1,17), [17,49), … for a still in 64-pixel tiles), each at most
+/// `max_per_pixel` long, the last folded into the one before when it would be short.
+pub fn pass_ranges(spp: u32, opening: Opening, max_per_pixel: u32) -> Vec<(u32, u32)> {
+    Passes::new(spp, opening, max_per_pixel).collect()
+}
+
+/// How many passes [`pass_ranges`] makes, computed without building them: the passes shorter
+/// than `max_per_pixel` (at most 33 of them: they double), then the rest in steps of
+/// `max_per_pixel` (no fold there: a rest within one step is one pass anyway).
+pub fn pass_count(spp: u32, opening: Opening, max_per_pixel: u32) -> u64 {
+    let mut passes = Passes::new(spp, opening, max_per_pixel);
+    let mut n = 0u64;
+    while passes.begin < spp && passes.len < passes.max_per_pixel {
+        passes.next();
         n += 1;
     }
-    n + (spp - begin).div_ceil(cap)
+    n + ((spp - passes.begin) as u64).div_ceil(passes.max_per_pixel as u64)
 }
 
 /// The samples per pixel of a task at most, so that a task of a full tile stays within
@@ -112,7 +178,7 @@ pub fn plan_size(
     let tiles = width.div_ceil(ts) as u64 * height.div_ceil(ts) as u64;
     let passes = pass_count(
         spp,
-        first_pass(ts, sizes, frame_job),
+        opening_passes(ts, sizes, frame_job),
         max_per_pixel(ts, sizes.max),
     );
     (tiles, tiles.saturating_mul(passes))
@@ -186,9 +252,9 @@ pub fn plan(
 ) -> (Vec<Tile>, Vec<PlannedTask>) {
     let tiles = Tile::grid(width, height, tile_size.max(1));
     let max_per_pixel = max_per_pixel(tile_size, sizes.max);
-    let first = first_pass(tile_size, sizes, frame_job);
+    let opening = opening_passes(tile_size, sizes, frame_job);
     let mut tasks = Vec::new();
-    for (pass, (b, e)) in pass_ranges(spp, first, max_per_pixel)
+    for (pass, (b, e)) in pass_ranges(spp, opening, max_per_pixel)
         .into_iter()
         .enumerate()
     {
@@ -208,64 +274,122 @@ pub fn plan(
 mod tests {
     use super::*;
 
-    /// Tasks of at most `max` samples of a full tile; a frame job's first pass at least 1 024.
+    /// Tasks of at most `max` samples of a full tile, and at least 1 024 but in a still's first pass.
     fn sizes(max: u64) -> TaskSizes {
-        TaskSizes {
-            max,
-            min_frame: 1024,
+        TaskSizes { max, min: 1024 }
+    }
+
+    const fn opening(first: u32, second: u32, preview: bool) -> Opening {
+        Opening {
+            first,
+            second,
+            preview,
         }
     }
+    const STILL: Opening = opening(1, 16, true);
+
+    const OPENINGS: [Opening; 8] = [
+        opening(1, 2, true),
+        STILL,
+        opening(1, 4096, true),
+        opening(2, 4, false),
+        opening(5, 10, false),
+        opening(4096, 8192, false),
+        opening(1, 16, false),
+        opening(3, 64, false),
+    ];
 
     #[test]
     fn passes_cover_every_sample_once() {
-        for spp in [1, 2, 3, 7, 64, 100, 1024] {
+        for spp in [1, 2, 3, 7, 64, 100, 256, 1024] {
             for cap in [1, 3, 16, 1 << 20] {
-                for first in [1, 2, 5, 4096] {
-                    let r = pass_ranges(spp, first, cap);
-                    assert_eq!(r[0], (0, first.min(cap).min(spp)));
+                for opening in OPENINGS {
+                    let r = pass_ranges(spp, opening, cap);
+                    assert_eq!(r[0].0, 0);
+                    assert!(r[0].1 >= opening.first.min(cap).min(spp));
+                    if opening.preview {
+                        assert_eq!(r[0], (0, 1));
+                    }
                     assert_eq!(r.last().unwrap().1, spp);
                     for w in r.windows(2) {
                         assert_eq!(w[0].1, w[1].0);
-                        assert!(w[1].1 - w[1].0 <= cap.max(1));
                     }
+                    assert!(r.iter().all(|(b, e)| b < e && e - b <= cap.max(1)));
                 }
             }
         }
+        // A still in 64-pixel tiles at the default sizes: one sample, then 16 and doubling; the
+        // 15 left after 128 would be a pass of their own, so the fourth pass takes them.
         assert_eq!(
-            pass_ranges(10, 1, 100),
-            vec![(0, 1), (1, 3), (3, 7), (7, 10)]
+            pass_ranges(256, STILL, 1024),
+            vec![(0, 1), (1, 17), (17, 49), (49, 113), (113, 256)]
         );
         assert_eq!(
-            pass_ranges(40, 4, 100),
-            vec![(0, 4), (4, 12), (12, 28), (28, 40)]
+            pass_ranges(10, opening(1, 2, true), 100),
+            vec![(0, 1), (1, 3), (3, 10)]
         );
+        assert_eq!(
+            pass_ranges(40, opening(4, 8, false), 100),
+            vec![(0, 4), (4, 12), (12, 40)]
+        );
+        // No fold past the cap: a short rest stays a pass of its own.
+        assert_eq!(
+            pass_ranges(100, STILL, 16),
+            vec![
+                (0, 1),
+                (1, 17),
+                (17, 33),
+                (33, 49),
+                (49, 65),
+                (65, 81),
+                (81, 97),
+                (97, 100)
+            ]
+        );
+        // Few samples: the preview, then one pass; a frame job's take one pass.
+        assert_eq!(pass_ranges(3, STILL, 1024), vec![(0, 1), (1, 3)]);
+        // 8² tiles: 1 024 samples a pixel would be the second pass, so it takes all 255.
+        let small_tiles = opening(1, 1024, true);
+        assert_eq!(
+            pass_ranges(256, small_tiles, 1 << 16),
+            vec![(0, 1), (1, 256)]
+        );
+        assert_eq!(pass_ranges(5, opening(1, 16, false), 1024), vec![(0, 5)]);
     }
 
     #[test]
-    fn a_frame_jobs_first_pass_fills_its_tasks() {
+    fn every_pass_but_a_stills_preview_fills_its_tasks() {
         let sizes = sizes(1 << 20);
-        // Still jobs: one sample a pixel first, whatever the tile.
-        assert_eq!(first_pass(64, sizes, false), 1);
+        // Still jobs: one sample a pixel first, whatever the tile, then 1 024 samples a task.
+        assert_eq!(opening_passes(64, sizes, false), opening(1, 2, true));
+        assert_eq!(opening_passes(16, sizes, false), opening(1, 4, true));
+        let default = TaskSizes {
+            max: 1 << 20,
+            min: 1 << 16,
+        };
+        assert_eq!(opening_passes(64, default, false), STILL);
         // 1,024 samples: 1 a pixel in a 32² tile, 4 in a 16² tile, 1 024 in a single pixel.
-        assert_eq!(first_pass(32, sizes, true), 1);
-        assert_eq!(first_pass(16, sizes, true), 4);
-        assert_eq!(first_pass(15, sizes, true), 5);
-        assert_eq!(first_pass(1, sizes, true), 1024);
-        // A 16² tile at 8 spp: passes [0,4) [4,8) for a frame, four passes for a still.
-        let (_, frame) = plan(16, 16, 16, 8, sizes, true);
-        let ranges: Vec<(u32, u32)> = frame
-            .iter()
-            .map(|t| (t.sample_begin, t.sample_end))
-            .collect();
-        assert_eq!(ranges, [(0, 4), (4, 8)]);
-        assert_eq!(plan(16, 16, 16, 8, sizes, false).1.len(), 4);
+        assert_eq!(opening_passes(32, sizes, true), opening(1, 2, false));
+        assert_eq!(opening_passes(16, sizes, true), opening(4, 8, false));
+        assert_eq!(opening_passes(15, sizes, true), opening(5, 10, false));
+        assert_eq!(opening_passes(1, sizes, true), opening(1024, 2048, false));
+        // A 16² tile at 8 spp: passes [0,4) [4,8) for a frame, [0,1) [1,8) for a still.
+        let ranges = |frame_job| {
+            plan(16, 16, 16, 8, sizes, frame_job)
+                .1
+                .iter()
+                .map(|t| (t.sample_begin, t.sample_end))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(ranges(true), [(0, 4), (4, 8)]);
+        assert_eq!(ranges(false), [(0, 1), (1, 8)]);
     }
 
     #[test]
     fn plan_tiles_and_tasks() {
         let (tiles, tasks) = plan(100, 50, 32, 8, sizes(1 << 20), false);
         assert_eq!(tiles.len(), 4 * 2);
-        assert_eq!(tasks.len(), 8 * 4); // passes [0,1) [1,3) [3,7) [7,8)
+        assert_eq!(tasks.len(), 8 * 3); // passes [0,1) [1,3) [3,8)
         let covered: u64 = tasks
             .iter()
             .map(|t| {
@@ -275,18 +399,19 @@ mod tests {
         assert_eq!(covered, 100 * 50 * 8);
         // The first pass holds every tile before any tile gets a second sample.
         assert!(tasks[..tiles.len()].iter().all(|t| t.pass == 0));
+        assert!(tasks[tiles.len()..].iter().all(|t| t.pass > 0));
     }
 
     #[test]
     fn frame_plans_keep_each_frames_tiles_and_order_their_tasks() {
         let frames = [5, 1, 9];
-        // Frame tasks of at least one sample: 8 tiles, passes [0,1) [1,3) [3,4).
+        // Tasks of at least one sample: 8 tiles, passes [0,1) [1,4).
         let sizes = TaskSizes {
             max: 1 << 20,
-            min_frame: 1,
+            min: 1,
         };
         let one = plan(64, 32, 16, 4, sizes, true);
-        assert_eq!(one.1.len(), 8 * 3);
+        assert_eq!(one.1.len(), 8 * 2);
         let (still_tiles, still_tasks) =
             plan_frames((64, 32, 16, 4), sizes, None, FrameOrder::Interleaved);
         assert_eq!(still_tasks, plan(64, 32, 16, 4, sizes, false).1);
@@ -327,13 +452,16 @@ mod tests {
 
     #[test]
     fn plan_size_matches_the_plan() {
-        for spp in [1, 2, 3, 7, 8, 64, 100, 1023, 1024, 1025, 5000] {
+        for spp in [1, 2, 3, 7, 8, 64, 100, 256, 1023, 1024, 1025, 5000] {
             for cap in [1, 2, 3, 16, 1000, 1 << 20, u32::MAX] {
-                for first in [1, 3, 64, 4096, u32::MAX] {
+                for opening in OPENINGS
+                    .into_iter()
+                    .chain([opening(u32::MAX, u32::MAX, false)])
+                {
                     assert_eq!(
-                        pass_count(spp, first, cap),
-                        pass_ranges(spp, first, cap).len() as u64,
-                        "spp {spp}, first {first}, cap {cap}"
+                        pass_count(spp, opening, cap),
+                        pass_ranges(spp, opening, cap).len() as u64,
+                        "spp {spp}, opening {opening:?}, cap {cap}"
                     );
                 }
             }
@@ -354,11 +482,15 @@ mod tests {
                 );
             }
         }
-        // The review's case, computed without a single allocation: 67 million tiles, 21 passes.
+        // The review's case, computed without a single allocation: 67 million tiles, 11 passes
+        // (one sample, then 1 024 doubling to 524 288, which takes the last 1 023 too).
         assert_eq!(
             plan_size(8192, 8192, 1, 1 << 20, sizes(4 << 20), false),
-            (1 << 26, 21 << 26)
+            (1 << 26, 11 << 26)
         );
-        assert_eq!(pass_count(u32::MAX, 1, 1), u32::MAX as u64);
+        assert_eq!(
+            pass_count(u32::MAX, opening(1, 1, true), 1),
+            u32::MAX as u64
+        );
     }
 }

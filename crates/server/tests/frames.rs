@@ -157,7 +157,7 @@ async fn a_noise_target_stops_each_frame_where_it_reaches_it() {
     for (store, url) in stores("frames-noise").await {
         let mut cfg = config(&url);
         // Passes of 16, 32, 64, … spp: the target comes several passes in.
-        cfg.min_frame_task_samples = 16 * 256;
+        cfg.min_task_samples = 16 * 256;
         let server = TestServer::start(cfg).await;
         let client = server.client(None);
         let job = client
@@ -215,14 +215,14 @@ async fn lease_order(url: &str, order: Option<FrameOrder>) -> Vec<(i64, u32)> {
     let mut c = config(url);
     c.max_leases_per_worker = 1000;
     // Tasks of any size, so that a frame has passes to interleave.
-    c.min_frame_task_samples = 1;
+    c.min_task_samples = 1;
     let server = TestServer::start(c).await;
     let client = server.client(None);
-    // 2 tiles a frame, passes [0,1) [1,3) [3,7) [7,8).
+    // 2 tiles a frame, passes [0,1) [1,3) [3,7) [7,15).
     let mut s = frame_settings("5-9x2", order, 8);
     s.width = 16;
     s.height = 8;
-    s.spp = 8;
+    s.spp = 15;
     client.submit(animated(), "animated.glb", &s).await.unwrap();
     let worker = register(&client, "w").await;
     let mut got = Vec::new();
@@ -269,7 +269,7 @@ async fn frame_jobs_share_the_farm_by_priority_and_fair_share() {
     for (store, url) in stores("frames-fair").await {
         let mut c = config(&url);
         c.max_leases_per_worker = 1000;
-        c.min_frame_task_samples = 1;
+        c.min_task_samples = 1;
         let server = TestServer::start(c).await;
         let client = server.client(None);
         let mut s = frame_settings("1-3", None, 8);
@@ -661,17 +661,17 @@ async fn stopping_a_frame_ends_its_queued_tasks_and_keeps_the_plan_exact() {
     for (store, url) in stores("frames-stop").await {
         let mut c = config(&url);
         c.max_leases_per_worker = 1000;
-        c.min_frame_task_samples = 1;
+        c.min_task_samples = 1;
         c.monitor_interval = Duration::from_secs(3600);
         let server = TestServer::start(c).await;
         let client = server.client(None);
         // One tile a frame (tile 0 is frame 1's, tile 1 frame 2's); passes [0,1) [1,3) [3,7)
-        // [7,8): four tasks a frame.
+        // [7,15): four tasks a frame.
         let mut s = frame_settings("1,2", None, 32);
-        s.spp = 8;
+        s.spp = 15;
         let job = client.submit(animated(), "animated.glb", &s).await.unwrap();
         let px = 24 * 16;
-        assert_eq!(job.samples_planned, 2 * 8 * px);
+        assert_eq!(job.samples_planned, 2 * 15 * px);
         let worker = register(&client, "w").await;
         let mut leases = Vec::new();
         while let Some(l) = client.lease(&worker).await.unwrap() {
@@ -708,7 +708,7 @@ async fn stopping_a_frame_ends_its_queued_tasks_and_keeps_the_plan_exact() {
             .await
             .unwrap();
         let before = client.job(&job.id).await.unwrap();
-        assert_eq!(before.samples_done, (8 + 5) * px, "{store}");
+        assert_eq!(before.samples_done, (15 + 5) * px, "{store}");
         assert_eq!(before.state, JobState::Running, "{store}");
 
         let stopped = server
@@ -723,7 +723,7 @@ async fn stopping_a_frame_ends_its_queued_tasks_and_keeps_the_plan_exact() {
         assert_eq!(done.state, JobState::Completed, "{store}");
         assert_eq!(
             (done.samples_done, done.samples_planned, done.leased_tasks),
-            ((8 + 5) * px, (8 + 5) * px, 0),
+            ((15 + 5) * px, (15 + 5) * px, 0),
             "{store}"
         );
         let frames = done.frames.expect("per-frame progress");
@@ -732,7 +732,7 @@ async fn stopping_a_frame_ends_its_queued_tasks_and_keeps_the_plan_exact() {
                 .iter()
                 .map(|f| (f.frame, f.samples_per_pixel))
                 .collect::<Vec<_>>(),
-            [(1, 5), (2, 8)],
+            [(1, 5), (2, 15)],
             "{store}"
         );
         // Nothing queued is left to lease, and stopping again stops nothing.
@@ -765,7 +765,7 @@ async fn a_merge_into_one_frame_leaves_the_other_frames_images_current() {
     for (store, url) in stores("frames-versions").await {
         let mut c = config(&url);
         c.max_leases_per_worker = 1000;
-        c.min_frame_task_samples = 1;
+        c.min_task_samples = 1;
         let server = TestServer::start(c).await;
         let client = server.client(None);
         // One tile a frame (tile 0 is frame 1's, tile 1 frame 2's).

@@ -45,13 +45,15 @@ async fn uploads_are_counted_once_and_stale_leases_are_fenced() {
         let mut cfg = config(&url);
         cfg.lease_duration = Duration::from_millis(400);
         cfg.monitor_interval = Duration::from_millis(50);
+        // Tasks of any size, so that one tile has passes of a few samples each.
+        cfg.min_task_samples = 1;
         let server = TestServer::start(cfg).await;
         let c = server.client(None);
-        // One tile, one pass after the first: tasks [0,1) and [1,8).
+        // One tile, three passes.
         let mut s = settings(16, 16, 8, 16);
         s.seed = 11;
         let job = c.submit(bytes.clone(), "c.gltf", &s).await.unwrap();
-        assert_eq!(job.tasks, 4); // passes [0,1) [1,3) [3,7) [7,8)
+        assert_eq!(job.tasks, 3); // passes [0,1) [1,3) [3,8)
         let a = register(&c, "a").await;
         let b = register(&c, "b").await;
 
@@ -433,9 +435,11 @@ async fn invalid_samples_of_a_later_pass_merged_first_keep_the_tile_readable() {
     let bytes = cornell();
     let scene = load(&bytes);
     for (store, url) in stores("invalid-order").await {
-        let server = TestServer::start(config(&url)).await;
+        let mut cfg = config(&url);
+        cfg.min_task_samples = 1;
+        let server = TestServer::start(cfg).await;
         let c = server.client(None);
-        // One 16×16 tile; passes [0,1) [1,3) [3,7) [7,8).
+        // One 16×16 tile; passes [0,1) [1,3) [3,8).
         let job = c
             .submit(bytes.clone(), "c.gltf", &settings(16, 16, 8, 16))
             .await

@@ -230,8 +230,10 @@ async fn a_big_plan_is_stored_whole_in_batches() {
     for (store, url, batch_rows) in runs {
         let mut c = config(&url);
         c.submission_batch_rows = Some(batch_rows);
+        // Tasks of any size: passes of 1, 2, 4, … samples.
+        c.min_task_samples = 1;
         let state = AppState::open(c).await.unwrap();
-        // 4096 tiles of 4x4, several passes: more tasks than three batches hold.
+        // 4096 tiles of 4x4, six passes: more tasks than three batches hold.
         let settings = r#"{"width":256,"height":256,"spp":64,"tile_size":4}"#;
         let created: JobCreated =
             serde_json::from_value(submit(&state, None, &cornell(), settings).await).unwrap();

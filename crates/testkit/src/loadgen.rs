@@ -51,11 +51,14 @@ pub struct LoadgenConfig {
     pub clients: usize,
     /// The server's `max_task_samples` (its default when `None`).
     pub max_task_samples: Option<u64>,
+    /// The server's `min_task_samples` (its default when `None`).
+    pub min_task_samples: Option<u64>,
 }
 
 impl LoadgenConfig {
-    /// 8×8 tiles of a 512×512 image with 64 samples per pixel: 4096 tiles, many passes, far more
-    /// uploads than any run makes, so the job never runs dry.
+    /// 8×8 tiles of a 512×512 image with 64 samples per pixel: 4096 tiles, and tasks of any
+    /// size (`min_task_samples` 1: passes of 1, 2, 4, … samples, the most tasks and uploads a
+    /// plan can ask of the store), far more uploads than any run makes, so the job never runs dry.
     pub fn new(workers: usize, seconds: f64) -> LoadgenConfig {
         LoadgenConfig {
             workers,
@@ -69,6 +72,7 @@ impl LoadgenConfig {
             back_pressure: false,
             clients: 0,
             max_task_samples: None,
+            min_task_samples: Some(1),
         }
     }
 }
@@ -351,6 +355,9 @@ pub async fn run(
     }
     if let Some(n) = cfg.max_task_samples {
         config.max_task_samples = n;
+    }
+    if let Some(n) = cfg.min_task_samples {
+        config.min_task_samples = n;
     }
     // Every simulated worker may hold a connection of its own.
     config.connections.max_connections = config.connections.max_connections.max(cfg.workers + 64);

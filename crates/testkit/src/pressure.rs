@@ -36,7 +36,8 @@ pub struct PressureOptions {
 
 impl PressureOptions {
     /// 4,096 tiles of 8² (more than a first pass of 10,000 workers needs), 256 spp: passes of
-    /// 1, 2, 4, … samples, so the first passes are tasks of a sample or two, as a real job's are.
+    /// 1, 2, 4, … samples (the load generator's tasks of any size), so the first passes are tasks
+    /// of a sample or two, as a real job's first pass is.
     pub const JOB: (u32, u32, u32, u32) = (512, 512, 8, 256);
 }
 

@@ -85,8 +85,9 @@ pub fn run(opts: &SubmissionOptions) -> Result<(SubmissionResults, String), Benc
         .enable_all()
         .build()
         .map_err(|e| farm_err(format!("tokio runtime: {e}")))?;
-    // 16 px tiles, 240,000 spp: 28 tasks a tile (14 doubling passes, then 14 of the 16,384
-    // samples a pixel that `max_task_samples` allows a 16² tile).
+    // 16 px tiles, 240,000 spp: 21 tasks a tile (the one-sample preview, six passes doubling
+    // from the 256 samples a pixel that `min_task_samples` asks of a 16² tile, then 14 of the
+    // 16,384 that `max_task_samples` allows it).
     let huge = if opts.quick {
         (512, 512, 16, 240_000)
     } else {

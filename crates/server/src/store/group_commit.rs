@@ -194,7 +194,7 @@ mod tests {
         let settings = JobSettings::new(16, 16, 4);
         let sizes = TaskSizes {
             max: 1 << 22,
-            min_frame: 1 << 16,
+            min: 1 << 16,
         };
         let (tiles, tasks) = plan_frames((16, 16, 8, 4), sizes, None, FrameOrder::default());
         store
