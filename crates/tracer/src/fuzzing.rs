@@ -5,9 +5,11 @@
 use crate::gltf::{self, GltfError, LoadOptions, NoExternalResources};
 use crate::{render_sample, PixelAccum, RenderSettings};
 
-/// Fuzz target `gltf_load`: `bytes` as a submitted `.gltf`/`.glb`, loaded exactly as the server
-/// validates a submission (no external resources, the default camera). Errors are fine; a panic is a
-/// finding, and so is [`GltfError::Internal`]: it is a panic the loader caught, still a bug.
+/// Fuzz target `gltf_load`: `bytes` as a submitted `.gltf`/`.glb`, loaded as a worker loads it
+/// (no external resources, the default camera). Errors are fine; a panic is a finding, and so is
+/// [`GltfError::Internal`]: it is a panic the loader caught, still a bug. So is a [`gltf::check`]
+/// (how the server validates a submission, without the build) that disagrees with the load: it
+/// must give the same warnings, or the same error.
 ///
 /// A scene that loads is then rendered the way a worker would, on a tiny image (4 × 4 pixels, one
 /// sample each, at most 4 bounces so that a closed mirror box cannot keep a path going for long): a
@@ -16,7 +18,22 @@ use crate::{render_sample, PixelAccum, RenderSettings};
 /// through `render_tile`'s rayon pool, so that a panic is deterministic and libFuzzer saves the input.
 pub fn gltf_load(bytes: &[u8]) {
     let options = LoadOptions::default();
-    let scene = match gltf::load(bytes, &NoExternalResources, &options) {
+    let loaded = gltf::load(bytes, &NoExternalResources, &options);
+    // The server's check of a submission must pass exactly what the workers will load.
+    let checked = gltf::check(bytes, &NoExternalResources, &options).map_err(|e| e.to_string());
+    let same = match &loaded {
+        Ok(scene) => checked.as_ref() == Ok(&scene.info.warnings),
+        Err(e) => checked.as_ref() == Err(&e.to_string()),
+    };
+    assert!(
+        same,
+        "gltf::check disagrees with gltf::load: {checked:?}, load: {:?}",
+        loaded
+            .as_ref()
+            .map(|s| &s.info.warnings)
+            .map_err(|e| e.to_string())
+    );
+    let scene = match loaded {
         Ok(scene) => scene,
         Err(GltfError::Internal(message)) => {
             panic!("the glTF loader panicked (caught as GltfError::Internal): {message}")

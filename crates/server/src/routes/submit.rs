@@ -188,7 +188,7 @@ pub async fn submit(
         .await?
         .admit(stored_bytes, &state.config.quotas)?;
 
-    // Load the scene exactly as a worker will (no external resources: a URI in a submitted scene
+    // Load the scene as a worker will, short of building it (no external resources: a URI in a submitted scene
     // never reads the server's files or the network), then the environment, as the worker builds
     // it; one after the other, so that each check holds only one of them in memory.
     let camera = settings.camera.clone();
@@ -216,14 +216,15 @@ pub async fn submit(
             camera,
             max_triangles,
         };
-        let loaded = match first_frame {
-            None => gltf::load(&scene_for_load, &NoExternalResources, &options),
+        // A still is checked without its build (`gltf::check`: the BVH is the workers' to build);
+        // a frame job's first frame is built, as the animation makes it.
+        let checked = match first_frame {
+            None => gltf::check(&scene_for_load, &NoExternalResources, &options),
             Some(time) => gltf::SceneSource::load(&scene_for_load, &NoExternalResources, &options)
-                .and_then(|source| source.into_scene_at(time)),
+                .and_then(|source| source.into_scene_at(time))
+                .map(|s| s.info.warnings),
         };
-        let warnings = loaded
-            .map(|s| s.info.warnings)
-            .map_err(|e| CheckError::Scene(e.to_string()))?;
+        let warnings = checked.map_err(|e| CheckError::Scene(e.to_string()))?;
         if let Some(env) = environment_settings {
             env.build(image_for_load.as_deref())
                 .map_err(|e| CheckError::Environment(e.to_string()))?;

@@ -158,6 +158,35 @@ impl Instance {
     }
 }
 
+/// Placements that place something, each with its instance.
+pub type Usable<'a> = Vec<(&'a Placement, Instance)>;
+
+/// The placements that place something (their prototype, of `triangles[prototype]` triangles,
+/// has any; their transform is invertible and finite) with their instances, and those dropped for
+/// their transform: what [`Instances::place`] places, decided without building anything.
+pub fn usable_placements<'a>(
+    triangles: &[usize],
+    placements: &'a [Placement],
+) -> Result<(Usable<'a>, Unplaced), InstanceError> {
+    check_placements(triangles.len(), placements)?;
+    let mut usable = Vec::with_capacity(placements.len());
+    let mut dropped = Unplaced::default();
+    for p in placements {
+        let n = triangles[p.prototype as usize];
+        if n == 0 {
+            continue;
+        }
+        match Instance::new(p.prototype, &p.to_world) {
+            Some(inst) => usable.push((p, inst)),
+            None => {
+                dropped.placements += 1;
+                dropped.triangles += n;
+            }
+        }
+    }
+    Ok((usable, dropped))
+}
+
 fn check_placements(prototypes: usize, placements: &[Placement]) -> Result<(), InstanceError> {
     match placements
         .iter()
@@ -246,25 +275,14 @@ impl Instances {
         prototypes: Vec<Arc<Prototype>>,
         placements: &[Placement],
     ) -> Result<(Instances, Unplaced), InstanceError> {
-        check_placements(prototypes.len(), placements)?;
-        let mut instances = Vec::with_capacity(placements.len());
-        let mut boxes = Vec::with_capacity(placements.len());
-        let mut dropped = Unplaced::default();
-        for p in placements {
+        let triangles: Vec<usize> = prototypes.iter().map(|p| p.mesh.len()).collect();
+        let (usable, dropped) = usable_placements(&triangles, placements)?;
+        let mut instances = Vec::with_capacity(usable.len());
+        let mut boxes = Vec::with_capacity(usable.len());
+        for (p, inst) in usable {
             let proto = &prototypes[p.prototype as usize];
-            if proto.mesh.is_empty() {
-                continue;
-            }
-            match Instance::new(p.prototype, &p.to_world) {
-                Some(inst) => {
-                    boxes.push(Instance::world_box(&p.to_world, proto.lo, proto.hi));
-                    instances.push(inst);
-                }
-                None => {
-                    dropped.placements += 1;
-                    dropped.triangles += proto.mesh.len();
-                }
-            }
+            boxes.push(Instance::world_box(&p.to_world, proto.lo, proto.hi));
+            instances.push(inst);
         }
         if instances.is_empty() {
             return Ok((

@@ -8,7 +8,8 @@ mod triangle;
 
 pub use bvh::{Bvh, RayQuery};
 pub use instances::{
-    flatten_into, Instance, InstanceError, InstanceHit, Instances, Placement, Prototype,
+    flatten_into, usable_placements, Instance, InstanceError, InstanceHit, Instances, Placement,
+    Prototype, Unplaced,
 };
 pub use mesh::{renderable, Mesh, MeshError};
 pub use ray::Ray;

@@ -185,6 +185,18 @@ pub fn load(
     guarded(|| Ok(Scene::build(parts)?))
 }
 
+/// Whether [`load`] of these bytes succeeds, without building the scene (no BVH, no light
+/// distributions: see [`Scene::check`]); the load's warnings when it does. What a server checks a
+/// submitted scene with, at a fraction of the build's time and memory.
+pub fn check(
+    bytes: &[u8],
+    resolver: &dyn ResourceResolver,
+    options: &LoadOptions,
+) -> Result<Vec<String>, GltfError> {
+    let parts = load_parts(bytes, resolver, options)?;
+    guarded(|| Ok(Scene::check(parts)?))
+}
+
 fn guarded<T>(f: impl FnOnce() -> Result<T, GltfError>) -> Result<T, GltfError> {
     match catch_unwind(AssertUnwindSafe(f)) {
         Ok(result) => result,

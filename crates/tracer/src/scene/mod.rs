@@ -11,7 +11,10 @@ pub use world::World;
 
 use crate::bsdf::Bsdf;
 use crate::camera::Camera;
-use crate::geometry::{Bvh, InstanceError, Instances, Mesh, MeshError, Placement, Prototype};
+use crate::geometry::{
+    usable_placements, Bvh, InstanceError, Instances, Mesh, MeshError, Placement, Prototype,
+    Unplaced,
+};
 use crate::integrator::DiffuseScene;
 use crate::light::{Environment, Lights, PunctualLight};
 use crate::material::{Material, Texture};
@@ -147,23 +150,11 @@ impl Scene {
         let (prototypes, prototype_dropped) = build_prototypes(prototypes, &materials)?;
         // Drop zero-area and non-finite triangles: they cannot be hit, sampled or shaded.
         let (instances, unplaced) = Instances::place(prototypes, &placements)?;
-        if unplaced.placements > 0 {
-            tracing::info!(
-                placements = unplaced.placements,
-                "dropped instances with singular transforms"
-            );
-        }
-        // A dropped placement's triangles are as degenerate as a flattened copy of them would be.
-        let degenerate_dropped =
-            dropped_by_loader + world.dropped + prototype_dropped + unplaced.triangles;
-        if degenerate_dropped > 0 {
-            if world.mesh.is_empty() && instances.is_empty() {
-                return Err(SceneError::AllDegenerate {
-                    dropped: degenerate_dropped,
-                });
-            }
-            tracing::info!(degenerate_dropped, "dropped zero-area triangles");
-        }
+        let degenerate_dropped = degenerate(
+            dropped_by_loader + world.dropped + prototype_dropped,
+            unplaced,
+            world.mesh.is_empty() && instances.is_empty(),
+        )?;
         Ok(Scene::assemble(Assembly {
             world: &world,
             instances,
@@ -174,6 +165,31 @@ impl Scene {
             warnings,
             degenerate_dropped,
         }))
+    }
+
+    /// Everything [`Scene::build`] checks, without building anything (no BVH, no light
+    /// distributions): `Ok` exactly when `build` of the same parts succeeds, with the loader's
+    /// warnings. What a server runs on a submitted scene that its workers will build.
+    pub fn check(parts: SceneParts) -> Result<Vec<String>, SceneError> {
+        let SceneParts {
+            mesh,
+            prototypes,
+            placements,
+            materials,
+            warnings,
+            degenerate_dropped: dropped_by_loader,
+            ..
+        } = parts;
+        let (mesh, world_dropped) = World::checked(mesh, &materials)?;
+        let (prototypes, prototype_dropped) = checked_prototypes(prototypes, &materials)?;
+        let triangles: Vec<usize> = prototypes.iter().map(Mesh::len).collect();
+        let (usable, unplaced) = usable_placements(&triangles, &placements)?;
+        degenerate(
+            dropped_by_loader + world_dropped + prototype_dropped,
+            unplaced,
+            mesh.is_empty() && usable.is_empty(),
+        )?;
+        Ok(warnings)
     }
 
     /// A scene of parts built already (and perhaps shared with other scenes): only the light
@@ -320,6 +336,20 @@ pub fn build_prototypes(
     prototypes: Vec<Mesh>,
     materials: &[Material],
 ) -> Result<(Vec<Arc<Prototype>>, usize), SceneError> {
+    let (prototypes, dropped) = checked_prototypes(prototypes, materials)?;
+    let built = prototypes
+        .into_iter()
+        .map(|m| Arc::new(Prototype::new(m)))
+        .collect();
+    Ok((built, dropped))
+}
+
+/// What [`build_prototypes`] does before it builds anything: each mesh checked against the
+/// materials (none may emit), without its degenerate triangles, and how many were dropped.
+fn checked_prototypes(
+    prototypes: Vec<Mesh>,
+    materials: &[Material],
+) -> Result<(Vec<Mesh>, usize), SceneError> {
     let mut prototypes = prototypes;
     let mut dropped = 0;
     for (prototype, proto) in prototypes.iter_mut().enumerate() {
@@ -347,11 +377,27 @@ pub fn build_prototypes(
         }
         dropped += drop_degenerate(proto);
     }
-    let built = prototypes
-        .into_iter()
-        .map(|m| Arc::new(Prototype::new(m)))
-        .collect();
-    Ok((built, dropped))
+    Ok((prototypes, dropped))
+}
+
+/// The degenerate triangles of a scene: those `dropped` and those the `unplaced` placements (a
+/// singular transform) would have placed, which are as degenerate as a flattened copy of them
+/// would be. A scene left with `nothing` to render after dropping some is an error.
+fn degenerate(dropped: usize, unplaced: Unplaced, nothing: bool) -> Result<usize, SceneError> {
+    if unplaced.placements > 0 {
+        tracing::info!(
+            placements = unplaced.placements,
+            "dropped instances with singular transforms"
+        );
+    }
+    let dropped = dropped + unplaced.triangles;
+    if dropped > 0 {
+        if nothing {
+            return Err(SceneError::AllDegenerate { dropped });
+        }
+        tracing::info!(degenerate_dropped = dropped, "dropped zero-area triangles");
+    }
+    Ok(dropped)
 }
 
 /// Drops the mesh's zero-area and non-finite triangles (they cannot be hit, sampled or shaded);
@@ -488,5 +534,149 @@ mod tests {
             scene.bsdf_at(&at(0.1)).params().base_color,
             scene.bsdf_at(&at(0.9)).params().base_color
         );
+    }
+
+    /// `Scene::check` passes exactly the parts `Scene::build` builds, with the same warnings, and
+    /// refuses the others with the same error: good scenes (world-space, instanced, some of each
+    /// degenerate or unplaced) and every kind of broken one.
+    #[test]
+    fn check_agrees_with_build() {
+        use glam::DMat4;
+        let tri = |x: f32| {
+            [
+                Vec3::new(x, 0.0, 0.0),
+                Vec3::new(x + 1.0, 0.0, 0.0),
+                Vec3::new(x, 1.0, 0.0),
+            ]
+        };
+        let flat = |x: f32| {
+            [
+                Vec3::new(x, 0.0, 0.0),
+                Vec3::new(x + 1.0, 0.0, 0.0),
+                Vec3::new(x + 2.0, 0.0, 0.0),
+            ]
+        };
+        let mesh = |positions: Vec<[Vec3; 3]>, material: u32| Mesh {
+            material: vec![material; positions.len()],
+            positions,
+            ..Mesh::default()
+        };
+        let place = |prototype: u32, scale: f64| Placement {
+            prototype,
+            to_world: DMat4::from_scale(glam::DVec3::splat(scale)),
+        };
+        let base = SceneParts {
+            materials: vec![
+                Material::default(),
+                Material {
+                    emissive: Vec3::ONE,
+                    ..Material::default()
+                },
+            ],
+            warnings: vec!["a loader's warning".into()],
+            ..SceneParts::default()
+        };
+        let with = |f: &dyn Fn(&mut SceneParts)| {
+            let mut p = base.clone();
+            f(&mut p);
+            p
+        };
+        let cases: Vec<(&str, SceneParts)> = vec![
+            ("empty", base.clone()),
+            (
+                "world",
+                with(&|p| p.mesh = mesh(vec![tri(0.0), tri(2.0)], 1)),
+            ),
+            (
+                "some degenerate",
+                with(&|p| p.mesh = mesh(vec![tri(0.0), flat(2.0)], 0)),
+            ),
+            (
+                "all degenerate",
+                with(&|p| p.mesh = mesh(vec![flat(0.0), flat(2.0)], 0)),
+            ),
+            (
+                "all dropped by the loader",
+                with(&|p| p.degenerate_dropped = 3),
+            ),
+            (
+                "material out of range",
+                with(&|p| p.mesh = mesh(vec![tri(0.0)], 2)),
+            ),
+            (
+                "attributes disagree",
+                with(&|p| {
+                    p.mesh = mesh(vec![tri(0.0)], 0);
+                    p.mesh.normals = Some(vec![]);
+                }),
+            ),
+            (
+                "instanced",
+                with(&|p| {
+                    p.prototypes = vec![mesh(vec![tri(0.0)], 0)];
+                    p.placements = vec![place(0, 1.0), place(0, 2.0)];
+                }),
+            ),
+            (
+                "one placement singular",
+                with(&|p| {
+                    p.prototypes = vec![mesh(vec![tri(0.0)], 0)];
+                    p.placements = vec![place(0, 1.0), place(0, 0.0)];
+                }),
+            ),
+            (
+                "every placement singular",
+                with(&|p| {
+                    p.prototypes = vec![mesh(vec![tri(0.0)], 0)];
+                    p.placements = vec![place(0, 0.0)];
+                }),
+            ),
+            (
+                "singular placements beside world triangles",
+                with(&|p| {
+                    p.mesh = mesh(vec![tri(5.0)], 0);
+                    p.prototypes = vec![mesh(vec![tri(0.0)], 0)];
+                    p.placements = vec![place(0, 0.0)];
+                }),
+            ),
+            (
+                "a degenerate prototype",
+                with(&|p| {
+                    p.prototypes = vec![mesh(vec![flat(0.0)], 0)];
+                    p.placements = vec![place(0, 1.0)];
+                }),
+            ),
+            (
+                "an emissive prototype",
+                with(&|p| {
+                    p.prototypes = vec![mesh(vec![tri(0.0)], 1)];
+                    p.placements = vec![place(0, 1.0)];
+                }),
+            ),
+            (
+                "a prototype's material out of range",
+                with(&|p| {
+                    p.prototypes = vec![mesh(vec![tri(0.0)], 7)];
+                    p.placements = vec![place(0, 1.0)];
+                }),
+            ),
+            (
+                "a placement of no prototype",
+                with(&|p| {
+                    p.prototypes = vec![mesh(vec![tri(0.0)], 0)];
+                    p.placements = vec![place(3, 1.0)];
+                }),
+            ),
+        ];
+        let mut refused = 0;
+        for (name, parts) in cases {
+            let checked = Scene::check(parts.clone()).map_err(|e| e.to_string());
+            let built = Scene::build(parts)
+                .map(|s| s.info.warnings)
+                .map_err(|e| e.to_string());
+            assert_eq!(checked, built, "{name}");
+            refused += usize::from(built.is_err());
+        }
+        assert_eq!(refused, 9, "the broken cases are refused");
     }
 }

@@ -27,24 +27,11 @@ impl World {
     /// Checks the mesh against the materials, drops its degenerate triangles, builds the BVH
     /// (reordering the triangles to it) and collects the emissive triangles.
     pub fn build(
-        mut mesh: Mesh,
+        mesh: Mesh,
         materials: &[Material],
         textures: &[Texture],
     ) -> Result<World, SceneError> {
-        mesh.validate()?;
-        if let Some((triangle, &material)) = mesh
-            .material
-            .iter()
-            .enumerate()
-            .find(|(_, &m)| m as usize >= materials.len())
-        {
-            return Err(SceneError::MaterialIndex {
-                triangle,
-                material,
-                count: materials.len(),
-            });
-        }
-        let dropped = drop_degenerate(&mut mesh);
+        let (mut mesh, dropped) = World::checked(mesh, materials)?;
         let started = std::time::Instant::now();
         let bvh = Bvh::build(&mut mesh);
         tracing::debug!(
@@ -68,6 +55,29 @@ impl World {
             lo,
             hi,
         })
+    }
+
+    /// What [`World::build`] does before it builds anything: the mesh checked against the
+    /// materials, without its degenerate triangles, and how many were dropped.
+    pub(super) fn checked(
+        mut mesh: Mesh,
+        materials: &[Material],
+    ) -> Result<(Mesh, usize), SceneError> {
+        mesh.validate()?;
+        if let Some((triangle, &material)) = mesh
+            .material
+            .iter()
+            .enumerate()
+            .find(|(_, &m)| m as usize >= materials.len())
+        {
+            return Err(SceneError::MaterialIndex {
+                triangle,
+                material,
+                count: materials.len(),
+            });
+        }
+        let dropped = drop_degenerate(&mut mesh);
+        Ok((mesh, dropped))
     }
 
     /// The box of every corner; inverted (+∞, −∞) without triangles.
