@@ -97,6 +97,19 @@ fn error_code(body: &[u8]) -> String {
         .to_string()
 }
 
+/// Asserts that the server's `/metrics` holds each of these lines (`name value`).
+async fn assert_counters(server: &TestServer, lines: &[&str]) {
+    let metrics = reqwest::get(format!("{}/metrics", server.url))
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    for line in lines {
+        assert!(metrics.lines().any(|l| l == *line), "{line}: {metrics}");
+    }
+}
+
 fn get_healthz(server: &TestServer) -> String {
     format!("GET /healthz HTTP/1.1\r\nHost: {}\r\n\r\n", host(server))
 }
@@ -135,16 +148,7 @@ async fn a_stalled_or_trickled_header_is_disconnected_after_the_header_timeout()
         .await
         .expect("the server cut the trickled header off");
 
-    let metrics = reqwest::get(format!("{}/metrics", server.url))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
-    assert!(
-        metrics.contains("pathfarm_http_header_timeouts_total 2"),
-        "{metrics}"
-    );
+    assert_counters(&server, &["pathfarm_http_header_timeouts_total 2"]).await;
     server.stop().await;
 }
 
@@ -185,18 +189,14 @@ async fn an_idle_keep_alive_is_closed_after_the_idle_timeout() {
         let (status, _, _) = read_response(&mut s).await;
         assert_eq!(status, 200);
     }
-    let metrics = reqwest::get(format!("{}/metrics", server.url))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
-    for counter in [
-        "pathfarm_http_keep_alive_timeouts_total 2",
-        "pathfarm_http_header_timeouts_total 0",
-    ] {
-        assert!(metrics.contains(counter), "{counter}: {metrics}");
-    }
+    assert_counters(
+        &server,
+        &[
+            "pathfarm_http_keep_alive_timeouts_total 2",
+            "pathfarm_http_header_timeouts_total 0",
+        ],
+    )
+    .await;
     server.stop().await;
     server2.stop().await;
 }
