@@ -188,9 +188,10 @@ pub async fn submit(
         .await?
         .admit(stored_bytes, &state.config.quotas)?;
 
-    // Load the scene as a worker will, short of building it (no external resources: a URI in a submitted scene
-    // never reads the server's files or the network), then the environment, as the worker builds
-    // it; one after the other, so that each check holds only one of them in memory.
+    // Load the scene as a worker will, short of building it (no external resources: a URI in a
+    // submitted scene never reads the server's files or the network), then the environment, as
+    // the worker builds it; one after the other, so that each check holds only one of them in
+    // memory.
     let camera = settings.camera.clone();
     let max_triangles = state.config.limits.max_scene_triangles;
     let scene_for_load = scene.clone();
