@@ -142,7 +142,8 @@ pub struct ConnectionLimits {
     /// body must have arrived by `body_timeout` plus its bytes so far at that rate after it began.
     pub body_timeout: Duration,
     /// Bytes a second a request body must keep up on average (after the grace of
-    /// [`ConnectionLimits::body_timeout`]); 0: only the idle bound applies.
+    /// [`ConnectionLimits::body_timeout`]); 0: only the idle bound applies. A client taking a
+    /// response is held to both bounds too (`connections/send_deadline.rs`).
     pub body_min_rate: u64,
     /// Most connections open at once. Beyond it the server stops accepting: further connections
     /// wait in the kernel's accept queue (the listen backlog) until one closes.
@@ -185,6 +186,11 @@ pub struct ServerConfig {
     /// go back to the queue and its row is deleted, so abandoned or fake registrations do not pile
     /// up. Its credential stops working; a worker that comes back registers again.
     pub worker_expiry: Duration,
+    /// Most worker registrations kept at once (whatever their state, until collected). Beyond
+    /// it a registration is answered 503 `too_many_workers` with `Retry-After`, which the worker
+    /// daemon waits out: a holder of the worker token cannot make the server store and list
+    /// registrations without bound.
+    pub max_workers: u64,
     /// Most samples per pixel in one task of the last passes, capped further so that a task stays
     /// a few seconds of work.
     pub max_task_samples: u64,
@@ -262,6 +268,7 @@ impl ServerConfig {
             monitor_interval: Duration::from_millis(500),
             max_leases_per_worker: DEFAULT_MAX_LEASES_PER_WORKER,
             worker_expiry: DEFAULT_WORKER_EXPIRY,
+            max_workers: 100_000,
             max_task_samples: 4 << 20,
             min_task_samples: 1 << 16,
             limits: Limits::default(),

@@ -15,6 +15,8 @@
 //!   knows which of the two applies from [`Connection`], which [`track`] keeps up to date: a
 //!   request under way (from its header until its response's body is sent) sets no deadline on
 //!   the connection.
+//! - [`GuardedIo`]'s writes are bounded by [`SendDeadline`]: a client must take a response it asked
+//!   for as a request body must arrive (below), or its connection is closed.
 //! - [`track`] also gives every request body a deadline ([`TimedBody`]): no byte for
 //!   `body_timeout`, or an average rate below `body_min_rate` past that grace, and the body is
 //!   cut off; the request is answered 408 `body_timeout` and the connection closed.
@@ -41,12 +43,11 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::serve::IncomingStream;
 use http_body::Frame;
-use http_body_util::BodyExt;
 use std::future::Future;
 use std::io;
 use std::net::SocketAddr;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll, Waker};
 use std::time::Duration;
@@ -55,6 +56,12 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tokio::time::{Instant, Sleep};
 use tokio_rustls::TlsAcceptor;
+
+mod send_deadline;
+mod timed_body;
+
+use send_deadline::SendDeadline;
+pub use timed_body::{BodyTimeout, TimedBody};
 
 /// What a connection is doing, as far as its deadlines go.
 #[derive(Clone, Copy, Debug)]
@@ -75,6 +82,9 @@ pub struct Connection {
     state: Mutex<ConnState>,
     header_timeout: Duration,
     keep_alive_timeout: Duration,
+    /// Responses sent in full (or dropped): which response a write belongs to, for
+    /// [`SendDeadline`].
+    responses: AtomicU64,
 }
 
 #[derive(Debug)]
@@ -109,6 +119,7 @@ impl Connection {
             }),
             header_timeout: limits.header_timeout,
             keep_alive_timeout: limits.keep_alive_timeout,
+            responses: AtomicU64::new(0),
         }
     }
 
@@ -162,6 +173,7 @@ impl Connection {
     }
 
     fn request_finished(&self) {
+        self.responses.fetch_add(1, Ordering::Relaxed);
         let reader = self.with_state(|s| match s.phase {
             Phase::Busy(n) if n > 1 => {
                 s.phase = Phase::Busy(n - 1);
@@ -293,6 +305,7 @@ pub struct GuardedIo {
     /// A TLS connection whose handshake [`Connection::established`] has not been told of yet.
     handshaking: bool,
     sleep: Pin<Box<Sleep>>,
+    send: SendDeadline,
     state: AppState,
     _permit: OwnedSemaphorePermit,
 }
@@ -316,6 +329,7 @@ impl GuardedIo {
             io,
             conn,
             sleep: Box::pin(tokio::time::sleep_until(first)),
+            send: SendDeadline::new(&state.config.connections),
             state,
             _permit: permit,
         }
@@ -378,13 +392,38 @@ impl AsyncRead for GuardedIo {
     }
 }
 
+impl GuardedIo {
+    /// A write, flush or shutdown of the socket, bounded by [`SendDeadline`].
+    fn send<T>(
+        &mut self,
+        cx: &mut Context<'_>,
+        op: impl FnOnce(Pin<&mut Transport>, &mut Context<'_>) -> Poll<io::Result<T>>,
+        written: impl FnOnce(&T) -> usize,
+    ) -> Poll<io::Result<T>> {
+        let result = op(Pin::new(&mut self.io), cx);
+        let response = self.conn.responses.load(Ordering::Relaxed);
+        let checked = self.send.check(cx, response, result, written);
+        if let Poll::Ready(Err(e)) = &checked {
+            if e.kind() == io::ErrorKind::TimedOut {
+                self.state
+                    .metrics
+                    .send_timeouts
+                    .fetch_add(1, Ordering::Relaxed);
+                tracing::debug!("closing a connection: its client did not take the response");
+            }
+        }
+        checked
+    }
+}
+
 impl AsyncWrite for GuardedIo {
     fn poll_write(
         self: Pin<&mut Self>,
         cx: &mut Context<'_>,
         buf: &[u8],
     ) -> Poll<io::Result<usize>> {
-        Pin::new(&mut self.get_mut().io).poll_write(cx, buf)
+        self.get_mut()
+            .send(cx, |io, cx| io.poll_write(cx, buf), |n| *n)
     }
 
     fn poll_write_vectored(
@@ -392,7 +431,8 @@ impl AsyncWrite for GuardedIo {
         cx: &mut Context<'_>,
         bufs: &[io::IoSlice<'_>],
     ) -> Poll<io::Result<usize>> {
-        Pin::new(&mut self.get_mut().io).poll_write_vectored(cx, bufs)
+        self.get_mut()
+            .send(cx, |io, cx| io.poll_write_vectored(cx, bufs), |n| *n)
     }
 
     fn is_write_vectored(&self) -> bool {
@@ -404,11 +444,12 @@ impl AsyncWrite for GuardedIo {
     }
 
     fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.get_mut().io).poll_flush(cx)
+        self.get_mut().send(cx, |io, cx| io.poll_flush(cx), |_| 0)
     }
 
     fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.get_mut().io).poll_shutdown(cx)
+        self.get_mut()
+            .send(cx, |io, cx| io.poll_shutdown(cx), |_| 0)
     }
 }
 
@@ -629,147 +670,6 @@ impl HttpBody for UntilSent {
             this.busy = None;
         }
         frame
-    }
-
-    fn is_end_stream(&self) -> bool {
-        self.inner.is_end_stream()
-    }
-
-    fn size_hint(&self) -> http_body::SizeHint {
-        self.inner.size_hint()
-    }
-}
-
-/// The error a [`TimedBody`] ends with.
-#[derive(Debug, thiserror::Error)]
-#[error("request body timed out")]
-pub struct BodyTimeout;
-
-/// A request body with a deadline: it fails with [`BodyTimeout`] when no byte came for
-/// `body_timeout` while the handler waited for one, or once it is behind `body_min_rate` past
-/// the grace of `body_timeout` (counted from the handler's first read: a handler that is busy
-/// before it reads costs the client nothing).
-pub struct TimedBody {
-    inner: Body,
-    idle: Duration,
-    min_rate: u64,
-    started: Option<Instant>,
-    last: Instant,
-    received: u64,
-    sleep: Option<Pin<Box<Sleep>>>,
-    cut_off: Arc<AtomicBool>,
-}
-
-impl TimedBody {
-    fn new(inner: Body, limits: &ConnectionLimits, cut_off: Arc<AtomicBool>) -> TimedBody {
-        TimedBody {
-            inner,
-            idle: limits.body_timeout,
-            min_rate: limits.body_min_rate,
-            started: None,
-            last: Instant::now(),
-            received: 0,
-            sleep: None,
-            cut_off,
-        }
-    }
-
-    /// When the body must have arrived, at the rate so far.
-    fn rate_deadline(&self, started: Instant) -> Option<Instant> {
-        if self.min_rate == 0 {
-            return None;
-        }
-        let allowed = Duration::from_secs_f64(self.received as f64 / self.min_rate as f64);
-        Some(started + self.idle + allowed)
-    }
-
-    fn fail(&mut self) -> Poll<Option<Result<Frame<Bytes>, axum::Error>>> {
-        self.cut_off.store(true, Ordering::Relaxed);
-        Poll::Ready(Some(Err(axum::Error::new(BodyTimeout))))
-    }
-}
-
-/// How long, and how many bytes, a body that its handler left unread is still read and discarded
-/// after the answer (a lingering close): a client that is still sending a refused upload (413
-/// from its declared length, 409 for a stale lease, …) would otherwise find the connection closed
-/// under it and never read the answer. Bounded in time and bytes, and nothing is kept.
-const DRAIN_TIME: Duration = Duration::from_secs(5);
-const DRAIN_BYTES: u64 = 512 << 20;
-
-impl Drop for TimedBody {
-    fn drop(&mut self) {
-        if self.inner.is_end_stream() || self.cut_off.load(Ordering::Relaxed) {
-            return;
-        }
-        let Ok(runtime) = tokio::runtime::Handle::try_current() else {
-            return;
-        };
-        let mut body = std::mem::replace(&mut self.inner, Body::empty());
-        runtime.spawn(async move {
-            let drain = async {
-                let mut read = 0u64;
-                while let Some(Ok(frame)) = body.frame().await {
-                    read += frame.data_ref().map_or(0, |d| d.len() as u64);
-                    if read > DRAIN_BYTES {
-                        break;
-                    }
-                }
-            };
-            let _ = tokio::time::timeout(DRAIN_TIME, drain).await;
-        });
-    }
-}
-
-impl HttpBody for TimedBody {
-    type Data = Bytes;
-    type Error = axum::Error;
-
-    fn poll_frame(
-        self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-    ) -> Poll<Option<Result<Frame<Bytes>, axum::Error>>> {
-        let this = self.get_mut();
-        if this.cut_off.load(Ordering::Relaxed) {
-            return Poll::Ready(Some(Err(axum::Error::new(BodyTimeout))));
-        }
-        let now = Instant::now();
-        let started = match this.started {
-            Some(at) => at,
-            None => {
-                this.started = Some(now);
-                this.last = now;
-                now
-            }
-        };
-        match Pin::new(&mut this.inner).poll_frame(cx) {
-            Poll::Ready(Some(Ok(frame))) => {
-                if let Some(data) = frame.data_ref() {
-                    this.received = this.received.saturating_add(data.len() as u64);
-                }
-                this.last = now;
-                if this.rate_deadline(started).is_some_and(|at| now > at) {
-                    return this.fail();
-                }
-                Poll::Ready(Some(Ok(frame)))
-            }
-            Poll::Ready(other) => Poll::Ready(other),
-            Poll::Pending => {
-                let idle_deadline = this.last + this.idle;
-                let deadline = this
-                    .rate_deadline(started)
-                    .map_or(idle_deadline, |at| at.min(idle_deadline));
-                let sleep = this
-                    .sleep
-                    .get_or_insert_with(|| Box::pin(tokio::time::sleep_until(deadline)));
-                if sleep.deadline() != deadline {
-                    sleep.as_mut().reset(deadline);
-                }
-                if sleep.as_mut().poll(cx).is_ready() {
-                    return this.fail();
-                }
-                Poll::Pending
-            }
-        }
     }
 
     fn is_end_stream(&self) -> bool {

@@ -33,6 +33,8 @@ pub struct Metrics {
     pub keep_alive_timeouts: AtomicU64,
     /// Request bodies cut off (408 `body_timeout`).
     pub body_timeouts: AtomicU64,
+    /// Connections closed because their client did not take a response (`send_deadline.rs`).
+    pub send_timeouts: AtomicU64,
     /// Request latency per (method, route template, status code).
     requests: Mutex<BTreeMap<(String, String, u16), Histogram>>,
 }
@@ -155,6 +157,12 @@ impl Metrics {
             "pathfarm_http_body_timeouts_total",
             "Request bodies cut off by the body timeout (answered 408).",
             get(&self.body_timeouts),
+        );
+        counter(
+            &mut out,
+            "pathfarm_http_send_timeouts_total",
+            "Connections closed because their client did not take a response within the body timeout or at the body minimum rate.",
+            get(&self.send_timeouts),
         );
         let _ = writeln!(
             out,

@@ -1,13 +1,15 @@
 //! Connection hygiene against a real server on a loopback port, probed with raw TCP streams:
-//! stalled headers, idle keep-alives and trickled bodies are let go after their (short, test)
-//! timeouts, connections beyond the cap wait, and uploads that can be refused without their body
-//! are answered before a byte of it is sent.
+//! stalled headers, idle keep-alives, trickled bodies and responses left unread are let go after
+//! their (short, test) timeouts, connections beyond the cap wait, and uploads that can be refused
+//! without their body are answered before a byte of it is sent.
 
 mod common;
 
 use common::{cornell, settings, temp_dir, TestServer};
 use pathfarm_server::ServerConfig;
+use pathfarm_tracer::Accumulation;
 use pathfarm_wire::api::{Lease, WorkerRegistration};
+use pathfarm_wire::Slice;
 use serde_json::Value;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -99,12 +101,7 @@ fn error_code(body: &[u8]) -> String {
 
 /// Asserts that the server's `/metrics` holds each of these lines (`name value`).
 async fn assert_counters(server: &TestServer, lines: &[&str]) {
-    let metrics = reqwest::get(format!("{}/metrics", server.url))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let metrics = server.metrics_text().await;
     for line in lines {
         assert!(metrics.lines().any(|l| l == *line), "{line}: {metrics}");
     }
@@ -439,4 +436,75 @@ async fn bodies_wait_for_room_in_the_body_budget() {
         4 << 20,
         "every reservation returned"
     );
+}
+
+/// A client that asks for a large response and does not read it is let go after the body
+/// timeout (counted as a send timeout), while one that reads gets it whole: the connection and
+/// the response's bytes are not held for as long as the client likes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_does_not_take_its_response_is_let_go() {
+    let mut c = config("send-timeout");
+    c.connections.body_timeout = Duration::from_millis(500);
+    c.connections.body_min_rate = 1000;
+    let server = TestServer::start(c).await;
+    let state = &server.state;
+    // A 1024² image of noise: about 12 MB as an EXR (noise does not compress), more than the
+    // sockets' buffers hold.
+    let s = serde_json::to_string(&settings(1024, 1024, 1, 256)).unwrap();
+    let job = common::submit_ok(state, None, &cornell(), &s).await;
+    let worker = common::register_in_process(state).await;
+    while let Some(l) = common::lease_in_process(state, &worker).await {
+        let mut acc = Accumulation::new(l.tile.x0, l.tile.y0, l.tile.width, l.tile.height);
+        let mut x = (l.task_id as u32).wrapping_mul(0x9e37_79b9) | 1;
+        for p in acc.pixels.iter_mut() {
+            for _ in l.sample_begin..l.sample_end {
+                let mut next = || {
+                    x ^= x << 13;
+                    x ^= x >> 17;
+                    x ^= x << 5;
+                    x as f32 / u32::MAX as f32
+                };
+                p.add_sample(glam::Vec3::new(next(), next(), next()));
+            }
+        }
+        let slice = Slice {
+            sample_begin: l.sample_begin,
+            sample_end: l.sample_end,
+            acc,
+        };
+        common::upload_in_process(state, &worker.1, &l, &slice).await;
+    }
+    let path = format!("/api/v1/jobs/{job}/image.exr");
+    let whole = reqwest::get(format!("{}{path}", server.url))
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap();
+    assert!(whole.len() > 10 << 20, "{} bytes", whole.len());
+
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut stalled = socket
+        .connect(host(&server).parse().unwrap())
+        .await
+        .unwrap();
+    let get = format!("GET {path} HTTP/1.1\r\nHost: {}\r\n\r\n", host(&server));
+    stalled.write_all(get.as_bytes()).await.unwrap();
+    let started = Instant::now();
+    let timeouts = || {
+        state
+            .metrics
+            .send_timeouts
+            .load(std::sync::atomic::Ordering::Relaxed)
+    };
+    while timeouts() == 0 {
+        assert!(started.elapsed() < PATIENCE, "the stalled client was kept");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // Closed: what it reads now is what the server had sent, then the end.
+    let got = read_until_closed(&mut stalled).await;
+    assert!(got.len() < whole.len(), "{} bytes", got.len());
+    assert_counters(&server, &["pathfarm_http_send_timeouts_total 1"]).await;
+    server.stop().await;
 }

@@ -350,6 +350,149 @@ async fn every_worker_is_listed_page_by_page() {
     }
 }
 
+/// Paging by cursor while the farm changes under the pages: workers register, sign off and are
+/// collected between two pages. Every worker that was there before the first page and is still
+/// there after the last is listed exactly once, and no worker twice (numbered pages would shift
+/// under the collected ones and skip workers).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cursor_pages_list_every_worker_once_while_workers_come_and_go() {
+    const N: usize = 300;
+    const PER_PAGE: u32 = 50;
+    for (store, url) in stores("identity-churn").await {
+        let clock = Arc::new(ManualClock::new());
+        let mut cfg = with_tokens(&url);
+        cfg.clock = clock.clone();
+        let server = TestServer::start(cfg).await;
+        let db = &server.state.store;
+        let mut before = Vec::new();
+        for i in 0..N {
+            // Several registrations in each millisecond: the id orders those.
+            if i % 7 == 0 {
+                clock.advance(Duration::from_millis(1));
+            }
+            before.push(
+                db.register_worker(&registration(&format!("w{i}")))
+                    .await
+                    .unwrap()
+                    .0,
+            );
+        }
+        // Every third worker goes silent and is collected after the first page; of the others,
+        // every fifth signs off (a state change, which reordered the old listing).
+        let (collected, kept): (Vec<_>, Vec<_>) =
+            before.iter().enumerate().partition(|(i, _)| i % 3 == 0);
+        let kept: HashSet<String> = kept.into_iter().map(|(_, id)| id.clone()).collect();
+        let collected: HashSet<String> = collected.into_iter().map(|(_, id)| id.clone()).collect();
+
+        let client = server.client(Some(CLIENT));
+        let mut seen = Vec::new();
+        let mut after: Option<String> = None;
+        let mut pages = 0;
+        loop {
+            let list = client
+                .workers_after(after.as_deref(), PER_PAGE)
+                .await
+                .unwrap();
+            assert_eq!(
+                (list.page, list.per_page),
+                (if pages == 0 { 1 } else { 0 }, PER_PAGE)
+            );
+            seen.extend(list.workers.iter().map(|w| w.id.clone()));
+            pages += 1;
+            if pages == 1 {
+                clock.advance(Duration::from_secs(61));
+                for id in &kept {
+                    db.heartbeat(id, None, 30_000).await.unwrap();
+                }
+                assert_eq!(
+                    db.collect_idle_workers(60_000).await.unwrap(),
+                    collected.len() as u64,
+                    "{store}"
+                );
+                for id in kept.iter().take(kept.len() / 5) {
+                    db.deregister_worker(id).await.unwrap();
+                }
+                for i in 0..25 {
+                    db.register_worker(&registration(&format!("new{i}")))
+                        .await
+                        .unwrap();
+                }
+            }
+            match list.next {
+                Some(next) => after = Some(next),
+                None => break,
+            }
+        }
+        let unique: HashSet<&String> = seen.iter().collect();
+        assert_eq!(unique.len(), seen.len(), "{store}: a worker listed twice");
+        for id in &kept {
+            assert!(unique.contains(id), "{store}: worker {id} was skipped");
+        }
+        assert!(
+            seen.iter()
+                .all(|id| kept.contains(id) || collected.contains(id)),
+            "{store}: only workers registered before the first page"
+        );
+        // The whole list by the client's cursor walk: the kept workers and the new ones.
+        let all = client.workers().await.unwrap().workers;
+        assert_eq!(all.len(), kept.len() + 25, "{store}");
+        // A cursor not of the server's form is refused.
+        for bad in ["", "12", "x.abc", "1.", "+5.abc", "1234567890123456789.a"] {
+            let err = client.workers_after(Some(bad), 10).await.unwrap_err();
+            assert_eq!(
+                err.status(),
+                Some(StatusCode::BAD_REQUEST),
+                "{store}: {bad:?}"
+            );
+        }
+        server.stop().await;
+    }
+}
+
+/// At most `max_workers` registrations are kept: one more is answered 503 `too_many_workers`
+/// with `Retry-After` (which the worker daemon waits out), and registering works again once idle
+/// registrations were collected.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn registrations_beyond_the_cap_wait_for_idle_ones_to_expire() {
+    for (store, url) in stores("identity-max-workers").await {
+        let clock = Arc::new(ManualClock::new());
+        let mut cfg = with_tokens(&url);
+        cfg.clock = clock.clone();
+        cfg.max_workers = 3;
+        cfg.worker_expiry = Duration::from_secs(60);
+        let server = TestServer::start(cfg).await;
+        let c = server.client(Some(WORKER));
+        for i in 0..3 {
+            c.register(&registration(&format!("w{i}"))).await.unwrap();
+        }
+        let err = c.register(&registration("w3")).await.unwrap_err();
+        assert_eq!(
+            err.status(),
+            Some(StatusCode::SERVICE_UNAVAILABLE),
+            "{store}: {err}"
+        );
+        assert!(
+            err.to_string().contains("too_many_workers"),
+            "{store}: {err}"
+        );
+        assert_eq!(err.retry_after(), Some(Duration::from_secs(60)), "{store}");
+        assert!(err.is_transient(), "{store}: the daemon retries it");
+        let listed = server.client(Some(CLIENT)).workers().await.unwrap();
+        assert_eq!(listed.workers.len(), 3, "{store}");
+        // Registrations that expired free their places.
+        clock.advance(Duration::from_secs(61));
+        let collected = server
+            .state
+            .store
+            .collect_idle_workers(60_000)
+            .await
+            .unwrap();
+        assert_eq!(collected, 3, "{store}");
+        c.register(&registration("w3")).await.unwrap();
+        server.stop().await;
+    }
+}
+
 /// The worker daemon registers again when the server forgot it (its registration expired), and
 /// goes on rendering as a new worker.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]

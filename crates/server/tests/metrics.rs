@@ -135,13 +135,7 @@ async fn metrics_agree_with_what_the_farm_did() {
         .await
         .unwrap();
         assert_eq!(missing.status().as_u16(), 404);
-        let text = reqwest::get(format!("{}/metrics", server.url))
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
-        let after = parse(&text);
+        let after = parse(&server.metrics_text().await);
         assert_eq!(
             after.get(
                 "pathfarm_http_request_duration_seconds_count\

@@ -395,3 +395,20 @@ fn the_roulette_patterns_are_the_tracers_grammar() {
         "the rr patterns must be the tracer's (settings::roulette_numbers)"
     );
 }
+
+#[test]
+fn the_worker_cursor_pattern_is_the_servers() {
+    let spec = spec();
+    let params = spec["paths"]["/api/v1/workers"]["get"]["parameters"]
+        .as_array()
+        .expect("listWorkers has parameters");
+    let after = params
+        .iter()
+        .find(|p| p["name"] == "after")
+        .expect("an `after` parameter");
+    assert_eq!(
+        after["schema"]["pattern"].as_str(),
+        Some(pathfarm_server::store::WorkerCursor::PATTERN),
+        "the contract's cursor pattern must be the one the server reads"
+    );
+}

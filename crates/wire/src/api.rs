@@ -547,14 +547,18 @@ pub struct WorkerView {
     pub untrusted: bool,
 }
 
-/// A page of workers: active first, then newest.
+/// A page of workers: newest registration first, then by id.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WorkerList {
     pub workers: Vec<WorkerView>,
     /// Every registered worker, on all pages.
     pub total: u64,
+    /// The page number asked for; 0 for a page asked for by cursor (`after`).
     pub page: u32,
     pub per_page: u32,
+    /// The cursor of the next page (its `after`); absent on the last page.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next: Option<String>,
 }
 
 /// A leased task: render samples `[sample_begin, sample_end)` of every pixel of `tile`.

@@ -6,7 +6,7 @@ use pathfarm_server::{AppState, ServerConfig};
 use pathfarm_worker::secret::Secret;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
-use std::num::{NonZeroU16, NonZeroU32};
+use std::num::{NonZeroU16, NonZeroU32, NonZeroU64};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -77,10 +77,12 @@ pub struct ServerArgs {
     #[arg(long, env = "PATHFARM_KEEP_ALIVE_SECONDS", default_value_t = 60.0)]
     pub keep_alive_seconds: f64,
     /// Seconds a request body may go without a byte; past this grace it must also keep up
-    /// `--body-min-kib-per-second` on average, or it is cut off with 408.
+    /// `--body-min-kib-per-second` on average, or it is cut off with 408. A client taking a
+    /// response is held to the same bounds, or its connection is closed.
     #[arg(long, env = "PATHFARM_BODY_TIMEOUT_SECONDS", default_value_t = 30.0)]
     pub body_timeout_seconds: f64,
-    /// Least average rate of a request body, in KiB/s (0: only `--body-timeout-seconds`).
+    /// Least average rate of a request body, and of a client taking a response, in KiB/s (0:
+    /// only `--body-timeout-seconds`).
     #[arg(long, env = "PATHFARM_BODY_MIN_KIB_PER_SECOND", default_value_t = 64)]
     pub body_min_kib_per_second: u64,
     /// Most connections open at once; further ones wait to be accepted until one closes.
@@ -94,6 +96,10 @@ pub struct ServerArgs {
     /// upload) expires: its leases are queued again, its row deleted, its credential void.
     #[arg(long, env = "PATHFARM_WORKER_EXPIRY_SECONDS", default_value_t = 600.0)]
     pub worker_expiry_seconds: f64,
+    /// Most worker registrations kept at once, until idle ones expire; beyond it a registration
+    /// is answered 503 with Retry-After (which the worker daemon waits out).
+    #[arg(long, env = "PATHFARM_MAX_WORKERS", default_value = "100000")]
+    pub max_workers: NonZeroU64,
     /// Most seconds an idle worker's lease request is held waiting for work (a long poll; 0:
     /// answered at once). Below the idle timeout of any proxy in front of the server.
     #[arg(long, env = "PATHFARM_LEASE_WAIT_SECONDS", default_value_t = 20.0)]
@@ -189,6 +195,7 @@ impl ServerArgs {
             bail!("--worker-expiry-seconds must be at least --lease-seconds (and at most 1e9)");
         }
         c.worker_expiry = Duration::from_secs_f64(self.worker_expiry_seconds);
+        c.max_workers = self.max_workers.get();
         if !(0.0..=60.0).contains(&self.lease_wait_seconds) {
             bail!("--lease-wait-seconds must be between 0 (no waiting) and 60");
         }

@@ -117,8 +117,10 @@ export const api = {
   // A frame job's frame's history when `frame` is given, else the job's.
   convergence: (id, signal, frame = null) =>
     getJson(`/jobs/${encodeURIComponent(id)}/convergence${frame === null ? '' : `?frame=${frame}`}`, { signal }),
-  workers: (page = 1, perPage = 100, signal) => {
-    const q = new URLSearchParams({ page: String(page), per_page: String(perPage) });
+  // A page of workers: the first, or the one after cursor `after` (a page's `next`).
+  workers: (after = null, perPage = 100, signal) => {
+    const q = new URLSearchParams({ per_page: String(perPage) });
+    if (after) q.set('after', after);
     return getJson(`/workers?${q}`, { signal });
   },
   cancel: (id) => sendJson('POST', `/jobs/${encodeURIComponent(id)}/cancel`).then((r) => r.json()),

@@ -1,7 +1,9 @@
 // The workers page: every worker with its state (lost ones flagged), host, threads, current task,
-// speed and last heartbeat, a page of 100 at a time (active first, then newest), with a pager so
-// that every worker can be reached however many there are. Polled every two seconds; rows updated
-// in place by worker id.
+// speed and last heartbeat, a page of 100 at a time (newest first), with a pager so that every
+// worker can be reached however many there are. Pages follow the server's cursors, kept in the
+// address (`at`: the cursor of each page up to this one), so that workers registering or being
+// collected while one pages through move no worker past the pager. Polled every two seconds; rows
+// updated in place by worker id.
 
 import { api } from './api.js';
 import { el, setText, poll, fmtInt, fmtRate, fmtAgo, fmtTime } from './util.js';
@@ -9,13 +11,17 @@ import { el, setText, poll, fmtInt, fmtRate, fmtAgo, fmtTime } from './util.js';
 const PER_PAGE = 100;
 
 export function mount(root, signal, query) {
-  const page = Math.max(1, Number(query && query.get('page')) || 1);
-  const go = (p) => {
-    location.hash = p > 1 ? `#/workers?page=${p}` : '#/workers';
+  const trail = query ? query.getAll('at').filter((c) => c) : [];
+  const page = trail.length + 1;
+  let next = null;
+  const go = (cursors) => {
+    const q = new URLSearchParams();
+    for (const c of cursors) q.append('at', c);
+    location.hash = cursors.length ? `#/workers?${q}` : '#/workers';
   };
   const tbody = el('tbody');
   const table = el('table', { class: 'workers responsive', hidden: true, dataset: { testid: 'workers-table' } },
-    el('caption', { class: 'visually-hidden' }, 'Workers: active first, then newest'),
+    el('caption', { class: 'visually-hidden' }, 'Workers: newest first'),
     el('thead', {}, el('tr', {},
       ['Worker', 'State', 'Host', 'Threads', 'Current task', 'Samples/s', 'Samples', 'Last heartbeat', 'Version']
         .map((h) => el('th', { scope: 'col' }, h)))),
@@ -23,27 +29,28 @@ export function mount(root, signal, query) {
   const summary = el('p', { class: 'muted', dataset: { testid: 'workers-summary' } });
   const empty = el('p', { class: 'empty', hidden: true },
     'No worker has registered yet. Start one with ', el('code', {}, 'pathfarm worker --server URL'), '.');
-  const prev = el('button', { type: 'button', onclick: () => go(page - 1) }, '← Previous');
-  const next = el('button', { type: 'button', onclick: () => go(page + 1) }, 'Next →');
+  const prev = el('button', { type: 'button', onclick: () => go(trail.slice(0, -1)) }, '← Previous');
+  const nextButton = el('button', { type: 'button', onclick: () => next && go([...trail, next]) }, 'Next →');
   const pageInfo = el('span', { dataset: { testid: 'workers-page' } });
   const pager = el('nav', { class: 'pager', 'aria-label': 'Pages of workers', hidden: true, dataset: { testid: 'workers-pager' } },
-    prev, pageInfo, next);
+    prev, pageInfo, nextButton);
   root.replaceChildren(el('section', { 'aria-labelledby': 'workers-title' },
     el('div', { class: 'page-head' }, el('h1', { id: 'workers-title' }, 'Workers')),
     summary, el('div', { class: 'table-wrap' }, table), empty, pager));
 
   const rows = new Map();
   poll(async () => {
-    const list = await api.workers(page, PER_PAGE, signal);
+    const list = await api.workers(trail[trail.length - 1] || null, PER_PAGE, signal);
     const { workers, total } = list;
+    next = list.next || null;
     const by = (s) => workers.filter((w) => w.state === s).length;
     const pages = Math.max(1, Math.ceil(total / PER_PAGE));
     // The states are counted on the page shown: with more than one page, say so.
     setText(summary, `${total} worker${total === 1 ? '' : 's'}${pages > 1 ? '; on this page' : ''}: ${by('busy')} busy, ${by('idle')} idle, ${by('lost')} lost, ${by('offline')} offline`);
-    pager.hidden = pages <= 1;
+    pager.hidden = pages <= 1 && page <= 1;
     prev.disabled = page <= 1;
-    next.disabled = page >= pages;
-    setText(pageInfo, `Page ${page} of ${pages}`);
+    nextButton.disabled = !next;
+    setText(pageInfo, `Page ${page} of ${Math.max(page, pages)}`);
     empty.hidden = total > 0;
     table.hidden = workers.length === 0;
     const seen = new Set();

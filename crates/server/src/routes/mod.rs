@@ -118,6 +118,10 @@ impl From<crate::store::Error> for ApiError {
             E::TooManyLeases { .. } => {
                 ApiError::new(StatusCode::TOO_MANY_REQUESTS, "too_many_leases", message)
             }
+            E::TooManyWorkers { .. } => ApiError {
+                retry_after: Some(60),
+                ..ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "too_many_workers", message)
+            },
             E::QuotaExceeded { .. } => {
                 ApiError::new(StatusCode::TOO_MANY_REQUESTS, "quota_exceeded", message)
             }

@@ -4,6 +4,7 @@ use super::{no_control, no_nul, JsonBody, OptionalJsonBody, Page};
 use crate::auth::{ReadAuth, WorkerAuth, WorkerIdentity};
 use crate::error::{ApiError, ApiResult};
 use crate::pacing::Write;
+use crate::store::WorkerPage;
 use crate::work_signal::Woken;
 use crate::AppState;
 use axum::extract::{Path, Query, State};
@@ -40,7 +41,10 @@ pub async fn register(
             ("version", &reg.version),
         ],
     )?;
-    let (id, credential) = state.store.register_worker(&reg).await?;
+    let (id, credential) = state
+        .store
+        .register_worker_within(&reg, state.config.max_workers)
+        .await?;
     tracing::info!(worker = %id, name = %reg.name, host = %reg.host, threads = reg.threads, "worker registered");
     let lease_ms = state.config.lease_duration.as_millis() as u64;
     Ok((
@@ -58,10 +62,12 @@ pub async fn register(
 pub struct ListQuery {
     page: Option<u32>,
     per_page: Option<u32>,
+    after: Option<String>,
 }
 
-/// A page of workers (as the jobs are paged): every worker is on some page, however many there
-/// are.
+/// A page of workers, by number or after a cursor (`next` of the page before): every worker is
+/// on some page, however many there are, and the cursors reach each exactly once however the
+/// farm changes while they are followed ([`crate::store::Store::workers`]).
 pub async fn list(
     _: ReadAuth,
     State(state): State<AppState>,
@@ -69,13 +75,23 @@ pub async fn list(
 ) -> ApiResult<Json<WorkerList>> {
     let Query(q) = query.map_err(|e| ApiError::bad_request("bad_query", e.body_text()))?;
     let window = Page::new(q.page, q.per_page, 100, 1000);
-    let (workers, total) = state.store.workers(window.offset(), window.limit()).await?;
-    let Page { page, per_page } = window;
+    // A cursor, when given, decides where the page starts; `page` is then not read.
+    let from = match &q.after {
+        None => WorkerPage::Offset(window.offset()),
+        Some(after) => WorkerPage::After(after.parse().map_err(|()| {
+            ApiError::bad_request(
+                "bad_query",
+                "`after` is not a cursor this server gave (the `next` of a page of workers)",
+            )
+        })?),
+    };
+    let (workers, total, next) = state.store.workers(from, window.limit()).await?;
     Ok(Json(WorkerList {
         workers,
         total,
-        page,
-        per_page,
+        page: if q.after.is_some() { 0 } else { window.page },
+        per_page: window.per_page,
+        next: next.map(|c| c.to_string()),
     }))
 }
 

@@ -33,6 +33,12 @@ pub enum Error {
          refuted; it is given no more work"
     )]
     Untrusted { worker_id: String },
+    /// The farm keeps as many worker registrations as it may (`ServerConfig::max_workers`).
+    #[error(
+        "the farm has {registered} worker registrations, its limit of {limit}; registrations \
+         not seen for the worker expiry are collected, try again later"
+    )]
+    TooManyWorkers { registered: u64, limit: u64 },
     /// A submission would take its client token past one of its quotas ([`crate::Quotas`]).
     #[error(
         "quota exceeded: {what} would be {would_be}, over this client token's limit of {limit}; \

@@ -34,6 +34,7 @@ pub(super) static SQLITE: LazyLock<Migrator> = LazyLock::new(|| {
         "0008_frame_versions.sql",
         "0009_verification.sql",
         "0010_tile_error_sums.sql",
+        "0011_worker_list_order.sql",
     ))
 });
 
@@ -50,6 +51,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0008_frame_versions.sql",
         "0009_verification.sql",
         "0010_tile_error_sums.sql",
+        "0011_worker_list_order.sql",
     ))
 });
 

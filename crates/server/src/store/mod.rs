@@ -45,6 +45,7 @@ pub use images::{ImageReader, ImageSnapshot, TileMeta};
 pub use jobs::{JobRow, TileRow};
 pub use retention::JOBS_PER_STEP;
 pub use submission::{NewJob, Usage, ROWS_PER_TRANSACTION, SUBMISSION_TIMEOUT};
+pub use workers::{WorkerCursor, WorkerPage};
 pub use writes::{AllInvalid, MergeOutcome};
 
 use sqlx::any::{AnyPoolOptions, AnyRow};

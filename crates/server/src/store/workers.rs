@@ -31,10 +31,36 @@ fn new_credential() -> StoreResult<String> {
 impl Store {
     /// Registers a worker: its id and its credential (which only this answer ever holds).
     pub async fn register_worker(&self, reg: &WorkerRegistration) -> StoreResult<(String, String)> {
+        self.register_worker_within(reg, u64::MAX).await
+    }
+
+    /// [`Store::register_worker`] while fewer than `max_workers` registrations are kept
+    /// ([`Error::TooManyWorkers`] otherwise): what a holder of the worker token can make the
+    /// server store, and list, is bounded until idle registrations are collected. Counted in the
+    /// registering transaction: on SQLite exact, on PostgreSQL servers registering at once may
+    /// pass it by one each.
+    pub async fn register_worker_within(
+        &self,
+        reg: &WorkerRegistration,
+        max_workers: u64,
+    ) -> StoreResult<(String, String)> {
         let id = uuid::Uuid::new_v4().simple().to_string();
         let credential = new_credential()?;
         let now = self.now_ms();
         let mut w = self.write().await?;
+        if max_workers < u64::MAX {
+            let registered: i64 = sqlx::query("SELECT COUNT(*) AS n FROM workers")
+                .fetch_one(&mut *w.tx)
+                .await?
+                .try_get("n")?;
+            let registered = registered.max(0) as u64;
+            if registered >= max_workers {
+                return Err(Error::TooManyWorkers {
+                    registered,
+                    limit: max_workers,
+                });
+            }
+        }
         sqlx::query(
             "INSERT INTO workers (id, name, host, threads, version, state, registered_ms, \
              last_seen_ms, credential_digest) VALUES ($1, $2, $3, $4, $5, $6, $7, $7, $8)",
@@ -176,23 +202,55 @@ impl Store {
         Ok(n)
     }
 
-    /// A page of workers, `limit` from `offset` (active first, then newest, then by id, so that
-    /// the pages of an unchanging farm hold every worker exactly once); and how many there are.
-    pub async fn workers(&self, offset: u64, limit: u64) -> StoreResult<(Vec<WorkerView>, u64)> {
+    /// A page of `limit` workers from `from`, newest registration first, then by id; how many
+    /// workers there are; and where the next page starts (`None` on the last). The order is
+    /// by what never changes about a worker, so a client that follows the cursors from the
+    /// first page sees every worker that was registered before it began and not collected before
+    /// it ended exactly once, however the farm changes meanwhile: a worker that registers
+    /// meanwhile comes before the first page, and one collected meanwhile moves no other worker
+    /// (as it would between numbered pages).
+    pub async fn workers(
+        &self,
+        from: WorkerPage,
+        limit: u64,
+    ) -> StoreResult<(Vec<WorkerView>, u64, Option<WorkerCursor>)> {
         let total: i64 = sqlx::query("SELECT COUNT(*) AS n FROM workers")
             .fetch_one(self.pool())
             .await?
             .try_get("n")?;
-        let rows = sqlx::query(
-            "SELECT id, name, host, threads, version, state, registered_ms, last_seen_ms, \
-             current_task, current_job, samples_done, untrusted FROM workers \
-             ORDER BY CASE WHEN state = 'offline' THEN 1 ELSE 0 END, registered_ms DESC, id ASC \
-             LIMIT $1 OFFSET $2",
-        )
-        .bind(i64::try_from(limit).unwrap_or(i64::MAX))
-        .bind(i64::try_from(offset).unwrap_or(i64::MAX))
-        .fetch_all(self.pool())
-        .await?;
+        // One more than the page, to know whether a next page exists.
+        let fetch = i64::try_from(limit.saturating_add(1)).unwrap_or(i64::MAX);
+        const COLUMNS: &str = "SELECT id, name, host, threads, version, state, registered_ms, \
+             last_seen_ms, current_task, current_job, samples_done, untrusted FROM workers";
+        const ORDER: &str = "ORDER BY registered_ms DESC, id ASC LIMIT $1";
+        let mut rows = match from {
+            WorkerPage::Offset(offset) => {
+                sqlx::query(sql!("{COLUMNS} {ORDER} OFFSET $2"))
+                    .bind(fetch)
+                    .bind(i64::try_from(offset).unwrap_or(i64::MAX))
+                    .fetch_all(self.pool())
+                    .await?
+            }
+            WorkerPage::After(c) => {
+                sqlx::query(sql!(
+                    "{COLUMNS} WHERE registered_ms < $2 OR (registered_ms = $2 AND id > $3) {ORDER}"
+                ))
+                .bind(fetch)
+                .bind(c.registered_ms)
+                .bind(c.id)
+                .fetch_all(self.pool())
+                .await?
+            }
+        };
+        let more = rows.len() as u64 > limit;
+        rows.truncate(usize::try_from(limit).unwrap_or(usize::MAX));
+        let next = match rows.last() {
+            Some(last) if more => Some(WorkerCursor {
+                registered_ms: last.try_get("registered_ms")?,
+                id: last.try_get("id")?,
+            }),
+            _ => None,
+        };
         let now = self.now_ms();
         let workers = rows
             .iter()
@@ -222,6 +280,97 @@ impl Store {
             })
             .collect::<Result<Vec<_>, sqlx::Error>>()
             .map_err(Error::from)?;
-        Ok((workers, total.max(0) as u64))
+        Ok((workers, total.max(0) as u64, next))
+    }
+}
+
+/// Where a page of workers starts ([`Store::workers`]).
+pub enum WorkerPage {
+    /// After this many workers (numbered pages).
+    Offset(u64),
+    /// After this worker (cursor pages).
+    After(WorkerCursor),
+}
+
+/// A worker's place in the list: the page after it starts with the next worker. Sent to clients
+/// as an opaque string, `REGISTERED_MS.ID`; read back exactly as [`WorkerCursor::PATTERN`] (the
+/// contract's pattern for `after`) says, so that what the contract allows is accepted and nothing
+/// else.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct WorkerCursor {
+    pub registered_ms: i64,
+    pub id: String,
+}
+
+impl WorkerCursor {
+    /// The cursor's form, as the contract states it: a millisecond count of at most 18 digits,
+    /// a dot, and an id of 1 to 64 characters none of which is a control character.
+    pub const PATTERN: &str = r"^-?[0-9]{1,18}\.[^\x00-\x1f\x7f-\x9f]{1,64}$";
+}
+
+impl std::fmt::Display for WorkerCursor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}.{}", self.registered_ms, self.id)
+    }
+}
+
+impl std::str::FromStr for WorkerCursor {
+    type Err = ();
+
+    fn from_str(s: &str) -> Result<Self, ()> {
+        let (ms, id) = s.split_once('.').ok_or(())?;
+        let digits = ms.strip_prefix('-').unwrap_or(ms);
+        let ms_ok = (1..=18).contains(&digits.len()) && digits.bytes().all(|b| b.is_ascii_digit());
+        let id_chars = id.chars().count();
+        if !ms_ok || !(1..=64).contains(&id_chars) || id.chars().any(char::is_control) {
+            return Err(());
+        }
+        Ok(WorkerCursor {
+            registered_ms: ms.parse().map_err(|_| ())?,
+            id: id.to_string(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::WorkerCursor;
+
+    #[test]
+    fn a_cursor_reads_back_what_it_wrote_and_only_the_contracts_form() {
+        let c = WorkerCursor {
+            registered_ms: 1_764_000_000_123,
+            id: "0123456789abcdef0123456789abcdef".into(),
+        };
+        assert_eq!(c.to_string().parse::<WorkerCursor>(), Ok(c));
+        let long_id = "é".repeat(64);
+        for good in [
+            "0.a",
+            "-5.x",
+            "123456789012345678.id",
+            &format!("1.{long_id}"),
+            "7.a.b",
+        ] {
+            assert!(good.parse::<WorkerCursor>().is_ok(), "{good:?}");
+        }
+        let too_long = format!("1.{long_id}e");
+        for bad in [
+            "",
+            ".",
+            "1.",
+            ".a",
+            "a.b",
+            "+1.a",
+            "1234567890123456789.a",
+            "--1.a",
+            "1 .a",
+            "1.a\u{0}",
+            "1.a\nb",
+            "1.\u{7f}",
+            "1.\u{85}",
+            &too_long,
+        ] {
+            assert!(bad.parse::<WorkerCursor>().is_err(), "{bad:?}");
+        }
     }
 }

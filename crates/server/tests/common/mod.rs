@@ -91,6 +91,15 @@ impl TestServer {
         self.server.client(token).expect("an API client")
     }
 
+    /// `GET /metrics` without a token: the exposition's text.
+    pub async fn metrics_text(&self) -> String {
+        let resp = reqwest::get(format!("{}/metrics", self.url))
+            .await
+            .expect("GET /metrics");
+        assert_eq!(resp.status().as_u16(), 200, "GET /metrics");
+        resp.text().await.expect("the metrics' text")
+    }
+
     /// Graceful shutdown, as on SIGTERM.
     pub async fn stop(self) {
         self.server
