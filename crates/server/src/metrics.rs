@@ -20,6 +20,8 @@ pub const LATENCY_BUCKETS: [f64; 14] = [
 pub struct Metrics {
     pub merged_uploads: AtomicU64,
     pub merged_samples: AtomicU64,
+    /// Pixel samples merged into verification tasks (`--verify-fraction`), in no image.
+    pub verification_samples: AtomicU64,
     pub duplicate_uploads: AtomicU64,
     pub rejected_uploads: AtomicU64,
     pub lease_expiries: AtomicU64,
@@ -118,8 +120,14 @@ impl Metrics {
         counter(
             &mut out,
             "pathfarm_merged_samples_total",
-            "Samples merged (pixel samples, summed over uploads).",
+            "Samples merged into images (pixel samples, summed over uploads).",
             get(&self.merged_samples),
+        );
+        counter(
+            &mut out,
+            "pathfarm_verification_samples_total",
+            "Samples merged into verification tasks: rendered again to check other workers' results, in no image.",
+            get(&self.verification_samples),
         );
         counter(
             &mut out,

@@ -104,6 +104,19 @@ async fn a_lying_worker_is_caught_and_its_work_rendered_again() {
         );
         assert_eq!(j.samples_done, 16 * 16 * 4, "{store}");
         assert_eq!(j.leased_tasks, 0, "{store}: every lease counted once");
+        // The renders that checked others' are counted apart from the image's samples: at least
+        // a task's worth (a whole 8² tile of 4 samples was verified against the liar's).
+        let metrics = server.metrics_text().await;
+        let counter = |name: &str| -> u64 {
+            metrics
+                .lines()
+                .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+                .unwrap_or_else(|| panic!("{store}: no {name}: {metrics}"))
+        };
+        assert!(
+            counter("pathfarm_verification_samples_total") >= 8 * 8,
+            "{store}: {metrics}"
+        );
         server.stop().await;
     }
 }

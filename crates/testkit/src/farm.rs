@@ -209,11 +209,19 @@ fn measure(
     drop(direct);
 
     // SQLite as the server runs it (synchronous=FULL), at the largest worker count also with
-    // synchronous=NORMAL: what durability costs the upload rate.
+    // synchronous=NORMAL (what durability costs the upload rate) and, on each store, with a
+    // tenth of the tasks verified (what verification costs it).
     const SQLITE_NORMAL: &str = "sqlite (synchronous=NORMAL)";
-    let mut stores = vec!["sqlite".to_string(), SQLITE_NORMAL.to_string()];
+    const VERIFIED: &str = " (--verify-fraction 0.1)";
+    const VERIFY_FRACTION: f64 = 0.1;
+    let mut stores = vec![
+        "sqlite".to_string(),
+        SQLITE_NORMAL.to_string(),
+        format!("sqlite{VERIFIED}"),
+    ];
     if opts.postgres_url.is_some() {
         stores.push("postgres".to_string());
+        stores.push(format!("postgres{VERIFIED}"));
     }
     let (width, height, spp, tile_size) = plan.loadgen_job;
     let largest = plan.loadgen_workers.iter().copied().max().unwrap_or(1);
@@ -221,7 +229,8 @@ fn measure(
     for store in &stores {
         for &workers in &plan.loadgen_workers {
             let normal = store == SQLITE_NORMAL;
-            if normal && workers != largest {
+            let verified = store.ends_with(VERIFIED);
+            if (normal || verified) && workers != largest {
                 continue;
             }
             let cfg = LoadgenConfig {
@@ -234,14 +243,19 @@ fn measure(
                 } else {
                     pathfarm_server::SqliteSynchronous::Full
                 },
+                verify_fraction: if verified { VERIFY_FRACTION } else { 0.0 },
                 ..LoadgenConfig::new(workers, plan.loadgen_seconds)
             };
             let run = rt.block_on(async {
-                let spec = match (store.as_str(), &opts.postgres_url) {
-                    ("postgres", Some(url)) => StoreSpec::postgres(url).await?,
+                let spec = match (store.starts_with("postgres"), &opts.postgres_url) {
+                    (true, Some(url)) => StoreSpec::postgres(url).await?,
                     _ => StoreSpec::sqlite(dir, &format!("loadgen-{workers}.db"))?,
                 };
-                let label = if normal { SQLITE_NORMAL } else { spec.kind() };
+                let label = if normal || verified {
+                    store.as_str()
+                } else {
+                    spec.kind()
+                };
                 let r = loadgen::run(&spec.url(), label, scene, &cfg).await;
                 spec.dispose().await;
                 r

@@ -189,8 +189,9 @@ pub fn write_report(results: &FarmResults, out_dir: &Path) -> Result<String, Ben
          {t}-pixel tiles) is never rendered, so this is the server's capacity: latencies are \
          mostly queueing (≈ workers / throughput). Accepted = uploads acknowledged as new; \
          merged = the server's merged-upload counter; in store = the job's merged samples / \
-         pixels per tile. They must be equal: nothing merged twice, nothing acknowledged and \
-         lost.\n",
+         pixels per tile; verification = the samples merged into verification tasks / pixels \
+         per tile. Accepted, merged and in store + verification must be equal: nothing merged \
+         twice, nothing acknowledged and lost.\n",
         t = l.tile_size,
         secs = l.seconds_per_run,
         stores = l.stores.join(", "),
@@ -200,12 +201,12 @@ pub fn write_report(results: &FarmResults, out_dir: &Path) -> Result<String, Ben
     );
     let _ = writeln!(
         md,
-        "| store | simulated workers | uploads/s | leases/s | lease p50 (ms) | lease p99 (ms) | upload p50 (ms) | upload p99 (ms) | accepted | merged | in store | errors |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "| store | simulated workers | uploads/s | leases/s | lease p50 (ms) | lease p99 (ms) | upload p50 (ms) | upload p99 (ms) | accepted | merged | in store | verification | errors |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
     for run in &l.runs {
         let _ = writeln!(
             md,
-            "| {} | {} | {:.0} | {:.0} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {:.0} | {:.0} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             run.store,
             run.workers,
             run.uploads_per_second,
@@ -217,7 +218,16 @@ pub fn write_report(results: &FarmResults, out_dir: &Path) -> Result<String, Ben
             run.accepted_uploads,
             run.merged_uploads,
             run.store_merged_uploads,
+            run.verification_tile_samples,
             run.errors
+        );
+    }
+    if l.stores.iter().any(|s| s.contains("--verify-fraction")) {
+        let _ = writeln!(
+            md,
+            "\nWith `--verify-fraction`, some uploads are verification tasks' (`verification`): they \
+             merge into their own accumulations, not into the image (`in store`), so merged = in \
+             store + verification."
         );
     }
     for run in l.runs.iter().filter(|run| run.first_error.is_some()) {

@@ -53,6 +53,9 @@ pub struct LoadgenConfig {
     pub max_task_samples: Option<u64>,
     /// The server's `min_task_samples` (its default when `None`).
     pub min_task_samples: Option<u64>,
+    /// The server's `verify_fraction` (0: no verification, its default). The simulated workers'
+    /// slices are a function of their tile and samples, so every verification agrees.
+    pub verify_fraction: f64,
 }
 
 impl LoadgenConfig {
@@ -73,6 +76,7 @@ impl LoadgenConfig {
             clients: 0,
             max_task_samples: None,
             min_task_samples: Some(1),
+            verify_fraction: 0.0,
         }
     }
 }
@@ -109,6 +113,11 @@ pub struct LoadgenRun {
     /// Tile samples in the uploads acknowledged as new.
     #[serde(default)]
     pub accepted_tile_samples: u64,
+    /// Tile samples merged into verification tasks (the server's
+    /// `pathfarm_verification_samples_total` over a tile's pixels): acknowledged, merged, and in
+    /// no image. 0 without `--verify-fraction`.
+    #[serde(default)]
+    pub verification_tile_samples: u64,
     /// Uploads acknowledged as `duplicate` (none expected: every slice is sent once).
     pub duplicate_uploads: u64,
     /// Requests that failed (each stops its simulated worker).
@@ -134,10 +143,12 @@ pub struct LoadgenRun {
 }
 
 impl LoadgenRun {
-    /// Every acknowledged upload merged exactly once, and nothing failed.
+    /// Every acknowledged upload merged exactly once (into the image, or into a verification
+    /// task), and nothing failed.
     pub fn consistent(&self) -> bool {
         self.accepted_uploads == self.merged_uploads
-            && self.accepted_tile_samples == self.store_merged_uploads
+            && self.accepted_tile_samples
+                == self.store_merged_uploads + self.verification_tile_samples
             && self.duplicate_uploads == 0
     }
 }
@@ -350,6 +361,7 @@ pub async fn run(
     }
     let mut config = ServerConfig::new(db_url);
     config.sqlite_synchronous = cfg.sqlite_synchronous;
+    config.verify_fraction = cfg.verify_fraction;
     if !cfg.back_pressure {
         config.target_write_load = None;
     }
@@ -436,6 +448,11 @@ async fn measure(
         })
         .collect();
     let merged_before = server.state.metrics.merged_uploads.load(Ordering::Relaxed);
+    let verified_before = server
+        .state
+        .metrics
+        .verification_samples
+        .load(Ordering::Relaxed);
     let t0 = Instant::now();
     let _ = start_tx.send(true);
     let first = tokio::spawn(first_pass(
@@ -461,6 +478,12 @@ async fn measure(
         .await
         .map_err(|e| farm_err(format!("loadgen: reading the job: {e}")))?;
     let tile_pixels = u64::from(cfg.tile_size) * u64::from(cfg.tile_size);
+    let verified = server
+        .state
+        .metrics
+        .verification_samples
+        .load(Ordering::Relaxed)
+        - verified_before;
     let uploads = shared.window_uploads.load(Ordering::Relaxed);
     let leases = shared.window_leases.load(Ordering::Relaxed);
     let first_error = shared.first_error.lock().ok().and_then(|e| e.clone());
@@ -481,6 +504,7 @@ async fn measure(
         accepted_uploads: shared.accepted.load(Ordering::Relaxed),
         merged_uploads,
         store_merged_uploads: view.samples_done / tile_pixels,
+        verification_tile_samples: verified / tile_pixels,
         duplicate_uploads: shared.duplicates.load(Ordering::Relaxed),
         errors: shared.errors.load(Ordering::Relaxed),
         server_errors: shared.server_errors.load(Ordering::Relaxed),

@@ -68,11 +68,11 @@ fn run_and_check(quick: bool) {
     );
 
     // Simulated workers: one run per store and worker count, each merged what it was told, and
-    // SQLite with synchronous=NORMAL at the largest count.
+    // at the largest count SQLite with synchronous=NORMAL and each store with verification.
     let stores = if postgres_url.is_some() { 2 } else { 1 };
     assert_eq!(
         r.loadgen.runs.len(),
-        stores * r.loadgen.worker_counts.len() + 1,
+        stores * (r.loadgen.worker_counts.len() + 1) + 1,
         "{:?}",
         r.loadgen.runs
     );
@@ -82,6 +82,14 @@ fn run_and_check(quick: bool) {
             .runs
             .iter()
             .any(|run| run.store.contains("NORMAL") && Some(run.workers) == largest),
+        "{:?}",
+        r.loadgen.runs
+    );
+    assert!(
+        r.loadgen
+            .runs
+            .iter()
+            .any(|run| run.store.contains("--verify-fraction") && Some(run.workers) == largest),
         "{:?}",
         r.loadgen.runs
     );
@@ -100,7 +108,8 @@ fn run_and_check(quick: bool) {
             "accepted and merged differ: {run:?}"
         );
         assert_eq!(
-            run.merged_uploads, run.store_merged_uploads,
+            run.merged_uploads,
+            run.store_merged_uploads + run.verification_tile_samples,
             "the store holds a different count: {run:?}"
         );
         assert!(run.consistent(), "{run:?}");

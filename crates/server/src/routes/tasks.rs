@@ -126,6 +126,10 @@ pub async fn upload_slice(
                     .metrics
                     .merged_samples
                     .fetch_add(out.samples, Ordering::Relaxed);
+                state
+                    .metrics
+                    .verification_samples
+                    .fetch_add(out.verification_samples, Ordering::Relaxed);
             }
             if out.job_completed {
                 tracing::info!(task = task_id, "job completed");

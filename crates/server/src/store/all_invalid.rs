@@ -64,6 +64,7 @@ impl Store {
                 slice_seconds: None,
             },
             samples: 0,
+            verification_samples: 0,
             job_completed: false,
             all_invalid: Some(refused),
         })

@@ -186,6 +186,7 @@ impl Store {
                     slice_seconds: None,
                 },
                 samples: 0,
+                verification_samples: 0,
                 job_completed: false,
                 all_invalid: None,
             });
@@ -251,6 +252,11 @@ impl Store {
         let to = task_transition(state, TaskEvent::Merged { complete }).map_err(Error::internal)?;
         let samples = n as u64 * a.pixels.len() as u64;
         let now = self.now_ms();
+        // The writes in lock order (tiles, tasks, jobs, workers), in one round trip on SQLite
+        // (with, while verification is on, the record of who merged into the tile first). The
+        // job's update returns what decides completion; its state changes (one more statement)
+        // only on the job's last merge.
+        let mut writes = Statements::new(self.dialect());
         // A verification task's slices go into its own accumulation, never into the image; an
         // ordinary task's into its tile (and, while verification is on, into its own when it is
         // checked). `judged` and `opened`: verification tasks judged and queued by this merge.
@@ -266,6 +272,7 @@ impl Store {
                 let opened = self
                     .track_for_verification(
                         tx,
+                        &mut writes,
                         &job_id,
                         task_id,
                         tile_index,
@@ -278,10 +285,6 @@ impl Store {
             }
         };
         let image_samples = if tile_update.is_some() { samples } else { 0 };
-        // The writes in lock order (tiles, tasks, jobs, workers), in one round trip on SQLite. The
-        // job's update returns what decides completion; its state changes (one more statement)
-        // only on the job's last merge.
-        let mut writes = Statements::new(self.dialect());
         if let Some((new_samples, encoded, sums)) = tile_update {
             writes.push(
                 "UPDATE tiles SET samples = $1, accum = $2, merges = merges + 1, err_var = $3, \
@@ -353,6 +356,7 @@ impl Store {
                 slice_seconds: None,
             },
             samples: image_samples,
+            verification_samples: samples - image_samples,
             job_completed,
             all_invalid: None,
         })

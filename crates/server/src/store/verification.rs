@@ -25,6 +25,7 @@
 
 use super::error::{Error, StoreResult};
 use super::jobs::complete_when_done;
+use super::statements::Statements;
 use super::Store;
 use crate::states::{JobEvent, TaskState};
 use pathfarm_tracer::Accumulation;
@@ -105,14 +106,16 @@ enum Verdict {
 
 impl Store {
     /// For a merge of a slice of an ordinary task while verification is on: records that `worker`
-    /// merged into the tile and keeps the task's own accumulation when the task is checked; when
-    /// this slice completes a checked task that one lease rendered, queues its verification.
-    /// Returns the verification tasks queued (0 or 1). In the merge's transaction, before the
-    /// job's row is written.
+    /// merged into the tile (a statement added to the merge's `writes`, which go to the database
+    /// in one round trip on SQLite: this runs on every merge) and keeps the task's own
+    /// accumulation when the task is checked; when this slice completes a checked task that one
+    /// lease rendered, queues its verification. Returns the verification tasks queued (0 or 1).
+    /// In the merge's transaction, before the job's row is written.
     #[allow(clippy::too_many_arguments)]
     pub(super) async fn track_for_verification(
         &self,
         tx: &mut Tx,
+        writes: &mut Statements,
         job_id: &str,
         task_id: i64,
         tile_index: i64,
@@ -124,15 +127,11 @@ impl Store {
             return Ok(0);
         }
         if let Some(worker) = worker {
-            sqlx::query(
+            writes.push(
                 "INSERT INTO tile_workers (job_id, tile_index, worker_id) VALUES ($1, $2, $3) \
                  ON CONFLICT DO NOTHING",
-            )
-            .bind(job_id)
-            .bind(tile_index)
-            .bind(worker)
-            .execute(&mut **tx)
-            .await?;
+                vec![job_id.into(), tile_index.into(), worker.into()],
+            );
         }
         if !checked(self.verify_fraction, job_id, task_id) {
             return Ok(0);

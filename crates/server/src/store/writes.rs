@@ -30,6 +30,9 @@ pub(super) enum Done {
 pub struct MergeOutcome {
     pub ack: SliceAck,
     pub samples: u64,
+    /// Pixel samples merged into a verification task (rendered again to check another worker's
+    /// result; in no image).
+    pub verification_samples: u64,
     pub job_completed: bool,
     /// Set when every sample of the slice was invalid: nothing was merged, and the route answers
     /// 422 (after the transaction that requeued the task, or failed its job, committed).
