@@ -266,7 +266,7 @@ impl SceneCache {
         let (camera, environment) = (key.1.clone(), environment.cloned());
         blocking(&key.0, move || {
             let env = environment
-                .map(|e| e.build(image.as_deref()))
+                .map(|e| e.build(image.as_ref().map(|i| i.as_slice())))
                 .transpose()
                 .map_err(|e| e.to_string())?;
             let options = LoadOptions {
@@ -284,7 +284,7 @@ impl SceneCache {
         client: &ApiClient,
         key: &Key,
         environment: Option<&EnvironmentSettings>,
-    ) -> Result<(Vec<u8>, Option<Vec<u8>>), SceneError> {
+    ) -> Result<(Arc<Vec<u8>>, Option<Arc<Vec<u8>>>), SceneError> {
         let hash = key.0.as_str();
         let bytes = self.bytes(client, hash, "scene").await?;
         let image = match environment.and_then(|e| e.image.as_deref()) {
@@ -309,7 +309,7 @@ impl SceneCache {
         client: &ApiClient,
         hash: &str,
         what: &'static str,
-    ) -> Result<Vec<u8>, SceneError> {
+    ) -> Result<Arc<Vec<u8>>, SceneError> {
         if !is_hash(hash) {
             return Err(SceneError::Load {
                 hash: hash.into(),
@@ -328,7 +328,7 @@ impl SceneCache {
             None => None,
         };
         if let Some(b) = cached {
-            return Ok(b);
+            return Ok(Arc::new(b));
         }
         let b = client.scene(hash).await?;
         let got = hex::encode(Sha256::digest(&b));
@@ -338,28 +338,22 @@ impl SceneCache {
                 got,
             });
         }
-        let Some(disk) = &self.disk else {
-            return Ok(b);
-        };
-        // A cache that cannot be written only costs a fetch next time.
-        let (disk, key) = (disk.clone(), hash.to_string());
-        let (b, stored) = tokio::task::spawn_blocking(move || {
-            let stored = disk.put(&key, what, &b);
-            (b, stored)
-        })
-        .await
-        .map_err(|e| SceneError::Load {
-            hash: hash.into(),
-            message: e.to_string(),
-        })?;
-        match stored {
-            Ok(Stored::Kept { .. }) => {}
-            Ok(Stored::TooLarge) => tracing::info!(
-                hash,
-                bytes = b.len(),
-                "the {what} is larger than the disk cache (--cache-max-bytes): used, not kept"
-            ),
-            Err(e) => tracing::warn!(error = %e, "cannot cache the {what} on disk"),
+        let b = Arc::new(b);
+        if let Some(disk) = &self.disk {
+            // Written beside the render, not before it: the write (synced, tens of megabytes for
+            // a big scene) is not on the way to the first sample. A cache that cannot be written,
+            // or a worker that stops before it is, only costs a fetch next time (an interrupted
+            // write leaves a temporary file, which the next scan removes).
+            let (disk, key, bytes) = (disk.clone(), hash.to_string(), b.clone());
+            tokio::task::spawn_blocking(move || match disk.put(&key, what, &bytes) {
+                Ok(Stored::Kept { .. }) => {}
+                Ok(Stored::TooLarge) => tracing::info!(
+                    hash = key,
+                    bytes = bytes.len(),
+                    "the {what} is larger than the disk cache (--cache-max-bytes): used, not kept"
+                ),
+                Err(e) => tracing::warn!(error = %e, "cannot cache the {what} on disk"),
+            });
         }
         Ok(b)
     }
