@@ -63,12 +63,11 @@ impl SendDeadline {
         let now = Instant::now();
         match result {
             Poll::Ready(Ok(value)) => {
-                let n = written(&value);
-                if n > 0 {
-                    self.waiting = None;
-                    if let Some(e) = &mut self.episode {
-                        e.sent = e.sent.saturating_add(n as u64);
-                    }
+                // Done: the client took what held it up (a flush that went out counts too, or a
+                // wait it ended would still be timed at the next one).
+                self.waiting = None;
+                if let Some(e) = &mut self.episode {
+                    e.sent = e.sent.saturating_add(written(&value) as u64);
                 }
                 Poll::Ready(Ok(value))
             }
@@ -219,6 +218,27 @@ mod tests {
         w.shutdown().await.unwrap();
         drop(w);
         assert_eq!(reader.await.unwrap(), 200_000);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_flush_that_went_out_ends_the_wait() {
+        // A TLS flush waits for the client, then goes out; a write a minute later that has to
+        // wait is timed from its own wait, not from the flush's.
+        let l = limits(500, 0);
+        let mut send = SendDeadline::new(&l);
+        let waker = std::task::Waker::noop();
+        let mut cx = Context::from_waker(waker);
+        assert!(send
+            .check(&mut cx, 0, Poll::<io::Result<()>>::Pending, |_| 0)
+            .is_pending());
+        tokio::time::advance(Duration::from_millis(100)).await;
+        assert!(send
+            .check(&mut cx, 0, Poll::Ready(Ok(())), |_| 0)
+            .is_ready());
+        tokio::time::advance(Duration::from_secs(60)).await;
+        assert!(send
+            .check(&mut cx, 1, Poll::<io::Result<usize>>::Pending, |n| *n)
+            .is_pending());
     }
 
     #[tokio::test(start_paused = true)]
