@@ -63,6 +63,27 @@ mod timed_body;
 use send_deadline::SendDeadline;
 pub use timed_body::{BodyTimeout, TimedBody};
 
+/// When a transfer that began at `since` must have moved `bytes` at `min_rate` bytes a second,
+/// after a grace of `grace` (`None` when `min_rate` is 0: no rate bound). Request bodies
+/// ([`TimedBody`]) and responses ([`SendDeadline`]) are held to it alike.
+fn rate_deadline(since: Instant, grace: Duration, bytes: u64, min_rate: u64) -> Option<Instant> {
+    (min_rate > 0).then(|| since + grace + Duration::from_secs_f64(bytes as f64 / min_rate as f64))
+}
+
+/// Whether `deadline` passed, by `sleep` (made, or moved, to it); if not, the task is woken when it
+/// does.
+fn deadline_passed(
+    sleep: &mut Option<Pin<Box<Sleep>>>,
+    deadline: Instant,
+    cx: &mut Context<'_>,
+) -> bool {
+    let sleep = sleep.get_or_insert_with(|| Box::pin(tokio::time::sleep_until(deadline)));
+    if sleep.deadline() != deadline {
+        sleep.as_mut().reset(deadline);
+    }
+    sleep.as_mut().poll(cx).is_ready()
+}
+
 /// What a connection is doing, as far as its deadlines go.
 #[derive(Clone, Copy, Debug)]
 enum Phase {

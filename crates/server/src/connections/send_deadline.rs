@@ -10,7 +10,6 @@
 //! the time a handler takes before it writes (a long-polled lease, say).
 
 use crate::config::ConnectionLimits;
-use std::future::Future;
 use std::io;
 use std::pin::Pin;
 use std::task::{Context, Poll};
@@ -79,19 +78,11 @@ impl SendDeadline {
                     since: now,
                     sent: 0,
                 });
-                let mut deadline = waiting + self.idle;
-                if self.min_rate > 0 {
-                    let allowed =
-                        Duration::from_secs_f64(episode.sent as f64 / self.min_rate as f64);
-                    deadline = deadline.min(episode.since + self.idle + allowed);
-                }
-                let sleep = self
-                    .sleep
-                    .get_or_insert_with(|| Box::pin(tokio::time::sleep_until(deadline)));
-                if sleep.deadline() != deadline {
-                    sleep.as_mut().reset(deadline);
-                }
-                if sleep.as_mut().poll(cx).is_pending() {
+                let idle = waiting + self.idle;
+                let deadline =
+                    super::rate_deadline(episode.since, self.idle, episode.sent, self.min_rate)
+                        .map_or(idle, |at| at.min(idle));
+                if !super::deadline_passed(&mut self.sleep, deadline, cx) {
                     return Poll::Pending;
                 }
                 Poll::Ready(Err(io::Error::new(

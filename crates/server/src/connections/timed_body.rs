@@ -5,7 +5,6 @@ use crate::config::ConnectionLimits;
 use axum::body::{Body, Bytes, HttpBody};
 use http_body::Frame;
 use http_body_util::BodyExt;
-use std::future::Future;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -53,11 +52,7 @@ impl TimedBody {
 
     /// When the body must have arrived, at the rate so far.
     fn rate_deadline(&self, started: Instant) -> Option<Instant> {
-        if self.min_rate == 0 {
-            return None;
-        }
-        let allowed = Duration::from_secs_f64(self.received as f64 / self.min_rate as f64);
-        Some(started + self.idle + allowed)
+        super::rate_deadline(started, self.idle, self.received, self.min_rate)
     }
 
     fn fail(&mut self) -> Poll<Option<Result<Frame<Bytes>, axum::Error>>> {
@@ -135,13 +130,7 @@ impl HttpBody for TimedBody {
                 let deadline = this
                     .rate_deadline(started)
                     .map_or(idle_deadline, |at| at.min(idle_deadline));
-                let sleep = this
-                    .sleep
-                    .get_or_insert_with(|| Box::pin(tokio::time::sleep_until(deadline)));
-                if sleep.deadline() != deadline {
-                    sleep.as_mut().reset(deadline);
-                }
-                if sleep.as_mut().poll(cx).is_ready() {
+                if super::deadline_passed(&mut this.sleep, deadline, cx) {
                     return this.fail();
                 }
                 Poll::Pending
