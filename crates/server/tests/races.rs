@@ -1,6 +1,6 @@
 //! Races between servers sharing a store (PostgreSQL; on SQLite the same steps run one at a time):
-//! a submission taking a scene while the deletion of its last job deletes it, and two monitors
-//! expiring overlapping leases at once.
+//! a submission taking a scene while the deletion of its last job deletes it, two monitors
+//! expiring overlapping leases at once, and leases racing pauses.
 
 mod common;
 
@@ -96,5 +96,89 @@ async fn two_monitors_expire_overlapping_leases_at_once() {
             );
             assert_eq!(ea + eb, workers.len() as u64, "{store} round {round}");
         }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn leases_racing_pauses_keep_every_count_true() {
+    // On PostgreSQL a lease claims its task before it locks the job's row, so a pause on another
+    // server can land in between: that lease must roll back and try again, leaving no task
+    // leased that the job's counters do not count.
+    for (store, url) in stores("pause-race").await {
+        let (a, b) = (
+            AppState::open(config(&url)).await.unwrap(),
+            AppState::open(config(&url)).await.unwrap(),
+        );
+        let job = submit_ok(
+            &a,
+            None,
+            &cornell(),
+            r#"{"width":128,"height":128,"spp":64,"tile_size":8}"#,
+        )
+        .await;
+        let mut workers = Vec::new();
+        for i in 0..12 {
+            let reg = WorkerRegistration {
+                name: format!("w{i}"),
+                threads: 1,
+                version: "t".into(),
+                host: "h".into(),
+            };
+            workers.push(a.store.register_worker(&reg).await.unwrap().0);
+        }
+        let pauser = {
+            let (b, job) = (b.clone(), job.clone());
+            tokio::spawn(async move {
+                for _ in 0..40 {
+                    for action in ["pause", "resume"] {
+                        let (status, body): (_, Value) = call(
+                            &b,
+                            request("POST", &format!("/api/v1/jobs/{job}/{action}"), &[], ""),
+                        )
+                        .await;
+                        assert!(status.is_success(), "{action}: {status} {body}");
+                        tokio::time::sleep(Duration::from_millis(2)).await;
+                    }
+                }
+            })
+        };
+        let leasers: Vec<_> = workers
+            .iter()
+            .map(|w| {
+                let (a, w) = (a.clone(), w.clone());
+                tokio::spawn(async move {
+                    let mut leased = 0u32;
+                    for _ in 0..60 {
+                        if a.store.lease(&w, 60_000, 1_000).await.unwrap().is_some() {
+                            leased += 1;
+                        }
+                    }
+                    leased
+                })
+            })
+            .collect();
+        let mut leased = 0;
+        for l in leasers {
+            leased += l.await.unwrap();
+        }
+        pauser.await.unwrap();
+        assert!(leased > 0, "{store}: no lease was granted");
+        let row: Vec<(i64, i64, i64, i64)> = sqlx::query_as(
+            "SELECT j.queued_tasks, j.leased_tasks, \
+             (SELECT COUNT(*) FROM tasks t WHERE t.job_id = j.id AND t.state = 'queued'), \
+             (SELECT COUNT(*) FROM tasks t WHERE t.job_id = j.id AND t.state = 'leased') \
+             FROM jobs j WHERE j.id = $1",
+        )
+        .bind(&job)
+        .fetch_all(a.store.pool())
+        .await
+        .unwrap();
+        let (queued, held, queued_rows, leased_rows) = row[0];
+        assert_eq!(leased_rows, i64::from(leased), "{store}: leased tasks");
+        assert_eq!(
+            (queued, held),
+            (queued_rows, leased_rows),
+            "{store}: the job's counters against its tasks"
+        );
     }
 }

@@ -10,7 +10,7 @@ use super::statements::Statements;
 use super::tasks::{new_token, task_state};
 use super::writes::{Done, Op};
 use super::{Dialect, Store};
-use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, WorkerEvent};
+use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState, WorkerEvent};
 use pathfarm_wire::api::{JobSettings, Lease, TileRect};
 use sqlx::any::AnyRow;
 use sqlx::Row;
@@ -39,14 +39,24 @@ macro_rules! not_refused_by {
     };
 }
 
-/// The chosen task: its row (`id`, `tile_index`, `done_end`, `sample_end`, `state`) and its
-/// tile's rectangle and frame with its job's row (`x0`…`height`, `frame`, `job_state`,
-/// `settings`, `scene_hash`),
-/// a second row where the dialect read them apart (`None`: the task's row holds them too).
+/// The chosen task on SQLite: its job and one row with the task (`id`, `tile_index`, `done_end`,
+/// `sample_end`, `state`), its tile's rectangle and frame (`x0`…`height`, `frame`) and its job's
+/// `job_state`, `settings` and `scene_hash`.
 struct Picked {
     job_id: String,
     task: AnyRow,
-    job: Option<AnyRow>,
+}
+
+/// How often a PostgreSQL lease that lost its job to a pause or an end is tried again.
+const LEASE_ATTEMPTS: usize = 4;
+
+/// One PostgreSQL lease transaction's outcome.
+enum Attempt {
+    /// A task leased, or `None`: no work.
+    Leased(Option<Box<Lease>>),
+    /// The task's job was paused, ended or deleted after the candidates were read (or the worker
+    /// deregistered): the transaction wrote the task and must be rolled back.
+    Raced,
 }
 
 impl Store {
@@ -83,27 +93,35 @@ impl Store {
                 Done::Merged(_) => Err(Error::internal("a lease answered as a merge")),
             };
         }
-        let mut w = self.write().await?;
-        let lease = self
-            .lease_in(&mut w.tx, worker_id, lease_ms, max_leases)
-            .await?;
-        w.commit().await?;
-        Ok(lease)
+        // PostgreSQL: each lease its own transaction. One that lost a race for its job (paused
+        // or ended between the candidates' read and the job's lock) is rolled back and tried again.
+        for _ in 0..LEASE_ATTEMPTS {
+            let mut w = self.write().await?;
+            match self
+                .lease_postgres(&mut w.tx, worker_id, lease_ms, max_leases)
+                .await?
+            {
+                Attempt::Leased(lease) => {
+                    w.commit().await?;
+                    return Ok(lease.map(|l| *l));
+                }
+                Attempt::Raced => w.tx.rollback().await?,
+            }
+        }
+        Ok(None)
     }
 
-    /// The lease itself, inside the caller's transaction; client errors come before any write.
-    pub(super) async fn lease_in(
+    /// The cap and the worker's standing, before anything is picked or written (a refusal, so a
+    /// batch goes on). On PostgreSQL, where servers lease concurrently, one worker's leases are
+    /// taken one at a time (a transaction-scoped advisory lock on the worker): two racing on two
+    /// servers would otherwise both count the same held leases and both pass. Only leases take
+    /// it, first, so it adds no cycle to the row locks' order.
+    async fn check_lease_cap(
         &self,
         tx: &mut sqlx::Transaction<'static, sqlx::Any>,
         worker_id: &str,
-        lease_ms: u64,
         max_leases: u32,
-    ) -> StoreResult<Option<Lease>> {
-        // The cap, before anything is picked or written (a refusal, so a batch goes on). On
-        // PostgreSQL, where servers lease concurrently, one worker's leases are taken one at a time
-        // (a transaction-scoped advisory lock on the worker): two racing on two servers would
-        // otherwise both count the same held leases and both pass. Only leases take it, first,
-        // so it adds no cycle to the row locks' order.
+    ) -> StoreResult<()> {
         if self.dialect() == Dialect::Postgres {
             sqlx::query("SELECT pg_advisory_xact_lock($1)")
                 .bind(lease_lock_key(worker_id))
@@ -130,43 +148,49 @@ impl Store {
                 held: held as u64,
             });
         }
-        let picked = match self.dialect() {
-            Dialect::Sqlite => pick_sqlite(tx, worker_id).await?,
-            Dialect::Postgres => pick_postgres(tx, worker_id).await?,
-        };
-        let Some(Picked { job_id, task, job }) = picked else {
-            sqlx::query(sql!(
-                "UPDATE workers SET state = {}, current_task = NULL, current_job = NULL, \
-                 last_seen_ms = $1 WHERE id = $2",
-                super::worker_state_after(WorkerEvent::NoWork)
-            ))
-            .bind(self.now_ms())
-            .bind(worker_id)
-            .execute(&mut **tx)
-            .await?;
+        Ok(())
+    }
+
+    /// Records that `worker_id` asked for work and there was none.
+    async fn no_work(
+        &self,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+        worker_id: &str,
+    ) -> StoreResult<()> {
+        sqlx::query(sql!(
+            "UPDATE workers SET state = {}, current_task = NULL, current_job = NULL, \
+             last_seen_ms = $1 WHERE id = $2",
+            super::worker_state_after(WorkerEvent::NoWork)
+        ))
+        .bind(self.now_ms())
+        .bind(worker_id)
+        .execute(&mut **tx)
+        .await?;
+        Ok(())
+    }
+
+    /// The lease itself on SQLite, inside the caller's transaction (a group commit's); client
+    /// errors come before any write.
+    pub(super) async fn lease_in(
+        &self,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+        worker_id: &str,
+        lease_ms: u64,
+        max_leases: u32,
+    ) -> StoreResult<Option<Lease>> {
+        self.check_lease_cap(tx, worker_id, max_leases).await?;
+        let Some(Picked { job_id, task }) = pick_sqlite(tx, worker_id).await? else {
+            self.no_work(tx, worker_id).await?;
             return Ok(None);
         };
         let task_id: i64 = task.try_get("id")?;
-        let begin: i64 = task.try_get("done_end")?;
-        let end: i64 = task.try_get("sample_end")?;
         let to = task_transition(
             task_state(&task.try_get::<String, _>("state")?)?,
             TaskEvent::Lease,
         )
         .map_err(Error::internal)?;
-        let job = job.as_ref().unwrap_or(&task);
-        let state = job_state(&job.try_get::<String, _>("job_state")?)?;
+        let state = job_state(&task.try_get::<String, _>("job_state")?)?;
         let job_to = job_transition(state, JobEvent::Leased).map_err(Error::internal)?;
-        let settings: String = job.try_get("settings")?;
-        let settings: JobSettings = serde_json::from_str(&settings)
-            .map_err(|e| Error::internal(format!("stored settings: {e}")))?;
-        let g = |c: &str| job.try_get::<i64, _>(c).map(|v| v as u32);
-        let tile = TileRect {
-            x0: g("x0")?,
-            y0: g("y0")?,
-            width: g("width")?,
-            height: g("height")?,
-        };
         let token = new_token();
         let now = self.now_ms();
         let expires = now + lease_ms as i64;
@@ -203,20 +227,128 @@ impl Store {
                 ],
             );
         writes.run(tx).await?;
-        Ok(Some(Lease {
-            task_id,
-            job_id,
-            lease_token: token,
-            lease_expires_in_ms: lease_ms,
-            scene_hash: job.try_get("scene_hash")?,
-            settings,
-            tile,
-            sample_begin: begin as u32,
-            sample_end: end as u32,
-            frame: job.try_get("frame")?,
-            slice_seconds: None,
-        }))
+        lease_answer(task_id, job_id, token, lease_ms, &task, &task).map(Some)
     }
+
+    /// The lease on PostgreSQL. On a busy farm every lease and every merge writes the same row,
+    /// their job's (its counters), and each waits for the transaction that holds it: so the job's
+    /// row is locked by the last statement, which also writes the worker, and the transaction
+    /// commits right after, holding the row for one round trip where it was held for four
+    /// (docs/benchmarks.md, December 3). Before that statement: the cap, the candidate jobs, then
+    /// per candidate its next task claimed (`FOR UPDATE SKIP LOCKED`, never waiting for another
+    /// server's claim) and written, with its tile's rectangle read, in one statement. Lock order
+    /// as everywhere: tasks, (tiles are only read), jobs, workers.
+    async fn lease_postgres(
+        &self,
+        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
+        worker_id: &str,
+        lease_ms: u64,
+        max_leases: u32,
+    ) -> StoreResult<Attempt> {
+        self.check_lease_cap(tx, worker_id, max_leases).await?;
+        let candidates = sqlx::query(concat!(
+            "SELECT w.id AS worker, j.id AS job_id FROM workers w LEFT JOIN (",
+            candidate_jobs!(),
+            ") j ON 1 = 1 WHERE w.id = $1 \
+             ORDER BY j.priority DESC, j.leased_tasks ASC, j.created_ms ASC, j.id ASC"
+        ))
+        .bind(worker_id)
+        .fetch_all(&mut **tx)
+        .await?;
+        if candidates.is_empty() {
+            return Err(Error::not_found("worker", worker_id));
+        }
+        // The claim's filter takes only queued tasks.
+        let to = task_transition(TaskState::Queued, TaskEvent::Lease).map_err(Error::internal)?;
+        let token = new_token();
+        let now = self.now_ms();
+        let expires = now + lease_ms as i64;
+        for cand in candidates {
+            let Some(job_id) = cand.try_get::<Option<String>, _>("job_id")? else {
+                continue;
+            };
+            let task = sqlx::query(concat!(
+                "UPDATE tasks t SET state = $1, lease_token = $2, worker_id = $3, \
+                 lease_expires_ms = $4, leases = t.leases + 1 FROM tiles ti \
+                 WHERE t.id = (SELECT id FROM tasks WHERE job_id = $5 AND state = 'queued' AND ",
+                not_refused_by!("$3"),
+                " ORDER BY pass, id LIMIT 1 FOR UPDATE SKIP LOCKED) \
+                 AND ti.job_id = t.job_id AND ti.tile_index = t.tile_index \
+                 RETURNING t.id, t.done_end, t.sample_end, ti.x0, ti.y0, ti.width, ti.height, \
+                 ti.frame",
+            ))
+            .bind(to.as_str())
+            .bind(&token)
+            .bind(worker_id)
+            .bind(expires)
+            .bind(&job_id)
+            .fetch_optional(&mut **tx)
+            .await?;
+            let Some(task) = task else { continue };
+            let task_id: i64 = task.try_get("id")?;
+            // The job's row, locked here and held until the commit: its state checked under the
+            // lock (paused or ended since the candidates were read: `Raced`), its counters and
+            // the worker written. `w` reads `j`, so the job's row is locked before the worker's.
+            let (job_to, leasable) = super::job_state_after(JobEvent::Leased);
+            let job = sqlx::query(sql!(
+                "WITH j AS (UPDATE jobs SET state = {job_to}, \
+                 started_ms = COALESCE(started_ms, $1), queued_tasks = queued_tasks - 1, \
+                 leased_tasks = leased_tasks + 1 WHERE id = $2 AND state IN ({leasable}) \
+                 RETURNING settings, scene_hash), \
+                 w AS (UPDATE workers SET state = {}, current_task = $3, current_job = $2, \
+                 last_seen_ms = $1 WHERE id = $4 AND EXISTS (SELECT 1 FROM j) RETURNING id) \
+                 SELECT j.settings, j.scene_hash FROM j, w",
+                super::worker_state_after(WorkerEvent::Leased)
+            ))
+            .bind(now)
+            .bind(&job_id)
+            .bind(task_id)
+            .bind(worker_id)
+            .fetch_optional(&mut **tx)
+            .await?;
+            let Some(job) = job else {
+                return Ok(Attempt::Raced);
+            };
+            return lease_answer(task_id, job_id, token, lease_ms, &task, &job)
+                .map(|l| Attempt::Leased(Some(Box::new(l))));
+        }
+        self.no_work(tx, worker_id).await?;
+        Ok(Attempt::Leased(None))
+    }
+}
+
+/// The lease of `task_id` as answered to the worker: its range and tile from `task` (`done_end`,
+/// `sample_end`, `x0`…`height`, `frame`), its job's `settings` and `scene_hash` from `job`.
+fn lease_answer(
+    task_id: i64,
+    job_id: String,
+    lease_token: String,
+    lease_ms: u64,
+    task: &AnyRow,
+    job: &AnyRow,
+) -> StoreResult<Lease> {
+    let settings: String = job.try_get("settings")?;
+    let settings: JobSettings = serde_json::from_str(&settings)
+        .map_err(|e| Error::internal(format!("stored settings: {e}")))?;
+    let g = |c: &str| task.try_get::<i64, _>(c).map(|v| v as u32);
+    Ok(Lease {
+        task_id,
+        job_id,
+        lease_token,
+        lease_expires_in_ms: lease_ms,
+        scene_hash: job.try_get("scene_hash")?,
+        settings,
+        tile: TileRect {
+            x0: g("x0")?,
+            y0: g("y0")?,
+            width: g("width")?,
+            height: g("height")?,
+        },
+        sample_begin: g("done_end")?,
+        sample_end: g("sample_end")?,
+        frame: task.try_get("frame")?,
+        slice_seconds: None,
+    })
 }
 
 /// The advisory lock key of `worker_id`'s leases: the leading 64 bits of its SHA-256 (a key
@@ -262,70 +394,5 @@ async fn pick_sqlite(
     let Some(job_id) = row.try_get::<Option<String>, _>("job_id")? else {
         return Ok(None);
     };
-    Ok(Some(Picked {
-        job_id,
-        task: row,
-        job: None,
-    }))
-}
-
-/// PostgreSQL, where other servers claim tasks concurrently: the candidates, then per candidate
-/// its next task not locked by another transaction (`SKIP LOCKED`), then that task's job row
-/// locked, in the documented order; a candidate whose locked row is no longer leasable (paused
-/// or ended meanwhile) is skipped.
-async fn pick_postgres(
-    tx: &mut sqlx::Transaction<'static, sqlx::Any>,
-    worker_id: &str,
-) -> StoreResult<Option<Picked>> {
-    let candidates = sqlx::query(concat!(
-        "SELECT w.id AS worker, j.id AS job_id FROM workers w LEFT JOIN (",
-        candidate_jobs!(),
-        ") j ON 1 = 1 WHERE w.id = $1 \
-         ORDER BY j.priority DESC, j.leased_tasks ASC, j.created_ms ASC, j.id ASC"
-    ))
-    .bind(worker_id)
-    .fetch_all(&mut **tx)
-    .await?;
-    if candidates.is_empty() {
-        return Err(Error::not_found("worker", worker_id));
-    }
-    for cand in candidates {
-        let Some(job_id) = cand.try_get::<Option<String>, _>("job_id")? else {
-            continue;
-        };
-        let task = sqlx::query(concat!(
-            "SELECT id, tile_index, done_end, sample_end, state FROM tasks \
-             WHERE job_id = $1 AND state = 'queued' AND ",
-            not_refused_by!("$2"),
-            " ORDER BY pass, id LIMIT 1 FOR UPDATE SKIP LOCKED",
-        ))
-        .bind(&job_id)
-        .bind(worker_id)
-        .fetch_optional(&mut **tx)
-        .await?;
-        let Some(task) = task else { continue };
-        let job = sqlx::query(
-            "SELECT ti.x0, ti.y0, ti.width, ti.height, ti.frame, j.state AS job_state, j.settings, \
-             j.scene_hash FROM tiles ti JOIN jobs j ON j.id = ti.job_id \
-             WHERE ti.job_id = $1 AND ti.tile_index = $2 FOR UPDATE OF j",
-        )
-        .bind(&job_id)
-        .bind(task.try_get::<i64, _>("tile_index")?)
-        .fetch_one(&mut **tx)
-        .await?;
-        // The candidates were read without a lock: the job may have been paused (or ended) since,
-        // by a transaction that committed before this one locked the job's row. The row read
-        // under the lock is current; a job that can no longer be leased is passed over (its task
-        // stays queued, unlocked when this transaction ends).
-        let state = job_state(&job.try_get::<String, _>("job_state")?)?;
-        if job_transition(state, JobEvent::Leased).is_err() {
-            continue;
-        }
-        return Ok(Some(Picked {
-            job_id,
-            task,
-            job: Some(job),
-        }));
-    }
-    Ok(None)
+    Ok(Some(Picked { job_id, task: row }))
 }

@@ -137,6 +137,26 @@ pub(crate) fn worker_state_after(event: crate::states::WorkerEvent) -> String {
     format!("CASE state{arms} ELSE state END")
 }
 
+/// `(CASE state WHEN … END, 'a', 'b')`: a job's state after `event`, for an `UPDATE jobs` that
+/// makes the change in the statement that locks the row, and the quoted states it is allowed in
+/// (for `WHERE state IN (…)`), spelled out from [`crate::states::job_transition`] (the states are
+/// constants, never input).
+pub(crate) fn job_state_after(event: crate::states::JobEvent) -> (String, String) {
+    let allowed: Vec<_> = pathfarm_wire::api::JobState::ALL
+        .into_iter()
+        .filter_map(|s| Some((s, crate::states::job_transition(s, event).ok()?)))
+        .collect();
+    let arms: String = allowed
+        .iter()
+        .map(|(s, to)| format!(" WHEN '{}' THEN '{}'", s.as_str(), to.as_str()))
+        .collect();
+    let list: Vec<String> = allowed
+        .iter()
+        .map(|(s, _)| format!("'{}'", s.as_str()))
+        .collect();
+    (format!("CASE state{arms} ELSE state END"), list.join(", "))
+}
+
 /// Milliseconds since the Unix epoch: the time base of every timestamp in the store.
 pub fn now_ms() -> i64 {
     SystemTime::now()

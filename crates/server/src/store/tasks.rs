@@ -5,7 +5,7 @@
 
 use super::error::{Error, StoreResult};
 use super::jobs::complete_when_done;
-use super::statements::Statements;
+use super::statements::{Arg, Statements};
 use super::writes::{Done, MergeOutcome, Op};
 use super::{Dialect, Store};
 use crate::job_image::Sums;
@@ -300,47 +300,65 @@ impl Store {
                 ],
             );
         }
-        writes
-            .push(
-                "UPDATE tasks SET done_end = $1, state = $2 WHERE id = $3",
-                vec![(s_end as i64).into(), to.as_str().into(), task_id.into()],
-            )
-            .push(
-                "UPDATE jobs SET samples_done = samples_done + $1, version = version + $2, \
-                 leased_tasks = leased_tasks - $3, queued_tasks = queued_tasks + $4, \
-                 verifying = verifying + $5 WHERE id = $6 \
-                 RETURNING state, samples_done, samples_planned, verifying",
-                vec![
-                    (image_samples as i64).into(),
-                    i64::from(image_samples > 0).into(),
-                    (complete as i64).into(),
-                    opened.into(),
-                    (opened - judged).into(),
-                    job_id.as_str().into(),
-                ],
-            );
-        if let Some(worker) = &worker_id {
-            // A pipelined worker finishes a task's last upload after it leased its next task:
-            // the merge that completes the task leaves that next task (and the worker busy with
-            // it) as it is. SET reads the row as it was before the update, on both stores.
-            writes.push(
-                format!(
-                    "UPDATE workers SET samples_done = samples_done + $1, last_seen_ms = $2, \
-                 state = CASE WHEN $3 = 1 AND current_task <> $5 THEN state ELSE {} END, \
-                 current_task = CASE WHEN $3 = 1 AND current_task = $5 THEN NULL \
-                 ELSE current_task END, \
-                 current_job = CASE WHEN $3 = 1 AND current_task = $5 THEN NULL \
-                 ELSE current_job END WHERE id = $4",
+        writes.push(
+            "UPDATE tasks SET done_end = $1, state = $2 WHERE id = $3",
+            vec![(s_end as i64).into(), to.as_str().into(), task_id.into()],
+        );
+        let job_update =
+            "UPDATE jobs SET samples_done = samples_done + $1, version = version + $2, \
+             leased_tasks = leased_tasks - $3, queued_tasks = queued_tasks + $4, \
+             verifying = verifying + $5 WHERE id = $6 \
+             RETURNING state, samples_done, samples_planned, verifying";
+        let job_args: Vec<Arg> = vec![
+            (image_samples as i64).into(),
+            i64::from(image_samples > 0).into(),
+            (complete as i64).into(),
+            opened.into(),
+            (opened - judged).into(),
+            job_id.as_str().into(),
+        ];
+        match &worker_id {
+            None => {
+                writes.push(job_update, job_args);
+            }
+            Some(worker) => {
+                // A pipelined worker finishes a task's last upload after it leased its next
+                // task: the merge that completes the task leaves that next task (and the worker
+                // busy with it) as it is. SET reads the row as it was before the update, on both
+                // stores.
+                let worker_update = format!(
+                    "UPDATE workers SET samples_done = samples_done + $7, last_seen_ms = $8, \
+                     state = CASE WHEN $9 = 1 AND current_task <> $10 THEN state ELSE {} END, \
+                     current_task = CASE WHEN $9 = 1 AND current_task = $10 THEN NULL \
+                     ELSE current_task END, \
+                     current_job = CASE WHEN $9 = 1 AND current_task = $10 THEN NULL \
+                     ELSE current_job END WHERE id = $11",
                     super::worker_state_after(WorkerEvent::SliceMerged { complete })
-                ),
-                vec![
-                    (samples as i64).into(),
+                );
+                let mut args = job_args;
+                args.extend([
+                    Arg::from(samples as i64),
                     now.into(),
                     (complete as i64).into(),
-                    worker.as_str().into(),
                     task_id.into(),
-                ],
-            );
+                    worker.as_str().into(),
+                ]);
+                // On PostgreSQL the job's row is the one every lease and merge of the job writes:
+                // it is locked by the last statement, which writes the worker too (`w` reads
+                // `j`, so the job's row is locked first), and held until the commit that follows
+                // (see `Store::lease_postgres`). SQLite runs the two as one round trip anyway.
+                match self.dialect() {
+                    Dialect::Postgres => writes.push(
+                        format!(
+                            "WITH j AS ({job_update}), \
+                             w AS ({worker_update} AND EXISTS (SELECT 1 FROM j)) \
+                             SELECT * FROM j"
+                        ),
+                        args,
+                    ),
+                    Dialect::Sqlite => writes.push(format!("{job_update};\n{worker_update}"), args),
+                };
+            }
         }
         let rows = writes.run(tx).await?;
         let job = rows
