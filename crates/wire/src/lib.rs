@@ -17,6 +17,7 @@ pub use environment::{
     build_environment, is_sha256_hex, EnvironmentSettingsError, EnvironmentSource,
 };
 pub use slice::{
-    decode_slice, decode_slice_header, encode_slice, max_sample_sums, max_slice_body_bytes, Slice,
-    SliceError, SliceHeader, SliceLimits, SLICE_MAGIC, SLICE_VERSION,
+    decode_slice, decode_slice_header, encode_slice, max_sample_sums, max_slice_body_bytes,
+    slice_checksum, Slice, SliceError, SliceHeader, SliceLimits, SLICE_MAGIC, SLICE_VERSION,
+    SLICE_VERSION_FNV,
 };

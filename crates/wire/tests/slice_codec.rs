@@ -7,7 +7,10 @@ use pathfarm_tracer::geometry::Mesh;
 use pathfarm_tracer::material::Material;
 use pathfarm_tracer::scene::SceneParts;
 use pathfarm_tracer::{render_tile, RenderSettings, Scene, Tile};
-use pathfarm_wire::{decode_slice, encode_slice, Slice, SliceError, SliceLimits};
+use pathfarm_wire::{
+    decode_slice, encode_slice, slice_checksum, Slice, SliceError, SliceLimits, SLICE_VERSION,
+    SLICE_VERSION_FNV,
+};
 
 fn scene() -> Scene {
     // A single emissive, reflective quad in front of the camera.
@@ -79,9 +82,9 @@ fn rejects_corruption_truncation_and_lies() {
     let bytes = encode_slice(&slice);
     let limits = SliceLimits::default();
     assert_eq!(decode_slice(b"nope", &limits), Err(SliceError::Magic));
-    let mut v2 = bytes.clone();
-    v2[4] = 2;
-    assert_eq!(decode_slice(&v2, &limits), Err(SliceError::Version(2)));
+    let mut v9 = bytes.clone();
+    v9[4] = 9;
+    assert_eq!(decode_slice(&v9, &limits), Err(SliceError::Version(9)));
     // Every single-bit flip in the body is caught (by the checksum or a structural check).
     for i in 8..bytes.len() {
         let mut b = bytes.clone();
@@ -175,20 +178,53 @@ fn random_garbage_never_panics() {
         // Again with a valid checksum, so the structural checks behind it are exercised too.
         if b.len() > 8 {
             let body = b.len() - 8;
-            let sum = fnv1a64(&b[..body]);
+            let version = u16::from_le_bytes([b[4], b[5]]);
+            let sum = slice_checksum(version, &b[..body]);
             b[body..].copy_from_slice(&sum.to_le_bytes());
             let _ = decode_slice(&b, &SliceLimits::default());
         }
     }
 }
 
-fn fnv1a64(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
+#[test]
+fn version_1_bodies_are_still_read_with_their_own_checksum() {
+    // What older workers upload and older servers stored: the same layout, version 1, FNV-1a 64.
+    let slice = sample_slice();
+    let current = encode_slice(&slice);
+    assert_eq!(current[4..6], SLICE_VERSION.to_le_bytes());
+    let body = current.len() - 8;
+    let mut old = current.clone();
+    old[4..6].copy_from_slice(&SLICE_VERSION_FNV.to_le_bytes());
+    let fnv = slice_checksum(SLICE_VERSION_FNV, &old[..body]);
+    old[body..].copy_from_slice(&fnv.to_le_bytes());
+    assert_eq!(
+        decode_slice(&old, &SliceLimits::default()),
+        Ok(slice.clone())
+    );
+    // Each version's checksum is its own: a version 2 body with a version 1 checksum (or the
+    // other way round) is corrupt.
+    let mut mixed = current.clone();
+    mixed[body..].copy_from_slice(&fnv.to_le_bytes());
+    assert_eq!(
+        decode_slice(&mixed, &SliceLimits::default()),
+        Err(SliceError::Checksum)
+    );
+    let mut mixed = old.clone();
+    mixed[body..].copy_from_slice(&current[body..]);
+    assert_eq!(
+        decode_slice(&mixed, &SliceLimits::default()),
+        Err(SliceError::Checksum)
+    );
+    // Version 2's checksum is CRC-32 (IEEE) of the bytes before it, as gzip and PNG compute it:
+    // the check value of the standard's test string.
+    assert_eq!(slice_checksum(SLICE_VERSION, b"123456789"), 0xCBF4_3926);
+    // A version this build does not know is refused as such.
+    let mut future = current;
+    future[4..6].copy_from_slice(&3u16.to_le_bytes());
+    assert_eq!(
+        decode_slice(&future, &SliceLimits::default()),
+        Err(SliceError::Version(3))
+    );
 }
 
 #[test]
