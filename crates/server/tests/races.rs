@@ -18,6 +18,21 @@ async fn submit(state: &AppState) -> String {
     submit_ok(state, None, &cornell(), SETTINGS).await
 }
 
+/// `n` workers registered with the store of `state`: their ids.
+async fn register(state: &AppState, n: usize) -> Vec<String> {
+    let mut workers = Vec::with_capacity(n);
+    for i in 0..n {
+        let reg = WorkerRegistration {
+            name: format!("w{i}"),
+            threads: 1,
+            version: "t".into(),
+            host: "h".into(),
+        };
+        workers.push(state.store.register_worker(&reg).await.unwrap().0);
+    }
+    workers
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_submission_and_the_deletion_of_the_last_job_of_its_scene_both_succeed() {
     for (store, url) in stores("scene-race").await {
@@ -68,16 +83,7 @@ async fn two_monitors_expire_overlapping_leases_at_once() {
         for _ in 0..8 {
             submit(&a).await;
         }
-        let mut workers = Vec::new();
-        for i in 0..48 {
-            let reg = WorkerRegistration {
-                name: format!("w{i}"),
-                threads: 1,
-                version: "t".into(),
-                host: "h".into(),
-            };
-            workers.push(a.store.register_worker(&reg).await.unwrap().0);
-        }
+        let workers = register(&a, 48).await;
         for round in 0..10 {
             // Every worker leases a task (fair share spreads them over the jobs), then every
             // lease expires and both servers' monitors collect them at once.
@@ -116,16 +122,7 @@ async fn leases_racing_pauses_keep_every_count_true() {
             r#"{"width":128,"height":128,"spp":64,"tile_size":8}"#,
         )
         .await;
-        let mut workers = Vec::new();
-        for i in 0..12 {
-            let reg = WorkerRegistration {
-                name: format!("w{i}"),
-                threads: 1,
-                version: "t".into(),
-                host: "h".into(),
-            };
-            workers.push(a.store.register_worker(&reg).await.unwrap().0);
-        }
+        let workers = register(&a, 12).await;
         let pauser = {
             let (b, job) = (b.clone(), job.clone());
             tokio::spawn(async move {
