@@ -108,14 +108,19 @@ impl Mesh {
         }
     }
 
-    /// The box of every corner (lower, upper); inverted (+∞, −∞) for an empty mesh.
+    /// The box of every corner (lower, upper); inverted (+∞, −∞) for an empty mesh. In parallel
+    /// (min and max: the same in any order).
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for v in self.positions.iter().flatten() {
-            lo = lo.min(*v);
-            hi = hi.max(*v);
-        }
-        (lo, hi)
+        let empty = || (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        self.positions
+            .par_iter()
+            .fold(empty, |(lo, hi), t| {
+                (
+                    lo.min(t[0]).min(t[1]).min(t[2]),
+                    hi.max(t[0]).max(t[1]).max(t[2]),
+                )
+            })
+            .reduce(empty, |(a, b), (c, d)| (a.min(c), b.max(d)))
     }
 
     /// Approximate bytes per triangle, for memory reports.

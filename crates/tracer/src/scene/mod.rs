@@ -19,6 +19,7 @@ use crate::integrator::DiffuseScene;
 use crate::light::{Environment, Lights, PunctualLight};
 use crate::material::{Material, Texture};
 use glam::Vec3;
+use rayon::prelude::*;
 use std::sync::Arc;
 
 /// What a loader hands to [`Scene::build`].
@@ -403,7 +404,9 @@ fn degenerate(dropped: usize, unplaced: Unplaced, nothing: bool) -> Result<usize
 /// Drops the mesh's zero-area and non-finite triangles (they cannot be hit, sampled or shaded);
 /// returns how many.
 pub(crate) fn drop_degenerate(mesh: &mut Mesh) -> usize {
+    // In parallel, in order (rayon's collect keeps it).
     let keep: Vec<u32> = (0..mesh.len())
+        .into_par_iter()
         .filter(|&i| mesh.is_renderable(i))
         .map(|i| i as u32)
         .collect();

@@ -7,6 +7,7 @@ use crate::geometry::{Bvh, Mesh};
 use crate::light::AreaLights;
 use crate::material::{Material, Texture};
 use glam::Vec3;
+use rayon::prelude::*;
 use std::sync::Arc;
 
 /// World-space triangles with their BVH and area lights.
@@ -64,11 +65,12 @@ impl World {
         materials: &[Material],
     ) -> Result<(Mesh, usize), SceneError> {
         mesh.validate()?;
+        // The first bad triangle, found in parallel.
         if let Some((triangle, &material)) = mesh
             .material
-            .iter()
+            .par_iter()
             .enumerate()
-            .find(|(_, &m)| m as usize >= materials.len())
+            .find_first(|(_, &m)| m as usize >= materials.len())
         {
             return Err(SceneError::MaterialIndex {
                 triangle,
