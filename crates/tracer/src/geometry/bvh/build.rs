@@ -76,23 +76,11 @@ pub(super) fn padded(lo: Vec3A, hi: Vec3A, pad: f32) -> (Vec3A, Vec3A) {
     (lo - pad - ulps(lo), hi + pad + ulps(hi))
 }
 
-/// The corners' bounding box of a mesh, in parallel (min and max: the same in any order).
-fn corner_bounds(mesh: &Mesh) -> (Vec3A, Vec3A) {
-    let empty = || (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-    mesh.positions
-        .par_iter()
-        .fold(empty, |(lo, hi), t| {
-            let (a, b, c) = (Vec3A::from(t[0]), Vec3A::from(t[1]), Vec3A::from(t[2]));
-            (lo.min(a.min(b).min(c)), hi.max(a.max(b).max(c)))
-        })
-        .reduce(empty, |(a, b), (c, d)| (a.min(c), b.max(d)))
-}
-
 /// Builds the tree over `mesh` and reorders the mesh to the tree's triangle order.
 pub(super) fn build(mesh: &mut Mesh) -> Built {
     let started = std::time::Instant::now();
     // Every triangle's box padded (`padded`), as a record the builder moves.
-    let (lo, hi) = corner_bounds(mesh);
+    let (lo, hi) = mesh.bounds();
     let pad = box_pad((hi - lo).max_element());
     let mut prims: Vec<Prim> = mesh
         .positions
@@ -469,7 +457,7 @@ mod tests {
             assert!(!std::mem::replace(&mut seen[i as usize], true), "{i} twice");
         }
         assert_eq!(b.order.len(), n);
-        let (lo, hi) = corner_bounds(mesh);
+        let (lo, hi) = mesh.bounds();
         let pad = box_pad((hi - lo).max_element());
         let tri_box = |k: u32| {
             let t = mesh.positions[b.order[k as usize] as usize];
