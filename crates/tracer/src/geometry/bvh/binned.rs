@@ -434,8 +434,12 @@ impl<const N: usize> Bins<N> {
 pub(super) enum Split {
     /// Keys in bins below `bin` on `axis` go left.
     Binned { map: Mapper, axis: usize, bin: u32 },
-    /// Sorted on `axis`, the first `count` go left.
-    Sorted { axis: usize, count: usize },
+    /// In `order` (the range's positions in key order on the split's axis, as the search found
+    /// them: not worked out again), the first `count` go left.
+    Sorted {
+        order: [u8; SWEEP_MAX],
+        count: usize,
+    },
     /// The lower half on the widest centroid axis goes left.
     Median,
 }
@@ -511,7 +515,7 @@ fn orders(prims: &[Prim]) -> [[u8; SWEEP_MAX]; 4] {
     orders
 }
 
-/// The best split of a small range by a full sweep over its keys sorted on each axis. Areas in
+/// The best split of a small range by a full sweep over its keys in order on each axis. Areas in
 /// `f32` with the extents scaled as in [`Bins::best`]; the cost returned is unscaled.
 fn best_sorted(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
     let n = prims.len();
@@ -524,7 +528,7 @@ fn best_sorted(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
         d.x * d.y + d.y * d.z + d.z * d.x
     };
     let (mut best, mut best_split) = (f32::INFINITY, None);
-    for (axis, idx) in orders(prims).into_iter().enumerate() {
+    for idx in orders(prims) {
         let mut right = [0.0f32; SWEEP_MAX];
         let mut acc = Box3::EMPTY;
         for i in (1..n).rev() {
@@ -539,7 +543,10 @@ fn best_sorted(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
             let c = area(&left) * i as f32 + right[i] * (n - i) as f32;
             if c < best {
                 best = c;
-                best_split = Some(Split::Sorted { axis, count: i });
+                best_split = Some(Split::Sorted {
+                    order: idx,
+                    count: i,
+                });
             }
         }
     }
@@ -645,8 +652,7 @@ fn partition(prims: &mut [Prim], left: impl Fn(Vec4) -> bool) -> (usize, Info, I
 pub(super) fn apply(prims: &mut [Prim], info: &Info, split: Split) -> (usize, Info, Info) {
     match split {
         Split::Binned { map, axis, bin } => partition(prims, |c| map.below(c, axis, bin)),
-        Split::Sorted { axis, count } => {
-            let order = orders(prims)[axis];
+        Split::Sorted { order, count } => {
             let mut sorted = [prims[0]; SWEEP_MAX];
             for (slot, &k) in sorted.iter_mut().zip(&order[..prims.len()]) {
                 *slot = prims[k as usize];
