@@ -281,7 +281,9 @@ async fn job_states_priorities_and_stopping_rules() {
         );
 
         // A noise target ends a job early; so does a time limit.
-        let mut ns = settings(24, 24, 4096, 24);
+        // Far more samples than the target needs, so the workers cannot finish them before the
+        // monitor's estimate (every 100 ms) finds the target reached, however slow the machine.
+        let mut ns = settings(24, 24, 1 << 15, 24);
         ns.noise_target = Some(0.2);
         let noisy = c.submit(bytes.clone(), "noise", &ns).await.unwrap();
         let mut ts = settings(24, 24, 1 << 20, 24);

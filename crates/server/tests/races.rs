@@ -1,6 +1,6 @@
 //! Races between servers sharing a store (PostgreSQL; on SQLite the same steps run one at a time):
 //! a submission taking a scene while the deletion of its last job deletes it, two monitors
-//! expiring overlapping leases at once, and leases racing pauses.
+//! expiring overlapping leases at once, leases racing pauses, and merges racing on one tile.
 
 mod common;
 
@@ -123,8 +123,11 @@ async fn leases_racing_pauses_keep_every_count_true() {
         )
         .await;
         let workers = register(&a, 12).await;
+        // The leasers go on until the pauser is done (its last move resumes the job), so some
+        // leases land after a resume however the two are scheduled.
+        let pausing = Arc::new(std::sync::atomic::AtomicBool::new(true));
         let pauser = {
-            let (b, job) = (b.clone(), job.clone());
+            let (b, job, pausing) = (b.clone(), job.clone(), pausing.clone());
             tokio::spawn(async move {
                 for _ in 0..40 {
                     for action in ["pause", "resume"] {
@@ -137,18 +140,21 @@ async fn leases_racing_pauses_keep_every_count_true() {
                         tokio::time::sleep(Duration::from_millis(2)).await;
                     }
                 }
+                pausing.store(false, std::sync::atomic::Ordering::SeqCst);
             })
         };
         let leasers: Vec<_> = workers
             .iter()
             .map(|w| {
-                let (a, w) = (a.clone(), w.clone());
+                let (a, w, pausing) = (a.clone(), w.clone(), pausing.clone());
                 tokio::spawn(async move {
                     let mut leased = 0u32;
-                    for _ in 0..60 {
+                    let mut tries = 0;
+                    while tries < 60 || pausing.load(std::sync::atomic::Ordering::SeqCst) {
                         if a.store.lease(&w, 60_000, 1_000).await.unwrap().is_some() {
                             leased += 1;
                         }
+                        tries += 1;
                     }
                     leased
                 })
@@ -177,5 +183,88 @@ async fn leases_racing_pauses_keep_every_count_true() {
             (queued_rows, leased_rows),
             "{store}: the job's counters against its tasks"
         );
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn merges_racing_on_one_tile_merge_every_sample_once() {
+    // One tile, many tasks (one per pass), leased by many workers and uploaded at once through
+    // two servers: on PostgreSQL the merges read the tile without locks and write it only if no
+    // other merge did meanwhile (`merge_postgres.rs`), so a merge that lost the race must read
+    // again, never write over another's samples.
+    for (store, url) in stores("tile-race").await {
+        // Tasks of at most 8 samples a pixel of the one 8² tile: 65 of them.
+        let small_tasks = || {
+            let mut c = config(&url);
+            c.max_task_samples = 8 * 64;
+            c.min_task_samples = 64;
+            c
+        };
+        let servers = [
+            AppState::open(small_tasks()).await.unwrap(),
+            AppState::open(small_tasks()).await.unwrap(),
+        ];
+        let spp = 512;
+        let job = submit_ok(
+            &servers[0],
+            None,
+            &cornell(),
+            &format!(r#"{{"width":8,"height":8,"spp":{spp},"tile_size":8}}"#),
+        )
+        .await;
+        let mut workers = Vec::new();
+        for _ in 0..8 {
+            workers.push(register_in_process(&servers[0]).await);
+        }
+        // Every worker leases first, then all upload together.
+        let mut leases = Vec::new();
+        for w in &workers {
+            if let Some(l) = lease_in_process(&servers[0], w).await {
+                leases.push((w.clone(), l));
+            }
+        }
+        assert_eq!(leases.len(), workers.len(), "{store}: tasks leased");
+        let uploads: Vec<_> = leases
+            .into_iter()
+            .enumerate()
+            .map(|(i, (w, l))| {
+                let state = servers[i % 2].clone();
+                tokio::spawn(async move {
+                    upload_grey(&state, &w, &l, (l.sample_begin, l.sample_end)).await;
+                    // Then the rest of the job, a task at a time.
+                    render_by_hand_until_done(&state, &w).await;
+                })
+            })
+            .collect();
+        for u in uploads {
+            u.await.unwrap();
+        }
+        let (state, samples, planned, tile_samples, merges, tasks): (
+            String,
+            i64,
+            i64,
+            i64,
+            i64,
+            i64,
+        ) = sqlx::query_as(
+            "SELECT j.state, j.samples_done, j.samples_planned, ti.samples, ti.merges, \
+             (SELECT COUNT(*) FROM tasks t WHERE t.job_id = j.id) \
+             FROM jobs j JOIN tiles ti ON ti.job_id = j.id WHERE j.id = $1",
+        )
+        .bind(&job)
+        .fetch_one(servers[0].store.pool())
+        .await
+        .unwrap();
+        assert_eq!(state, "completed", "{store}");
+        assert_eq!((samples, planned), (64 * spp, 64 * spp), "{store}: job");
+        assert_eq!(tile_samples, spp, "{store}: the tile's samples a pixel");
+        assert_eq!(merges, tasks, "{store}: one merge a task");
+    }
+}
+
+/// Leases and uploads whole tasks for `worker` until there is nothing to lease.
+async fn render_by_hand_until_done(state: &AppState, worker: &InProcessWorker) {
+    while let Some(l) = lease_in_process(state, worker).await {
+        upload_grey(state, worker, &l, (l.sample_begin, l.sample_end)).await;
     }
 }

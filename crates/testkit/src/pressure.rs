@@ -31,6 +31,10 @@ pub struct PressureOptions {
     pub pace: f64,
     /// The job: width, height, tile size, spp ([`PressureOptions::JOB`] by default).
     pub job: (u32, u32, u32, u32),
+    /// Measure SQLite (PostgreSQL is measured when `postgres_url` is set).
+    pub sqlite: bool,
+    /// Measure without back-pressure as well as with it.
+    pub without_back_pressure: bool,
     pub command_line: String,
 }
 
@@ -66,12 +70,20 @@ pub fn run(opts: &PressureOptions) -> Result<(PressureResults, String), BenchErr
         .build()
         .map_err(|e| farm_err(format!("tokio runtime: {e}")))?;
     let job = opts.job;
-    let stores: Vec<Option<&str>> = std::iter::once(None)
+    let stores: Vec<Option<&str>> = opts
+        .sqlite
+        .then_some(None)
+        .into_iter()
         .chain(opts.postgres_url.as_deref().map(Some))
         .collect();
     let mut rows = Vec::new();
     for pg in stores {
-        for back_pressure in [true, false] {
+        let modes: &[bool] = if opts.without_back_pressure {
+            &[true, false]
+        } else {
+            &[true]
+        };
+        for &back_pressure in modes {
             let spec = runtime.block_on(async {
                 match pg {
                     Some(url) => StoreSpec::postgres(url).await,

@@ -240,6 +240,8 @@ fn the_pressure_benchmark_holds_a_crowd_to_the_store_s_pace() {
         pace: 0.05,
         // 256 tiles, passes of 1, 1, 2, 4, … samples: the window reaches tasks of several.
         job: (128, 128, 8, 256),
+        sqlite: true,
+        without_back_pressure: true,
         command_line: "test".into(),
     };
     let (r, markdown) = run(&opts).expect("the pressure benchmark runs");

@@ -9,7 +9,7 @@ use super::jobs::job_state;
 use super::statements::Statements;
 use super::tasks::{new_token, task_state};
 use super::writes::{Done, Op};
-use super::{Dialect, Store};
+use super::Store;
 use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskState, WorkerEvent};
 use pathfarm_wire::api::{JobSettings, Lease, TileRect};
 use sqlx::any::AnyRow;
@@ -26,7 +26,8 @@ macro_rules! candidate_jobs {
 
 /// A task condition: not refused to the worker in parameter `$w`: its own slice of the task had
 /// every sample invalid (`all_invalid.rs`), or it gave its result for the task a verification
-/// task checks (`verification.rs`).
+/// task checks (`verification.rs`). SQLite's; PostgreSQL's lease function spells the same
+/// condition (`migrations/postgres/0012_lease_and_merge_functions.sql`).
 macro_rules! not_refused_by {
     ($w:literal) => {
         concat!(
@@ -45,18 +46,6 @@ macro_rules! not_refused_by {
 struct Picked {
     job_id: String,
     task: AnyRow,
-}
-
-/// How often a PostgreSQL lease that lost its job to a pause or an end is tried again.
-const LEASE_ATTEMPTS: usize = 4;
-
-/// One PostgreSQL lease transaction's outcome.
-enum Attempt {
-    /// A task leased, or `None`: no work.
-    Leased(Option<Box<Lease>>),
-    /// The task's job was paused, ended or deleted after the candidates were read (or the worker
-    /// deregistered): the transaction wrote the task and must be rolled back.
-    Raced,
 }
 
 impl Store {
@@ -93,41 +82,18 @@ impl Store {
                 Done::Merged(_) => Err(Error::internal("a lease answered as a merge")),
             };
         }
-        // PostgreSQL: each lease its own transaction. One that lost a race for its job (paused
-        // or ended between the candidates' read and the job's lock) is rolled back and tried again.
-        for _ in 0..LEASE_ATTEMPTS {
-            let mut w = self.write().await?;
-            match self
-                .lease_postgres(&mut w.tx, worker_id, lease_ms, max_leases)
-                .await?
-            {
-                Attempt::Leased(lease) => {
-                    w.commit().await?;
-                    return Ok(lease.map(|l| *l));
-                }
-                Attempt::Raced => w.tx.rollback().await?,
-            }
-        }
-        Ok(None)
+        self.lease_postgres(worker_id, lease_ms, max_leases).await
     }
 
     /// The cap and the worker's standing, before anything is picked or written (a refusal, so a
-    /// batch goes on). On PostgreSQL, where servers lease concurrently, one worker's leases are
-    /// taken one at a time (a transaction-scoped advisory lock on the worker): two racing on two
-    /// servers would otherwise both count the same held leases and both pass. Only leases take
-    /// it, first, so it adds no cycle to the row locks' order.
+    /// batch goes on). SQLite only, where its one writer orders every lease; on PostgreSQL
+    /// `pathfarm_lease` checks the same under the worker's lease lock.
     async fn check_lease_cap(
         &self,
         tx: &mut sqlx::Transaction<'static, sqlx::Any>,
         worker_id: &str,
         max_leases: u32,
     ) -> StoreResult<()> {
-        if self.dialect() == Dialect::Postgres {
-            sqlx::query("SELECT pg_advisory_xact_lock($1)")
-                .bind(lease_lock_key(worker_id))
-                .execute(&mut **tx)
-                .await?;
-        }
         let row = sqlx::query(
             "SELECT COUNT(*) AS n, (SELECT untrusted FROM workers WHERE id = $1) AS untrusted \
              FROM tasks WHERE worker_id = $1 AND state = 'leased'",
@@ -230,22 +196,20 @@ impl Store {
         lease_answer(task_id, job_id, token, lease_ms, &task, &task).map(Some)
     }
 
-    /// The lease on PostgreSQL. On a busy farm every lease and every merge writes the same row,
-    /// their job's (its counters), and each waits for the transaction that holds it: so the job's
-    /// row is locked by the last statement, which also writes the worker, and the transaction
-    /// commits right after, holding the row for one round trip where it was held for four
-    /// (docs/benchmarks.md, December 3). Before that statement: the cap, the candidate jobs, then
-    /// per candidate its next task claimed (`FOR UPDATE SKIP LOCKED`, never waiting for another
-    /// server's claim) and written, with its tile's rectangle read, in one statement. Lock order
-    /// as everywhere: tasks, (tiles are only read), jobs, workers.
+    /// The lease on PostgreSQL, in one statement outside any explicit transaction: on a busy farm
+    /// every lease and every merge writes the same row, their job's (its counters), and each
+    /// waits for the transaction that holds it. The function `pathfarm_lease`
+    /// (`migrations/postgres/0012_lease_and_merge_functions.sql`) takes the worker's lease lock, checks the
+    /// cap, claims the first candidate's next task and writes task, job and worker, and commits
+    /// inside this one round trip, so the job's row is never held while this server is busy
+    /// elsewhere (docs/benchmarks.md, "the lease and the merge in one statement"). The candidate jobs are read
+    /// first, without locks, in the scheduler's order; the state machines' moves are passed in.
     async fn lease_postgres(
         &self,
-        tx: &mut sqlx::Transaction<'static, sqlx::Any>,
         worker_id: &str,
         lease_ms: u64,
         max_leases: u32,
-    ) -> StoreResult<Attempt> {
-        self.check_lease_cap(tx, worker_id, max_leases).await?;
+    ) -> StoreResult<Option<Lease>> {
         let candidates = sqlx::query(concat!(
             "SELECT w.id AS worker, j.id AS job_id FROM workers w LEFT JOIN (",
             candidate_jobs!(),
@@ -253,67 +217,66 @@ impl Store {
              ORDER BY j.priority DESC, j.leased_tasks ASC, j.created_ms ASC, j.id ASC"
         ))
         .bind(worker_id)
-        .fetch_all(&mut **tx)
+        .fetch_all(self.pool())
         .await?;
         if candidates.is_empty() {
             return Err(Error::not_found("worker", worker_id));
         }
+        let ids = candidates
+            .iter()
+            .filter_map(|c| c.try_get::<Option<String>, _>("job_id").transpose())
+            .collect::<Result<Vec<String>, _>>()?;
+        let ids = serde_json::to_string(&ids)
+            .map_err(|e| Error::internal(format!("candidate ids: {e}")))?;
         // The claim's filter takes only queued tasks.
         let to = task_transition(TaskState::Queued, TaskEvent::Lease).map_err(Error::internal)?;
         let token = new_token();
         let now = self.now_ms();
-        let expires = now + lease_ms as i64;
-        for cand in candidates {
-            let Some(job_id) = cand.try_get::<Option<String>, _>("job_id")? else {
-                continue;
-            };
-            let task = sqlx::query(concat!(
-                "UPDATE tasks t SET state = $1, lease_token = $2, worker_id = $3, \
-                 lease_expires_ms = $4, leases = t.leases + 1 FROM tiles ti \
-                 WHERE t.id = (SELECT id FROM tasks WHERE job_id = $5 AND state = 'queued' AND ",
-                not_refused_by!("$3"),
-                " ORDER BY pass, id LIMIT 1 FOR UPDATE SKIP LOCKED) \
-                 AND ti.job_id = t.job_id AND ti.tile_index = t.tile_index \
-                 RETURNING t.id, t.done_end, t.sample_end, ti.x0, ti.y0, ti.width, ti.height, \
-                 ti.frame",
-            ))
-            .bind(to.as_str())
-            .bind(&token)
-            .bind(worker_id)
-            .bind(expires)
-            .bind(&job_id)
-            .fetch_optional(&mut **tx)
-            .await?;
-            let Some(task) = task else { continue };
-            let task_id: i64 = task.try_get("id")?;
-            // The job's row, locked here and held until the commit: its state checked under the
-            // lock (paused or ended since the candidates were read: `Raced`), its counters and
-            // the worker written. `w` reads `j`, so the job's row is locked before the worker's.
-            let (job_to, leasable) = super::job_state_after(JobEvent::Leased);
-            let job = sqlx::query(sql!(
-                "WITH j AS (UPDATE jobs SET state = {job_to}, \
-                 started_ms = COALESCE(started_ms, $1), queued_tasks = queued_tasks - 1, \
-                 leased_tasks = leased_tasks + 1 WHERE id = $2 AND state IN ({leasable}) \
-                 RETURNING settings, scene_hash), \
-                 w AS (UPDATE workers SET state = {}, current_task = $3, current_job = $2, \
-                 last_seen_ms = $1 WHERE id = $4 AND EXISTS (SELECT 1 FROM j) RETURNING id) \
-                 SELECT j.settings, j.scene_hash FROM j, w",
-                super::worker_state_after(WorkerEvent::Leased)
-            ))
-            .bind(now)
-            .bind(&job_id)
-            .bind(task_id)
-            .bind(worker_id)
-            .fetch_optional(&mut **tx)
-            .await?;
-            let Some(job) = job else {
-                return Ok(Attempt::Raced);
-            };
-            return lease_answer(task_id, job_id, token, lease_ms, &task, &job)
-                .map(|l| Attempt::Leased(Some(Box::new(l))));
+        let row = sqlx::query(
+            "SELECT outcome, held, task_id, job_id, done_end, sample_end, x0, y0, width, \
+             height, frame, settings, scene_hash \
+             FROM pathfarm_lease($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
+        )
+        .bind(worker_id)
+        .bind(lease_lock_key(worker_id))
+        .bind(i64::from(max_leases))
+        .bind(ids)
+        .bind(now)
+        .bind(now + lease_ms as i64)
+        .bind(&token)
+        .bind(to.as_str())
+        .bind(super::job_moves_json(JobEvent::Leased))
+        .bind(super::worker_moves_json(WorkerEvent::Leased))
+        .bind(super::worker_moves_json(WorkerEvent::NoWork))
+        .fetch_one(self.pool())
+        .await
+        .map_err(|e| match &e {
+            // The worker deregistered while its lease was written (rolled back).
+            sqlx::Error::Database(d) if d.code().as_deref() == Some("P0002") => {
+                Error::not_found("worker", worker_id)
+            }
+            _ => e.into(),
+        })?;
+        let held = || -> StoreResult<u64> { Ok(row.try_get::<i64, _>("held")? as u64) };
+        match row.try_get::<String, _>("outcome")?.as_str() {
+            "leased" => {
+                let task_id: i64 = row.try_get("task_id")?;
+                let job_id: String = row.try_get("job_id")?;
+                lease_answer(task_id, job_id, token, lease_ms, &row, &row).map(Some)
+            }
+            "none" => Ok(None),
+            "no_worker" => Err(Error::not_found("worker", worker_id)),
+            "untrusted" => Err(Error::Untrusted {
+                worker_id: worker_id.to_string(),
+            }),
+            "too_many" => Err(Error::TooManyLeases {
+                worker_id: worker_id.to_string(),
+                held: held()?,
+            }),
+            other => Err(Error::internal(format!(
+                "pathfarm_lease answered {other:?}"
+            ))),
         }
-        self.no_work(tx, worker_id).await?;
-        Ok(Attempt::Leased(None))
     }
 }
 

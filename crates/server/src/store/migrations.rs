@@ -52,6 +52,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0009_verification.sql",
         "0010_tile_error_sums.sql",
         "0011_worker_list_order.sql",
+        "0012_lease_and_merge_functions.sql",
     ))
 });
 

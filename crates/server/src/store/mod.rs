@@ -28,6 +28,8 @@ mod group_commit;
 mod images;
 mod jobs;
 mod lease;
+mod merge_checks;
+mod merge_postgres;
 mod migrations;
 mod retention;
 mod statements;
@@ -137,24 +139,31 @@ pub(crate) fn worker_state_after(event: crate::states::WorkerEvent) -> String {
     format!("CASE state{arms} ELSE state END")
 }
 
-/// `(CASE state WHEN … END, 'a', 'b')`: a job's state after `event`, for an `UPDATE jobs` that
-/// makes the change in the statement that locks the row, and the quoted states it is allowed in
-/// (for `WHERE state IN (…)`), spelled out from [`crate::states::job_transition`] (the states are
-/// constants, never input).
-pub(crate) fn job_state_after(event: crate::states::JobEvent) -> (String, String) {
-    let allowed: Vec<_> = pathfarm_wire::api::JobState::ALL
+/// `{"from": "to", …}`: every worker state and where `event` takes it, as JSON for a
+/// PostgreSQL function (`migrations/postgres/0012_lease_and_merge_functions.sql`), from the same
+/// [`crate::states::worker_transition`] as [`worker_state_after`].
+pub(crate) fn worker_moves_json(event: crate::states::WorkerEvent) -> String {
+    let moves: serde_json::Map<String, serde_json::Value> = crate::states::WORKER_STATES
         .into_iter()
-        .filter_map(|s| Some((s, crate::states::job_transition(s, event).ok()?)))
+        .map(|s| {
+            let to = crate::states::worker_transition(s, event);
+            (s.as_str().to_string(), to.as_str().into())
+        })
         .collect();
-    let arms: String = allowed
-        .iter()
-        .map(|(s, to)| format!(" WHEN '{}' THEN '{}'", s.as_str(), to.as_str()))
+    serde_json::Value::Object(moves).to_string()
+}
+
+/// `{"from": "to", …}`: the job states `event` is allowed in and where it takes each, as JSON
+/// for a PostgreSQL function, spelled out from [`crate::states::job_transition`].
+pub(crate) fn job_moves_json(event: crate::states::JobEvent) -> String {
+    let moves: serde_json::Map<String, serde_json::Value> = pathfarm_wire::api::JobState::ALL
+        .into_iter()
+        .filter_map(|s| {
+            let to = crate::states::job_transition(s, event).ok()?;
+            Some((s.as_str().to_string(), to.as_str().into()))
+        })
         .collect();
-    let list: Vec<String> = allowed
-        .iter()
-        .map(|(s, _)| format!("'{}'", s.as_str()))
-        .collect();
-    (format!("CASE state{arms} ELSE state END"), list.join(", "))
+    serde_json::Value::Object(moves).to_string()
 }
 
 /// Milliseconds since the Unix epoch: the time base of every timestamp in the store.

@@ -5,6 +5,7 @@
 
 use super::error::{Error, StoreResult};
 use super::jobs::complete_when_done;
+use super::merge_checks::{check_slice, Checked, Plan, TASK_AND_TILE};
 use super::statements::{Arg, Statements};
 use super::writes::{Done, MergeOutcome, Op};
 use super::{Dialect, Store};
@@ -114,6 +115,10 @@ impl Store {
                 Done::Leased(_) => Err(Error::internal("a merge answered as a lease")),
             };
         }
+        // PostgreSQL: one statement when it can (`merge_postgres.rs`), else a transaction.
+        if let Some(out) = self.merge_in_one_statement(task_id, token, &slice).await? {
+            return Ok(out);
+        }
         let mut w = self.write().await?;
         let out = self.merge_in(&mut w.tx, task_id, token, &slice).await?;
         w.commit().await?;
@@ -132,125 +137,69 @@ impl Store {
     ) -> StoreResult<MergeOutcome> {
         // SQLite, with its single writer, reads the task and its tile in one statement; PostgreSQL
         // locks them one after the other, in the documented order.
-        let joined = self.dialect() == Dialect::Sqlite;
-        let task = if joined {
-            sqlx::query(
-                "SELECT t.job_id, t.tile_index, t.sample_begin, t.sample_end, t.done_end, t.state, \
-                 t.lease_token, t.worker_id, t.all_invalid_worker, t.verifies, ti.x0, ti.y0, ti.width, ti.height, ti.samples, \
-                 ti.accum FROM tasks t JOIN tiles ti \
-                 ON ti.job_id = t.job_id AND ti.tile_index = t.tile_index WHERE t.id = $1",
-            )
-            .bind(task_id)
-            .fetch_optional(&mut **tx)
-            .await?
-        } else {
-            sqlx::query(
-                "SELECT job_id, tile_index, sample_begin, sample_end, done_end, state, \
-                 lease_token, worker_id, all_invalid_worker, verifies FROM tasks \
-                 WHERE id = $1 FOR UPDATE",
-            )
-            .bind(task_id)
-            .fetch_optional(&mut **tx)
-            .await?
+        let (task, locked_tile) = match self.dialect() {
+            Dialect::Sqlite => {
+                let Some(row) = sqlx::query(TASK_AND_TILE)
+                    .bind(task_id)
+                    .fetch_optional(&mut **tx)
+                    .await?
+                else {
+                    return Err(Error::not_found("task", task_id));
+                };
+                (row, None)
+            }
+            Dialect::Postgres => {
+                let Some(task) = sqlx::query(
+                    "SELECT job_id, tile_index, sample_begin, sample_end, done_end, state, \
+                     lease_token, worker_id, all_invalid_worker, verifies FROM tasks \
+                     WHERE id = $1 FOR UPDATE",
+                )
+                .bind(task_id)
+                .fetch_optional(&mut **tx)
+                .await?
+                else {
+                    return Err(Error::not_found("task", task_id));
+                };
+                let tile = sqlx::query(
+                    "SELECT x0, y0, width, height, samples, accum FROM tiles \
+                     WHERE job_id = $1 AND tile_index = $2 FOR UPDATE",
+                )
+                .bind(task.try_get::<String, _>("job_id")?)
+                .bind(task.try_get::<i64, _>("tile_index")?)
+                .fetch_one(&mut **tx)
+                .await?;
+                (task, Some(tile))
+            }
         };
-        let Some(task) = task else {
-            return Err(Error::not_found("task", task_id));
+        let tile = locked_tile.as_ref().unwrap_or(&task);
+        let Plan {
+            job_id,
+            tile_index,
+            end: s_end,
+            n,
+            samples,
+            complete,
+            to,
+            worker_id,
+            verifies,
+            ..
+        } = match check_slice(task_id, token, &task, tile, slice)? {
+            Checked::Duplicate(out) => return Ok(out),
+            Checked::AllInvalid(r) => {
+                return self
+                    .refuse_all_invalid(
+                        tx,
+                        task_id,
+                        &r.job_id,
+                        r.worker_id,
+                        r.all_invalid_worker,
+                        r.slice,
+                    )
+                    .await
+            }
+            Checked::Merge(plan) => plan,
         };
-        let job_id: String = task.try_get("job_id")?;
-        let tile_index: i64 = task.try_get("tile_index")?;
-        let t_begin = task.try_get::<i64, _>("sample_begin")? as u32;
-        let t_end = task.try_get::<i64, _>("sample_end")? as u32;
-        let done_end = task.try_get::<i64, _>("done_end")? as u32;
-        let state = task_state(&task.try_get::<String, _>("state")?)?;
-        let lease_token: Option<String> = task.try_get("lease_token")?;
-        let worker_id: Option<String> = task.try_get("worker_id")?;
-        let all_invalid_worker: Option<String> = task.try_get("all_invalid_worker")?;
-        // A verification task: the task whose result it renders again (`verification.rs`).
-        let verifies: Option<i64> = task.try_get("verifies")?;
-        if lease_token.as_deref() != Some(token) {
-            return Err(stale_lease(task_id));
-        }
-        let (s_begin, s_end) = (slice.sample_begin, slice.sample_end);
-        if s_begin < t_begin || s_end > t_end {
-            return Err(Error::SliceShape(format!(
-                "slice samples [{s_begin}, {s_end}) lie outside task {task_id}'s [{t_begin}, {t_end})"
-            )));
-        }
-        if s_end <= done_end {
-            return Ok(MergeOutcome {
-                ack: SliceAck {
-                    duplicate: true,
-                    task_samples_done: done_end,
-                    task_complete: done_end == t_end,
-                    keep_going: state == TaskState::Leased,
-                    slice_seconds: None,
-                },
-                samples: 0,
-                verification_samples: 0,
-                job_completed: false,
-                all_invalid: None,
-            });
-        }
-        if state != TaskState::Leased {
-            return Err(Error::TaskNotLeased {
-                task_id,
-                state: state.as_str(),
-            });
-        }
-        if s_begin != done_end {
-            return Err(Error::SliceOutOfOrder {
-                task_id,
-                done_end,
-                begin: s_begin,
-            });
-        }
-        let tile = if joined {
-            task
-        } else {
-            sqlx::query(
-                "SELECT x0, y0, width, height, samples, accum FROM tiles \
-                 WHERE job_id = $1 AND tile_index = $2 FOR UPDATE",
-            )
-            .bind(&job_id)
-            .bind(tile_index)
-            .fetch_one(&mut **tx)
-            .await?
-        };
-        let g = |c: &str| tile.try_get::<i64, _>(c);
-        let (x0, y0, tw, th) = (
-            g("x0")? as u32,
-            g("y0")? as u32,
-            g("width")? as u32,
-            g("height")? as u32,
-        );
         let a = &slice.acc;
-        if (a.x0, a.y0, a.width, a.height) != (x0, y0, tw, th) {
-            return Err(Error::SliceShape(format!(
-                "slice covers {}x{} at ({}, {}), task {task_id}'s tile is {tw}x{th} at ({x0}, {y0})",
-                a.width, a.height, a.x0, a.y0
-            )));
-        }
-        let n = s_end - s_begin;
-        // Every pixel must account for every sample: valid ones are counted, invalid ones counted
-        // apart, so the total matches the range.
-        let counted: u64 = a.pixels.iter().map(|p| p.count).sum::<u64>() + a.invalid_count;
-        let expected = n as u64 * a.pixels.len() as u64;
-        if counted != expected {
-            return Err(Error::SliceValues(format!(
-                "slice holds {counted} samples, its shape needs {expected}"
-            )));
-        }
-        if expected > 0 && a.invalid_count == expected {
-            let slice = format!(
-                "task {task_id}'s slice of samples [{s_begin}, {s_end}) of tile {tile_index}"
-            );
-            return self
-                .refuse_all_invalid(tx, task_id, &job_id, worker_id, all_invalid_worker, slice)
-                .await;
-        }
-        let complete = s_end == t_end;
-        let to = task_transition(state, TaskEvent::Merged { complete }).map_err(Error::internal)?;
-        let samples = n as u64 * a.pixels.len() as u64;
         let now = self.now_ms();
         // The writes in lock order (tiles, tasks, jobs, workers), in one round trip on SQLite
         // (with, while verification is on, the record of who merged into the tile first). The
@@ -268,7 +217,7 @@ impl Store {
                 (None, judged, opened)
             }
             None => {
-                let update = merged_tile(&tile, a, task_id, n)?;
+                let update = merged_tile(tile, a, task_id, n)?;
                 let opened = self
                     .track_for_verification(
                         tx,
@@ -558,7 +507,7 @@ impl Store {
 /// and its frame's error estimates add up: `estimates.rs`). Checked: an overflow refuses
 /// the slice (before any write, so a batch goes on) and leaves the tile as it was, so honest
 /// slices still merge into it.
-fn merged_tile(
+pub(super) fn merged_tile(
     tile: &sqlx::any::AnyRow,
     a: &Accumulation,
     task_id: i64,

@@ -60,6 +60,12 @@ struct Args {
     /// Seconds a simulated worker takes per sample of its tile (`pressure` only).
     #[arg(long, default_value_t = 1.5)]
     pace: f64,
+    /// Measure on PostgreSQL only, not SQLite too (`pressure` only; needs --postgres).
+    #[arg(long, requires = "postgres")]
+    postgres_only: bool,
+    /// Measure with the server's back-pressure only, not without it too (`pressure` only).
+    #[arg(long)]
+    back_pressure_only: bool,
     /// Output directory.
     #[arg(long)]
     out: PathBuf,
@@ -177,6 +183,8 @@ fn pressure(args: Args) -> anyhow::Result<()> {
         seconds: args.seconds,
         pace: args.pace,
         job: pressure::PressureOptions::JOB,
+        sqlite: !args.postgres_only,
+        without_back_pressure: !args.back_pressure_only,
         command_line: command_line(),
     };
     let (_, markdown) = pressure::run(&opts).context("pressure benchmark failed")?;
