@@ -12,7 +12,7 @@ use super::error::{Error, StoreResult};
 use super::merge_checks::{check_slice, Checked, TASK_AND_TILE};
 use super::tasks::merged_tile;
 use super::writes::MergeOutcome;
-use super::Store;
+use super::{Dialect, Store};
 use crate::states::{JobEvent, WorkerEvent};
 use pathfarm_wire::api::{JobState, SliceAck};
 use pathfarm_wire::Slice;
@@ -23,16 +23,17 @@ use sqlx::Row;
 const ATTEMPTS: usize = 4;
 
 impl Store {
-    /// Merges `slice` in one statement, or `None` when it must take the transactional merge: a
-    /// verification task's slice, one with every sample invalid, verification on, or its tile
-    /// changed by other merges on every attempt.
+    /// Merges `slice` in one statement, or `None` when it must take the transactional merge:
+    /// SQLite (whose merges share group-commit transactions), a verification task's slice, one
+    /// with every sample invalid, verification on, or its tile changed by other merges on every
+    /// attempt.
     pub(super) async fn merge_in_one_statement(
         &self,
         task_id: i64,
         token: &str,
         slice: &Slice,
     ) -> StoreResult<Option<MergeOutcome>> {
-        if self.verify_fraction > 0.0 {
+        if self.dialect() != Dialect::Postgres || self.verify_fraction > 0.0 {
             return Ok(None);
         }
         for _ in 0..ATTEMPTS {
