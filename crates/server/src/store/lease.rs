@@ -14,6 +14,7 @@ use crate::states::{job_transition, task_transition, JobEvent, TaskEvent, TaskSt
 use pathfarm_wire::api::{JobSettings, Lease, TileRect};
 use sqlx::any::AnyRow;
 use sqlx::Row;
+use std::sync::LazyLock;
 
 /// The job order of the scheduler, shared by both dialects' queries.
 macro_rules! candidate_jobs {
@@ -39,6 +40,14 @@ macro_rules! not_refused_by {
         )
     };
 }
+
+/// The state moves `pathfarm_lease` makes, as JSON (`states.rs`'s, spelled once per process).
+static LEASED_JOB_MOVES: LazyLock<String> =
+    LazyLock::new(|| super::job_moves_json(JobEvent::Leased));
+static LEASED_WORKER_MOVES: LazyLock<String> =
+    LazyLock::new(|| super::worker_moves_json(WorkerEvent::Leased));
+static NO_WORK_WORKER_MOVES: LazyLock<String> =
+    LazyLock::new(|| super::worker_moves_json(WorkerEvent::NoWork));
 
 /// The chosen task on SQLite: its job and one row with the task (`id`, `tile_index`, `done_end`,
 /// `sample_end`, `state`), its tile's rectangle and frame (`x0`…`height`, `frame`) and its job's
@@ -245,9 +254,9 @@ impl Store {
         .bind(now + lease_ms as i64)
         .bind(&token)
         .bind(to.as_str())
-        .bind(super::job_moves_json(JobEvent::Leased))
-        .bind(super::worker_moves_json(WorkerEvent::Leased))
-        .bind(super::worker_moves_json(WorkerEvent::NoWork))
+        .bind(LEASED_JOB_MOVES.as_str())
+        .bind(LEASED_WORKER_MOVES.as_str())
+        .bind(NO_WORK_WORKER_MOVES.as_str())
         .fetch_one(self.pool())
         .await
         .map_err(|e| match &e {

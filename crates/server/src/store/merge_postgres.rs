@@ -17,10 +17,20 @@ use crate::states::{JobEvent, WorkerEvent};
 use pathfarm_wire::api::{JobState, SliceAck};
 use pathfarm_wire::Slice;
 use sqlx::Row;
+use std::sync::LazyLock;
 
 /// How often the merge reads again after another merge changed its tile (or a retry its task)
 /// before it takes the locks in a transaction instead.
 const ATTEMPTS: usize = 4;
+
+/// The state moves `pathfarm_merge` makes, as JSON (`states.rs`'s, spelled once per process):
+/// the worker's after a slice that does not finish its task and one that does, the job's when
+/// it completes.
+static WORKER_MOVES: LazyLock<[String; 2]> = LazyLock::new(|| {
+    [false, true].map(|complete| super::worker_moves_json(WorkerEvent::SliceMerged { complete }))
+});
+static COMPLETE_JOB_MOVES: LazyLock<String> =
+    LazyLock::new(|| super::job_moves_json(JobEvent::Complete));
 
 impl Store {
     /// Merges `slice` in one statement, or `None` when it must take the transactional merge:
@@ -70,10 +80,8 @@ impl Store {
             .bind(sums.without_estimate() as i64)
             .bind(plan.samples as i64)
             .bind(self.now_ms())
-            .bind(super::worker_moves_json(WorkerEvent::SliceMerged {
-                complete: plan.complete,
-            }))
-            .bind(super::job_moves_json(JobEvent::Complete))
+            .bind(WORKER_MOVES[usize::from(plan.complete)].as_str())
+            .bind(COMPLETE_JOB_MOVES.as_str())
             .fetch_one(self.pool())
             .await?;
             if done.try_get::<String, _>("outcome")? != "merged" {
