@@ -108,8 +108,8 @@ async fn two_monitors_expire_overlapping_leases_at_once() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn leases_racing_pauses_keep_every_count_true() {
     // On PostgreSQL a lease claims its task before it locks the job's row, so a pause on another
-    // server can land in between: that lease must roll back and try again, leaving no task
-    // leased that the job's counters do not count.
+    // server can land in between: that lease must leave the task queued and try the next
+    // candidate (`pathfarm_lease`), leaving no task leased that the job's counters do not count.
     for (store, url) in stores("pause-race").await {
         let (a, b) = (
             AppState::open(config(&url)).await.unwrap(),
