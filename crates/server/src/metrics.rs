@@ -78,6 +78,57 @@ impl Metrics {
             .fetch_add(d.as_micros() as u64, Ordering::Relaxed);
     }
 
+    /// The statuses `method` `route` answered, with how many of each.
+    pub fn request_statuses(&self, method: &str, route: &str) -> Vec<(u16, u64)> {
+        let Ok(requests) = self.requests.lock() else {
+            return Vec::new();
+        };
+        requests
+            .iter()
+            .filter(|((m, r, _), _)| m == method && r == route)
+            .map(|((_, _, status), h)| (*status, h.count))
+            .collect()
+    }
+
+    /// The `q` quantile (0–1) of the latency of `method` `route` answered `status` (every status
+    /// with `None`), in seconds, estimated from the histogram as Prometheus' `histogram_quantile`
+    /// does (linear within the bucket it falls in; the last finite bound when it falls beyond).
+    /// `None` before any such request.
+    pub fn request_quantile(
+        &self,
+        method: &str,
+        route: &str,
+        status: Option<u16>,
+        q: f64,
+    ) -> Option<f64> {
+        let requests = self.requests.lock().ok()?;
+        let mut buckets = [0u64; LATENCY_BUCKETS.len() + 1];
+        for ((m, r, st), h) in requests.iter() {
+            if m == method && r == route && status.is_none_or(|s| s == *st) {
+                for (sum, n) in buckets.iter_mut().zip(h.buckets) {
+                    *sum += n;
+                }
+            }
+        }
+        let count: u64 = buckets.iter().sum();
+        if count == 0 {
+            return None;
+        }
+        let rank = q.clamp(0.0, 1.0) * count as f64;
+        let mut below = 0u64;
+        for (i, &n) in buckets.iter().enumerate() {
+            if n > 0 && (below + n) as f64 >= rank {
+                let Some(&upper) = LATENCY_BUCKETS.get(i) else {
+                    return LATENCY_BUCKETS.last().copied();
+                };
+                let lower = if i == 0 { 0.0 } else { LATENCY_BUCKETS[i - 1] };
+                return Some(lower + (upper - lower) * ((rank - below as f64) / n as f64));
+            }
+            below += n;
+        }
+        LATENCY_BUCKETS.last().copied()
+    }
+
     /// Records one request's latency and status; `route` is the matched route template, never the
     /// raw path (ids would make the label set grow without bound).
     pub fn observe_request(&self, method: &str, route: &str, status: u16, d: Duration) {
@@ -286,6 +337,43 @@ mod tests {
             "pathfarm_http_request_duration_seconds_count{method=\"GET\",route=\"/api/v1/jobs\",\
              status=\"200\"} 5"
         ));
+    }
+
+    #[test]
+    fn quantiles_interpolate_within_the_bucket_over_every_status() {
+        let m = Metrics::default();
+        assert_eq!(m.request_quantile("POST", "/lease", None, 0.5), None);
+        // 100 requests: 60 in (0.025, 0.05], 40 in (0.05, 0.1], split over two statuses.
+        for i in 0..100 {
+            let (ms, status) = if i < 60 { (30.0, 200) } else { (70.0, 204) };
+            m.observe_request(
+                "POST",
+                "/lease",
+                status,
+                Duration::from_secs_f64(ms / 1000.0),
+            );
+        }
+        m.observe_request("GET", "/other", 200, Duration::from_secs(20));
+        let q = |q| {
+            m.request_quantile("POST", "/lease", None, q)
+                .expect("requests")
+        };
+        assert!((q(0.3) - 0.0375).abs() < 1e-12, "{}", q(0.3));
+        assert!((q(0.8) - 0.075).abs() < 1e-12, "{}", q(0.8));
+        assert!((q(1.0) - 0.1).abs() < 1e-12, "{}", q(1.0));
+        // One status: its own requests only.
+        let only_204 = m.request_quantile("POST", "/lease", Some(204), 0.5);
+        assert!(
+            (only_204.expect("204s") - 0.075).abs() < 1e-12,
+            "{only_204:?}"
+        );
+        assert_eq!(m.request_quantile("POST", "/lease", Some(500), 0.5), None);
+        assert_eq!(
+            m.request_statuses("POST", "/lease"),
+            vec![(200, 60), (204, 40)]
+        );
+        // Beyond the last finite bound: that bound.
+        assert_eq!(m.request_quantile("GET", "/other", None, 0.99), Some(10.0));
     }
 
     #[test]

@@ -100,6 +100,23 @@ pub struct LoadgenRun {
     pub leases_per_second: f64,
     pub lease_p50_ms: f64,
     pub lease_p99_ms: f64,
+    /// The p99 of every lease answer, the `slow_down`s with the granted leases.
+    #[serde(default)]
+    pub lease_answer_p99_ms: f64,
+    /// The granted leases' p99 from when the request got its turn on its shared HTTP client
+    /// (`lease_p99_ms` counts the wait for that turn too).
+    #[serde(default)]
+    pub lease_sent_p99_ms: f64,
+    /// The lease's p99 as the server measured it (from its request histogram, so to a bucket's
+    /// resolution): its handler from the credential check to the answer, without the connection's
+    /// queues and the simulated workers' own scheduling. Every answer (`lease_p99_ms` is the
+    /// granted leases'); per status in `server_lease_statuses`.
+    #[serde(default)]
+    pub server_lease_p99_ms: Option<f64>,
+    /// Per status the lease answered (200 granted, 429 `slow_down`, …): how many, and the
+    /// server's p50 and p99 in ms.
+    #[serde(default)]
+    pub server_lease_statuses: Vec<(u16, u64, f64, f64)>,
     pub upload_p50_ms: f64,
     pub upload_p99_ms: f64,
     /// Every upload acknowledged as new (not `duplicate`), including those answered after the
@@ -182,6 +199,10 @@ struct Shared {
     errors: AtomicU64,
     first_error: Mutex<Option<String>>,
     lease_lat: Mutex<Vec<f64>>,
+    /// Every lease answer's latency: the granted ones and the `slow_down`s.
+    lease_answer_lat: Mutex<Vec<f64>>,
+    /// Granted leases' latency from when the request got its shared client's turn.
+    lease_sent_lat: Mutex<Vec<f64>>,
     upload_lat: Mutex<Vec<f64>>,
     /// Set when the window closes.
     stop: AtomicBool,
@@ -244,6 +265,7 @@ async fn simulated_worker(
             Some(s) => s.clone().acquire_owned().await.ok(),
             None => None,
         };
+        let sent = Instant::now();
         let answer = client.lease(&worker_id).await;
         drop(turn);
         let lease = match answer {
@@ -257,6 +279,7 @@ async fn simulated_worker(
                     && e.status() == Some(reqwest::StatusCode::TOO_MANY_REQUESTS) =>
             {
                 shared.slow_downs.fetch_add(1, Ordering::Relaxed);
+                Shared::record(&shared.lease_answer_lat, t.elapsed().as_secs_f64());
                 let after = e.retry_after().unwrap_or(Duration::from_secs(1));
                 tokio::time::sleep(after.min(Duration::from_secs(60))).await;
                 continue;
@@ -267,6 +290,8 @@ async fn simulated_worker(
             }
         };
         Shared::record(&shared.lease_lat, t.elapsed().as_secs_f64());
+        Shared::record(&shared.lease_answer_lat, t.elapsed().as_secs_f64());
+        Shared::record(&shared.lease_sent_lat, sent.elapsed().as_secs_f64());
         if !shared.stop.load(Ordering::Relaxed) {
             shared.window_leases.fetch_add(1, Ordering::Relaxed);
         }
@@ -382,6 +407,9 @@ pub async fn run(
     stopped?;
     Ok(run)
 }
+
+/// The lease's route template, as the server's request histogram names it.
+const LEASE_ROUTE: &str = "/api/v1/workers/{id}/lease";
 
 async fn measure(
     server: &Server,
@@ -499,6 +527,24 @@ async fn measure(
         leases_per_second: leases as f64 / seconds,
         lease_p50_ms: quantile_ms(&shared.lease_lat, 0.5),
         lease_p99_ms: quantile_ms(&shared.lease_lat, 0.99),
+        lease_answer_p99_ms: quantile_ms(&shared.lease_answer_lat, 0.99),
+        lease_sent_p99_ms: quantile_ms(&shared.lease_sent_lat, 0.99),
+        server_lease_p99_ms: server
+            .state
+            .metrics
+            .request_quantile("POST", LEASE_ROUTE, None, 0.99)
+            .map(|s| s * 1000.0),
+        server_lease_statuses: {
+            let m = &server.state.metrics;
+            let ms = |status, q| {
+                m.request_quantile("POST", LEASE_ROUTE, Some(status), q)
+                    .map_or(f64::NAN, |s| s * 1000.0)
+            };
+            m.request_statuses("POST", LEASE_ROUTE)
+                .into_iter()
+                .map(|(status, n)| (status, n, ms(status, 0.5), ms(status, 0.99)))
+                .collect()
+        },
         upload_p50_ms: quantile_ms(&shared.upload_lat, 0.5),
         upload_p99_ms: quantile_ms(&shared.upload_lat, 0.99),
         accepted_uploads: shared.accepted.load(Ordering::Relaxed),

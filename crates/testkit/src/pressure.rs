@@ -156,15 +156,15 @@ fn report(r: &PressureResults) -> String {
     let _ = writeln!(
         md,
         "| store | back-pressure | uploads/s | leases/s | samples/upload | slice asked (s) | \
-         lease p50/p99 ms | upload p50/p99 ms | slow_down | 5xx | errors | first pass (s) | \
-         exact |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+         lease p50/p99 ms | p99 from its turn | p99 with slow_downs | server's lease p99 ms | upload p50/p99 ms | slow_down | 5xx | errors | first pass (s) | \
+         exact |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
     );
     for row in &r.rows {
         let x = &row.run;
         let _ = writeln!(
             md,
-            "| {} | {} | {:.0} | {:.0} | {:.1} | {:.1} | {:.1} / {:.1} | {:.1} / {:.1} | {} | {} \
-             | {} | {} | {} |",
+            "| {} | {} | {:.0} | {:.0} | {:.1} | {:.1} | {:.1} / {:.1} | {:.1} | {:.1} | {} | {:.1} / {:.1} | {} \
+             | {} | {} | {} | {} |",
             x.store,
             if row.back_pressure { "on" } else { "off" },
             x.uploads_per_second,
@@ -173,6 +173,10 @@ fn report(r: &PressureResults) -> String {
             x.slice_seconds_at_end,
             x.lease_p50_ms,
             x.lease_p99_ms,
+            x.lease_sent_p99_ms,
+            x.lease_answer_p99_ms,
+            x.server_lease_p99_ms
+                .map_or("–".to_string(), |ms| format!("{ms:.1}")),
             x.upload_p50_ms,
             x.upload_p99_ms,
             x.slow_downs,
@@ -182,6 +186,22 @@ fn report(r: &PressureResults) -> String {
                 .map_or("not reached".to_string(), |s| format!("{s:.1}")),
             if x.consistent() { "yes" } else { "NO" },
         );
+    }
+    let _ = writeln!(
+        md,
+        "\nThe lease as the server measured it, per answer (from its request histogram: to a \
+         bucket's resolution):\n\n| store | back-pressure | status | answers | p50 ms | p99 ms \
+         |\n|---|---|---:|---:|---:|---:|"
+    );
+    for row in &r.rows {
+        for (status, n, p50, p99) in &row.run.server_lease_statuses {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {status} | {n} | {p50:.1} | {p99:.1} |",
+                row.run.store,
+                if row.back_pressure { "on" } else { "off" },
+            );
+        }
     }
     for row in &r.rows {
         if let Some(e) = &row.run.first_error {

@@ -115,7 +115,7 @@ pub struct ServerArgs {
     pub verify_fraction: f64,
     /// Back-pressure: the share (0 to 1] of the store's measured write capacity the workers'
     /// uploads and leases may take: the server asks for slices long enough to stay under it. A
-    /// lease that finds 50 ms of the store's writes under way is answered 429 `slow_down` with a
+    /// lease that finds 25 ms of the store's writes under way is answered 429 `slow_down` with a
     /// `Retry-After`. 0: no back-pressure.
     #[arg(long, env = "PATHFARM_TARGET_WRITE_LOAD", default_value_t = 0.5)]
     pub target_write_load: f64,

@@ -16,7 +16,8 @@ use sqlx::any::AnyRow;
 use sqlx::Row;
 use std::sync::LazyLock;
 
-/// The job order of the scheduler, shared by both dialects' queries.
+/// The job order of the scheduler, shared by both dialects: SQLite's lease query embeds it,
+/// PostgreSQL's lease function runs it as given.
 macro_rules! candidate_jobs {
     () => {
         "SELECT id, state, settings, scene_hash, priority, leased_tasks, created_ms FROM jobs \
@@ -208,35 +209,19 @@ impl Store {
     /// The lease on PostgreSQL, in one statement outside any explicit transaction: on a busy farm
     /// every lease and every merge writes the same row, their job's (its counters), and each
     /// waits for the transaction that holds it. The function `pathfarm_lease`
-    /// (`migrations/postgres/0012_lease_and_merge_functions.sql`) takes the worker's lease lock, checks the
-    /// cap, claims the first candidate's next task and writes task, job and worker, and commits
-    /// inside this one round trip, so the job's row is never held while this server is busy
-    /// elsewhere (docs/benchmarks.md, "the lease and the merge in one statement"). The candidate jobs are read
-    /// first, without locks, in the scheduler's order; the state machines' moves are passed in.
+    /// (`migrations/postgres/0013_lease_reads_its_candidates.sql`) takes the worker's lease lock,
+    /// checks the cap, runs the candidate query it is given (`candidate_jobs!`, the scheduler's
+    /// order, without locks), claims the first candidate's next task, writes task, job and
+    /// worker, and commits inside this one round trip, so the job's row is never held while this
+    /// server is busy elsewhere and a lease waits for one pooled connection once
+    /// (docs/benchmarks.md, "the lease and the merge in one statement", "a lease in one round
+    /// trip, and a shorter write queue"). The state machines' moves are passed in.
     async fn lease_postgres(
         &self,
         worker_id: &str,
         lease_ms: u64,
         max_leases: u32,
     ) -> StoreResult<Option<Lease>> {
-        let candidates = sqlx::query(concat!(
-            "SELECT w.id AS worker, j.id AS job_id FROM workers w LEFT JOIN (",
-            candidate_jobs!(),
-            ") j ON 1 = 1 WHERE w.id = $1 \
-             ORDER BY j.priority DESC, j.leased_tasks ASC, j.created_ms ASC, j.id ASC"
-        ))
-        .bind(worker_id)
-        .fetch_all(self.pool())
-        .await?;
-        if candidates.is_empty() {
-            return Err(Error::not_found("worker", worker_id));
-        }
-        let ids = candidates
-            .iter()
-            .filter_map(|c| c.try_get::<Option<String>, _>("job_id").transpose())
-            .collect::<Result<Vec<String>, _>>()?;
-        let ids = serde_json::to_string(&ids)
-            .map_err(|e| Error::internal(format!("candidate ids: {e}")))?;
         // The claim's filter takes only queued tasks.
         let to = task_transition(TaskState::Queued, TaskEvent::Lease).map_err(Error::internal)?;
         let token = new_token();
@@ -249,7 +234,7 @@ impl Store {
         .bind(worker_id)
         .bind(lease_lock_key(worker_id))
         .bind(i64::from(max_leases))
-        .bind(ids)
+        .bind(candidate_jobs!())
         .bind(now)
         .bind(now + lease_ms as i64)
         .bind(&token)

@@ -53,6 +53,7 @@ pub(super) static POSTGRES: LazyLock<Migrator> = LazyLock::new(|| {
         "0010_tile_error_sums.sql",
         "0011_worker_list_order.sql",
         "0012_lease_and_merge_functions.sql",
+        "0013_lease_reads_its_candidates.sql",
     ))
 });
 

@@ -20,6 +20,7 @@ const SQLITE_BEGIN_WRITE: &str = "BEGIN IMMEDIATE";
 mod all_invalid;
 mod clock;
 mod convergence;
+mod credentials;
 mod error;
 mod estimates;
 mod frames;
@@ -111,6 +112,8 @@ pub struct Store {
     /// The fraction of tasks rendered again by another worker to check them
     /// ([`crate::ServerConfig::verify_fraction`], `verification.rs`).
     verify_fraction: f64,
+    /// Worker credentials looked up lately ([`credentials`]).
+    credentials: std::sync::Arc<credentials::CredentialCache>,
 }
 
 /// A write transaction; on SQLite it also holds the process's writer lock until it ends.
@@ -263,6 +266,7 @@ impl Store {
                 .then(|| std::sync::Arc::new(Mutex::new(()))),
             write_queue: (dialect == Dialect::Sqlite).then(Default::default),
             verify_fraction: 0.0,
+            credentials: Default::default(),
         })
     }
 

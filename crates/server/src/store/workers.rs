@@ -47,6 +47,7 @@ impl Store {
         let id = uuid::Uuid::new_v4().simple().to_string();
         let credential = new_credential()?;
         let now = self.now_ms();
+        let cached = self.credentials.lookup_began(std::time::Instant::now());
         let mut w = self.write().await?;
         if max_workers < u64::MAX {
             let registered: i64 = sqlx::query("SELECT COUNT(*) AS n FROM workers")
@@ -76,20 +77,32 @@ impl Store {
         .execute(&mut *w.tx)
         .await?;
         w.commit().await?;
+        // Its first calls need no lookup (a farm's workers all lease at once when it starts).
+        self.credentials
+            .insert(credential_digest(&credential), id.clone(), cached);
         Ok((id, credential))
     }
 
     /// The id of the registered worker whose credential this is, if any. The lookup is by digest
-    /// (an index), so the time it takes depends on the digest, never on the credential's bytes.
+    /// (an index, or the server's cache of lately found ones: `credentials.rs`), so the time it
+    /// takes depends on the digest, never on the credential's bytes.
     pub async fn worker_by_credential(&self, credential: &str) -> StoreResult<Option<String>> {
+        let digest = credential_digest(credential);
+        let now = std::time::Instant::now();
+        if let Some(id) = self.credentials.get(&digest, now) {
+            return Ok(Some(id));
+        }
+        let start = self.credentials.lookup_began(now);
         let row = sqlx::query("SELECT id FROM workers WHERE credential_digest = $1")
-            .bind(credential_digest(credential))
+            .bind(&digest)
             .fetch_optional(self.pool())
             .await?;
-        Ok(match row {
-            Some(r) => Some(r.try_get("id")?),
-            None => None,
-        })
+        let Some(row) = row else {
+            return Ok(None);
+        };
+        let id: String = row.try_get("id")?;
+        self.credentials.insert(digest, id.clone(), start);
+        Ok(Some(id))
     }
 
     /// Whether `worker_id` holds a lease on a task of a job whose scene or environment image is
@@ -143,6 +156,10 @@ impl Store {
         .await?
         .rows_affected();
         w.commit().await?;
+        if n > 0 {
+            // Their credentials must stop working here at once (`credentials.rs`).
+            self.credentials.clear();
+        }
         Ok(n)
     }
 
