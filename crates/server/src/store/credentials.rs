@@ -10,8 +10,9 @@
 //! forgets every entry at once; another server sharing the database forgets it within
 //! [`TTL`]. Until then the collected worker's calls there find no worker (404) or a stale lease
 //! instead of an unknown credential (401): its leases went back to the queue with the collection,
-//! so it can take nothing, and `pathfarm worker` registers again on that 404 as on the 401. Only credentials that were found are kept (random guesses add nothing), at most
-//! [`CAPACITY`] of them.
+//! so it can take nothing, and `pathfarm worker` registers again on that 404 as on the 401.
+//! Only credentials that were found are kept (random guesses add nothing), at most [`CAPACITY`]
+//! of them.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};

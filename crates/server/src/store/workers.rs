@@ -46,6 +46,7 @@ impl Store {
     ) -> StoreResult<(String, String)> {
         let id = uuid::Uuid::new_v4().simple().to_string();
         let credential = new_credential()?;
+        let digest = credential_digest(&credential);
         let now = self.now_ms();
         let cached = self.credentials.lookup_began(std::time::Instant::now());
         let mut w = self.write().await?;
@@ -73,13 +74,12 @@ impl Store {
         .bind(&reg.version)
         .bind(WorkerState::Idle.as_str())
         .bind(now)
-        .bind(credential_digest(&credential))
+        .bind(&digest)
         .execute(&mut *w.tx)
         .await?;
         w.commit().await?;
         // Its first calls need no lookup (a farm's workers all lease at once when it starts).
-        self.credentials
-            .insert(credential_digest(&credential), id.clone(), cached);
+        self.credentials.insert(digest, id.clone(), cached);
         Ok((id, credential))
     }
 
