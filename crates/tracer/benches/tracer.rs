@@ -244,8 +244,8 @@ fn flat_vs_tree(c: &mut Criterion) {
             scene_gen::cornell_with(&scene_gen::bench_sphere(1)).mesh,
         ),
     ];
-    for (scene, mut mesh) in meshes {
-        let bvh = Bvh::build(&mut mesh);
+    for (scene, mesh) in meshes {
+        let bvh = Bvh::build(&mesh);
         eprintln!(
             "flat_vs_tree: {scene}, {} triangles, flat test {}",
             mesh.len(),

@@ -16,7 +16,7 @@ fn animated(bytes: &[u8]) -> Result<AnimatedScene, GltfError> {
     AnimatedScene::load(bytes, &NoExternalResources, &LoadOptions::default())
 }
 
-/// Every corner of the mesh's triangles, sorted (the BVH reorders triangles).
+/// Every corner of the mesh's triangles, sorted (so that the order of triangles does not count).
 fn corners(mesh: &Mesh) -> Vec<[f32; 3]> {
     let mut v: Vec<[f32; 3]> = mesh
         .positions

@@ -119,7 +119,9 @@ fn the_same_seed_gives_the_same_bits_and_another_seed_does_not() {
 #[test]
 fn the_scene_build_is_the_same_on_any_thread_count() {
     // Workers build their own BVH from the scene bytes; ties between equally distant triangles are
-    // broken by triangle index, which the BVH order defines, so the build must be deterministic.
+    // broken by triangle index, and which triangles a ray meets at all depends on the tree's
+    // padded boxes, so the build must be deterministic: the same mesh, the same tree size and the
+    // same hit (triangle and distance, bit for bit) for rays in every direction.
     let build = |threads: usize| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -127,13 +129,34 @@ fn the_scene_build_is_the_same_on_any_thread_count() {
             .expect("pool")
             .install(|| sphere_with_point_light(1.0, 0.5, 1.0))
     };
+    let hits = |scene: &Scene| -> Vec<Option<(u32, u32)>> {
+        (0..4096u32)
+            .map(|k| {
+                // Directions spread over the sphere (a Fibonacci lattice), from off the centre.
+                let z = 1.0 - (2 * k + 1) as f32 / 4096.0;
+                let phi = k as f32 * 2.399_963;
+                let r = (1.0 - z * z).sqrt();
+                let d = glam::Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                let ray = pathfarm_tracer::geometry::Ray::new(glam::Vec3::splat(0.1), d);
+                scene
+                    .intersect(&ray, f32::INFINITY, 0.5)
+                    .map(|h| (h.triangle, h.t.to_bits()))
+            })
+            .collect()
+    };
     let a = build(1);
+    let a_hits = hits(&a);
+    assert!(
+        a_hits.iter().all(Option::is_some),
+        "rays from inside the sphere must hit it"
+    );
     for threads in [2, 3] {
         let b = build(threads);
         assert_eq!(
             a.mesh.positions, b.mesh.positions,
-            "{threads} threads reorder the mesh differently"
+            "{threads} threads order the mesh differently"
         );
         assert_eq!(a.info.bvh_nodes, b.info.bvh_nodes);
+        assert_eq!(a_hits, hits(&b), "{threads} threads: different hits");
     }
 }

@@ -17,7 +17,7 @@ use super::{box_reciprocal, Bvh, Mesh, Ray, RayPrecomp, TriangleHit};
 use glam::{Affine3A, DAffine3, DMat3, DMat4, DVec3, Mat3A, Vec3, Vec3A};
 use std::sync::Arc;
 
-/// A mesh kept once in object space, with its BVH (its triangles reordered to the BVH's order).
+/// A mesh kept once in object space, with its BVH.
 #[derive(Clone, Debug)]
 pub struct Prototype {
     pub mesh: Mesh,
@@ -89,10 +89,10 @@ pub enum InstanceError {
 }
 
 impl Prototype {
-    /// Builds the prototype's BVH and reorders its triangles to it. The mesh must hold only
-    /// renderable triangles (as [`crate::scene::Scene::build`] leaves them).
-    pub fn new(mut mesh: Mesh) -> Prototype {
-        let bvh = Bvh::build(&mut mesh);
+    /// Builds the prototype's BVH. The mesh must hold only renderable triangles (as
+    /// [`crate::scene::Scene::build`] leaves them).
+    pub fn new(mesh: Mesh) -> Prototype {
+        let bvh = Bvh::build(&mesh);
         let (lo, hi) = mesh.bounds();
         Prototype { mesh, bvh, lo, hi }
     }

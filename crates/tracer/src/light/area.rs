@@ -77,7 +77,7 @@ pub struct AreaLights {
 }
 
 impl AreaLights {
-    /// Collects the emissive triangles of `mesh` (after any reordering) and their power.
+    /// Collects the emissive triangles of `mesh` and their power.
     pub fn new(mesh: &Mesh, materials: &[Material], textures: &[Texture]) -> Self {
         let radiance: Vec<f32> = materials
             .iter()

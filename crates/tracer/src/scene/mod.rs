@@ -68,6 +68,9 @@ pub struct SceneInfo {
     pub emissive_triangles: usize,
     pub punctual_lights: usize,
     pub bvh_nodes: usize,
+    /// Wall seconds the world-space mesh's BVH took to build (the instanced meshes' trees not
+    /// counted).
+    pub bvh_seconds: f64,
     /// Approximate bytes held by geometry, BVH and textures.
     pub bytes: usize,
     pub warnings: Vec<String>,
@@ -112,7 +115,7 @@ pub enum SceneError {
 /// frames make hold what does not move between frames once.
 #[derive(Clone, Debug)]
 pub struct Scene {
-    /// The world-space triangles (those placed once, and every emitter), in the BVH's order.
+    /// The world-space triangles (those placed once, and every emitter), in the loader's order.
     pub mesh: Arc<Mesh>,
     pub bvh: Arc<Bvh>,
     /// Instanced meshes and their placements (empty for most scenes, and then free).
@@ -228,6 +231,7 @@ impl Scene {
             emissive_triangles: lights.area.triangles.len(),
             punctual_lights: lights.punctual.len(),
             bvh_nodes: bvh.node_count(),
+            bvh_seconds: world.bvh_seconds,
             bytes: mesh.bytes()
                 + bvh.bytes()
                 + instances.bytes()

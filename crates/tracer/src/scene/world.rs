@@ -13,33 +13,32 @@ use std::sync::Arc;
 /// World-space triangles with their BVH and area lights.
 #[derive(Clone, Debug)]
 pub struct World {
-    /// The triangles, renderable ones only, in the BVH's order.
+    /// The triangles, renderable ones only, in the order they were given.
     pub mesh: Arc<Mesh>,
     pub bvh: Arc<Bvh>,
     pub area: AreaLights,
     /// Degenerate triangles dropped by the build.
     pub dropped: usize,
+    /// Wall seconds the BVH's build took (for reports).
+    pub bvh_seconds: f64,
     /// The box of every corner; inverted (+∞, −∞) without triangles.
     lo: Vec3,
     hi: Vec3,
 }
 
 impl World {
-    /// Checks the mesh against the materials, drops its degenerate triangles, builds the BVH
-    /// (reordering the triangles to it) and collects the emissive triangles.
+    /// Checks the mesh against the materials, drops its degenerate triangles, builds the BVH and
+    /// collects the emissive triangles.
     pub fn build(
         mesh: Mesh,
         materials: &[Material],
         textures: &[Texture],
     ) -> Result<World, SceneError> {
-        let (mut mesh, dropped) = World::checked(mesh, materials)?;
+        let (mesh, dropped) = World::checked(mesh, materials)?;
         let started = std::time::Instant::now();
-        let bvh = Bvh::build(&mut mesh);
-        tracing::debug!(
-            triangles = mesh.len(),
-            bvh_seconds = started.elapsed().as_secs_f64(),
-            "built the BVH"
-        );
+        let bvh = Bvh::build(&mesh);
+        let bvh_seconds = started.elapsed().as_secs_f64();
+        tracing::debug!(triangles = mesh.len(), bvh_seconds, "built the BVH");
         let started = std::time::Instant::now();
         let area = AreaLights::new(&mesh, materials, textures);
         tracing::debug!(
@@ -53,6 +52,7 @@ impl World {
             bvh: Arc::new(bvh),
             area,
             dropped,
+            bvh_seconds,
             lo,
             hi,
         })

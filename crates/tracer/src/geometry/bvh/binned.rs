@@ -33,6 +33,8 @@ const MANY: usize = 256;
 /// axis, [`orders`]): with few primitives, centroids often share a bin, and ordering a handful is
 /// as cheap as binning.
 const SWEEP_MAX: usize = 16;
+// `orders` masks ranks with `SWEEP_MAX - 1`.
+const _: () = assert!(SWEEP_MAX.is_power_of_two());
 
 /// Ranges of more than this many primitives choose their split from a sample of about this many
 /// (every k-th primitive of the range, k fixed by its length): for a range that large the sample's
@@ -291,8 +293,15 @@ struct Bins<const N: usize> {
     counts: [[u32; 4]; N],
 }
 
+/// The x, y and z of four vectors, one vector per coordinate (lane k: `v[k]`'s).
+#[inline(always)]
+fn transposed(v: [Vec4; 4]) -> [Vec4; 3] {
+    let m = Mat4::from_cols(v[0], v[1], v[2], v[3]).transpose();
+    [m.x_axis, m.y_axis, m.z_axis]
+}
+
 /// Four boxes, one per lane (lane k of `lo[c]` is box k's lower corner in coordinate c): the
-/// binned sweep works on the four axes' bins at once.
+/// sweeps work on the four axes at once, one axis per lane.
 #[derive(Clone, Copy)]
 struct Boxes4 {
     lo: [Vec4; 3],
@@ -308,19 +317,18 @@ impl Boxes4 {
     /// Lane k: `boxes[k]`.
     #[inline(always)]
     fn gather(boxes: [Box3; 4]) -> Boxes4 {
-        let t = |v: [Vec3A; 4]| {
-            let m = Mat4::from_cols(
-                v[0].extend(0.0),
-                v[1].extend(0.0),
-                v[2].extend(0.0),
-                v[3].extend(0.0),
-            )
-            .transpose();
-            [m.x_axis, m.y_axis, m.z_axis]
-        };
         Boxes4 {
-            lo: t(boxes.map(|b| b.lo)),
-            hi: t(boxes.map(|b| b.hi)),
+            lo: transposed(boxes.map(|b| b.lo.extend(0.0))),
+            hi: transposed(boxes.map(|b| b.hi.extend(0.0))),
+        }
+    }
+
+    /// Lane k: the box of `prims[k]`.
+    #[inline(always)]
+    fn of_prims(prims: [&Prim; 4]) -> Boxes4 {
+        Boxes4 {
+            lo: transposed(prims.map(|p| p.lo)),
+            hi: transposed(prims.map(|p| p.hi)),
         }
     }
 
@@ -508,8 +516,13 @@ fn orders(prims: &[Prim]) -> [[u8; SWEEP_MAX]; 4] {
         for kj in &keys[i + 1..n] {
             rank += Vec4::select(kj.cmplt(ki), Vec4::ONE, Vec4::ZERO);
         }
-        for (axis, order) in orders.iter_mut().enumerate() {
-            order[rank[axis] as usize] = i as u8;
+        // The ranks read from the floats' bits (as [`Mapper::bins`] does): four saturating
+        // float-to-integer casts cost more than the comparisons.
+        let rank = (rank + MAGIC)
+            .to_array()
+            .map(|r| r.to_bits() - MAGIC.to_bits());
+        for (order, r) in orders.iter_mut().zip(rank) {
+            order[r as usize & (SWEEP_MAX - 1)] = i as u8;
         }
     }
     orders
@@ -517,41 +530,51 @@ fn orders(prims: &[Prim]) -> [[u8; SWEEP_MAX]; 4] {
 
 /// The best split of a small range by a full sweep over its keys in order on each axis. Areas in
 /// `f32` with the extents scaled as in [`Bins::best`]; the cost returned is unscaled.
+///
+/// The four axes are swept at once, one per lane, as [`Bins::best`] sweeps its bins: lane a of
+/// `ranked[r]` is the box of rank r on axis a. The costs are those of one axis at a time, bit for
+/// bit, and ties go to the first axis, then the first position, as they would in turn.
 fn best_sorted(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
     let n = prims.len();
     let scale = 1.0 / (info.bounds.hi - info.bounds.lo).max_element();
     if !(scale.is_finite() && scale > 0.0) {
         return None;
     }
-    let area = |b: &Box3| {
-        let d = (b.hi - b.lo) * scale;
-        d.x * d.y + d.y * d.z + d.z * d.x
-    };
-    let (mut best, mut best_split) = (f32::INFINITY, None);
-    for idx in orders(prims) {
-        let mut right = [0.0f32; SWEEP_MAX];
-        let mut acc = Box3::EMPTY;
-        for i in (1..n).rev() {
-            let p = &prims[idx[i] as usize];
-            acc.grow(p.lo(), p.hi());
-            right[i] = area(&acc);
-        }
-        let mut left = Box3::EMPTY;
-        for i in 1..n {
-            let p = &prims[idx[i - 1] as usize];
-            left.grow(p.lo(), p.hi());
-            let c = area(&left) * i as f32 + right[i] * (n - i) as f32;
-            if c < best {
-                best = c;
-                best_split = Some(Split::Sorted {
-                    order: idx,
-                    count: i,
-                });
-            }
+    let orders = orders(prims);
+    let mut ranked = [Boxes4::EMPTY; SWEEP_MAX];
+    for (r, boxes) in ranked[..n].iter_mut().enumerate() {
+        *boxes = Boxes4::of_prims(orders.map(|order| &prims[order[r] as usize]));
+    }
+    // The right sides' areas: index i covers ranks i.. .
+    let mut right = [Vec4::ZERO; SWEEP_MAX];
+    let mut acc = Boxes4::EMPTY;
+    for i in (1..n).rev() {
+        acc = acc.union(ranked[i]);
+        right[i] = acc.half_areas(scale);
+    }
+    let (mut best, mut best_count) = (Vec4::INFINITY, Vec4::ZERO);
+    let mut left = Boxes4::EMPTY;
+    for i in 1..n {
+        left = left.union(ranked[i - 1]);
+        let c = left.half_areas(scale) * i as f32 + right[i] * (n - i) as f32;
+        let better = c.cmplt(best);
+        best = Vec4::select(better, c, best);
+        best_count = Vec4::select(better, Vec4::splat(i as f32), best_count);
+    }
+    let (mut cost, mut axis) = (f32::INFINITY, 0);
+    for a in 0..4 {
+        if best[a] < cost {
+            (cost, axis) = (best[a], a);
         }
     }
     let unscale = f64::from(scale) * f64::from(scale);
-    best_split.map(|split| (f64::from(best) / unscale, split))
+    (cost < f32::INFINITY).then(|| {
+        let split = Split::Sorted {
+            order: orders[axis],
+            count: best_count[axis] as usize,
+        };
+        (f64::from(cost) / unscale, split)
+    })
 }
 
 /// The best SAH split of a range of at least two primitives, with its cost.

@@ -15,7 +15,7 @@
 //! subtree owns a contiguous slice, the triangle order is the slice's order, and nothing but the
 //! nodes is allocated during the build. Large ranges are binned in parallel, and the subtrees of
 //! large nodes are built in parallel (rayon), each into a piece of its own, laid out in child order
-//! and copied once into the final node list.
+//! and written once into the final node list (in parallel too).
 //! Every choice depends only on the triangles, never on the thread count or on scheduling, so the
 //! tree, the triangle order and so the image bits are the same on any machine.
 //!
@@ -31,9 +31,10 @@ use super::node::{Node4, NodeRef, TriPacket};
 use super::Mesh;
 use glam::{Vec3A, Vec4};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 
-/// The flattened result: nodes (root first), packets, and the triangle order
-/// (`order[k]` = old index of new triangle k).
+/// The flattened result: nodes (root first), packets, and the triangle order (`order[k]` = the
+/// mesh index of the tree's triangle k: the leaves, depth first, hold the triangles in this order).
 pub(super) struct Built {
     pub nodes: Vec<Node4>,
     pub packets: Vec<TriPacket>,
@@ -76,8 +77,8 @@ pub(super) fn padded(lo: Vec3A, hi: Vec3A, pad: f32) -> (Vec3A, Vec3A) {
     (lo - pad - ulps(lo), hi + pad + ulps(hi))
 }
 
-/// Builds the tree over `mesh` and reorders the mesh to the tree's triangle order.
-pub(super) fn build(mesh: &mut Mesh) -> Built {
+/// Builds the tree over `mesh`.
+pub(super) fn build(mesh: &Mesh) -> Built {
     let started = std::time::Instant::now();
     // Every triangle's box padded (`padded`), as a record the builder moves.
     let (lo, hi) = mesh.bounds();
@@ -108,30 +109,31 @@ pub(super) fn build(mesh: &mut Mesh) -> Built {
     };
     // Laid out while the records are still held: measured, this peaks lower than after them (the
     // pieces' freed memory stays with the allocator).
-    let mut nodes = Vec::with_capacity(piece.len);
-    piece.flatten_into(0, &mut nodes);
+    let len = piece.len;
+    let mut nodes = Vec::with_capacity(len);
+    piece.write_into(0, &mut nodes.spare_capacity_mut()[..len]);
+    // SAFETY: `write_into` wrote every one of the first `len` slots (it asserts that the slots it is
+    // given are as many as its piece's nodes, and its own nodes and tail pieces fill them).
+    unsafe { nodes.set_len(len) };
     let tree_seconds = started.elapsed().as_secs_f64() - records_seconds;
     let order: Vec<u32> = prims.par_iter().map(Prim::index).collect();
-    // The boxes are not needed any more: free them before the mesh is reordered.
+    // The boxes are not needed any more: free them before the packets are made.
     drop(prims);
-    // Reordered first, the packets read the mesh's positions in order instead of gathering them.
-    mesh.reorder(&order);
-    let reorder_seconds = started.elapsed().as_secs_f64() - records_seconds - tree_seconds;
     let leaves = number_leaves(&mut nodes, &mut root);
     let packets = leaves
         .par_iter()
         .map(|&(first, count)| {
-            let tris = &mesh.positions[first as usize..(first + count) as usize];
-            TriPacket::new(tris, first)
+            TriPacket::new(
+                &mesh.positions,
+                &order[first as usize..(first + count) as usize],
+            )
         })
         .collect();
     tracing::debug!(
         triangles = mesh.len(),
         records_seconds,
         tree_seconds,
-        reorder_seconds,
-        packets_seconds =
-            started.elapsed().as_secs_f64() - records_seconds - tree_seconds - reorder_seconds,
+        packets_seconds = started.elapsed().as_secs_f64() - records_seconds - tree_seconds,
         "built the 4-wide tree"
     );
     Built {
@@ -299,7 +301,7 @@ fn node(
 /// The nodes of a subtree as they are built: its own `nodes` (inner references relative to its
 /// first node), then the pieces of the subtrees that were built in parallel, laid out after them
 /// in order (each with its offset from this piece's first node). Nodes are copied once, into the
-/// final list ([`Piece::flatten_into`]), instead of once into every parallel ancestor's list: at
+/// final list ([`Piece::write_into`]), instead of once into every parallel ancestor's list: at
 /// 10M triangles the nodes are 200 MB and there are about five parallel levels.
 struct Piece {
     nodes: Vec<Node4>,
@@ -344,21 +346,29 @@ impl Piece {
         offset
     }
 
-    /// Appends the piece's nodes to `out`, its first at index `base` (= `out.len()`), its inner
-    /// references made absolute.
-    fn flatten_into(self, base: u32, out: &mut Vec<Node4>) {
-        debug_assert_eq!(base as usize, out.len());
-        out.extend(self.nodes.into_iter().map(|mut n| {
+    /// Writes the piece's nodes into `out`, exactly its [`Piece::len`] slots, its first at index
+    /// `base` of the final list and its inner references made absolute: its own nodes, then its
+    /// tail pieces' (in parallel: 200 MB of nodes at 10M triangles, written into fresh pages).
+    fn write_into(self, base: u32, out: &mut [MaybeUninit<Node4>]) {
+        assert_eq!(out.len(), self.len, "a piece's slots");
+        let (own, mut rest) = out.split_at_mut(self.nodes.len());
+        for (slot, mut n) in own.iter_mut().zip(self.nodes) {
             for (c, child) in n.child.iter_mut().enumerate() {
                 if n.valid & (1 << c) != 0 && !child.is_leaf() {
                     *child = NodeRef::inner(child.0 + base);
                 }
             }
-            n
-        }));
-        for (offset, piece) in self.tail {
-            piece.flatten_into(base + offset, out);
+            slot.write(n);
         }
+        let mut tails = Vec::with_capacity(self.tail.len());
+        for (offset, piece) in self.tail {
+            let (slots, later) = rest.split_at_mut(piece.len);
+            rest = later;
+            tails.push((base + offset, piece, slots));
+        }
+        tails
+            .into_par_iter()
+            .for_each(|(base, piece, slots)| piece.write_into(base, slots));
     }
 }
 
@@ -467,6 +477,7 @@ mod tests {
         // Depth-first: each child's box and the range of triangles under it.
         type Boxes = Vec<(Vec3A, Vec3A, u32, u32)>;
         fn visit(
+            mesh: &Mesh,
             b: &Built,
             r: NodeRef,
             next: &mut u32,
@@ -479,9 +490,14 @@ mod tests {
                 let p = r.packets();
                 assert_eq!(p.len(), 1);
                 let packet = &b.packets[p.start];
-                assert_eq!(packet.first_id, *next);
-                let count = packet.valid.count_ones();
+                let count = packet.valid().count_ones();
                 assert!((1..=MAX_PRIMS_PER_LEAF).contains(&count));
+                assert_eq!(packet.valid(), (1 << count) - 1);
+                let ids = &b.order[*next as usize..(*next + count) as usize];
+                assert_eq!(&packet.ids[..count as usize], ids);
+                for (k, &id) in ids.iter().enumerate() {
+                    assert_eq!(packet.triangle(k), mesh.positions[id as usize]);
+                }
                 *next += count;
                 return;
             }
@@ -499,12 +515,12 @@ mod tests {
                     )
                 };
                 let first = *next;
-                visit(b, node.child[k], next, depth + 1, deepest, boxes);
+                visit(mesh, b, node.child[k], next, depth + 1, deepest, boxes);
                 boxes.push((corner(0), corner(1), first, *next));
             }
         }
         let (mut next, mut deepest, mut boxes) = (0, 0, Vec::new());
-        visit(b, b.root, &mut next, 1, &mut deepest, &mut boxes);
+        visit(mesh, b, b.root, &mut next, 1, &mut deepest, &mut boxes);
         assert_eq!(next as usize, n);
         assert_eq!(deepest, b.depth);
         for (lo, hi, first, end) in boxes {
@@ -526,7 +542,7 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| build(&mut mesh.clone()))
+                .install(|| build(&mesh))
         };
         let (one, four) = (on(1), on(4));
         check(&mesh, &one);
@@ -579,7 +595,7 @@ mod tests {
         m.material = vec![0; m.positions.len()];
         cases.push(m);
         for mesh in &cases {
-            let built = build(&mut mesh.clone());
+            let built = build(mesh);
             check(mesh, &built);
             if mesh.len() <= MAX_PRIMS_PER_LEAF as usize {
                 assert!(built.root.is_leaf(), "{} triangles: one leaf", mesh.len());
@@ -640,9 +656,8 @@ mod tests {
             .unwrap_or(0);
         let mesh = mesh(n, soup);
         for _ in 0..2 {
-            let mut copy = mesh.clone();
             let t = Instant::now();
-            let built = build(&mut copy);
+            let built = build(&mesh);
             println!(
                 "{} triangles: {:.3} s, {} nodes, {} packets, depth {}, SAH cost {:.3}",
                 mesh.len(),

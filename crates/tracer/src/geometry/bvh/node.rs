@@ -1,7 +1,7 @@
 //! The memory layout of the 4-wide BVH: nodes holding their four children's boxes as SIMD lanes,
 //! and leaves made of packets of four triangles in structure-of-arrays form.
 
-use glam::{Vec3, Vec4};
+use glam::{UVec4, Vec3, Vec4};
 
 /// The most packets one leaf may hold (the count is stored in three bits of a [`NodeRef`]).
 pub(super) const MAX_LEAF_PACKETS: usize = 8;
@@ -73,37 +73,46 @@ impl Node4 {
     };
 }
 
-/// Four triangles, lane k holding triangle `first_id + k`. A packet of fewer than four repeats its
-/// first triangle in the unused lanes, and `valid` masks them out.
+/// Four triangles, lane k holding mesh triangle `ids[k]`. A packet of fewer than four repeats its
+/// first triangle in the unused lanes, whose id is [`TriPacket::UNUSED`] (what masks them out:
+/// [`TriPacket::valid`]). The ids name the mesh's own triangles, so the mesh keeps its order: the
+/// builder moves none of its attributes.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(16))]
 pub(super) struct TriPacket {
     /// `v[vertex][axis]`: the lanes are the four triangles.
     pub v: [[Vec4; 3]; 3],
-    /// Index (in the reordered mesh) of the triangle in lane 0; lane k is `first_id + k`.
-    pub first_id: u32,
-    /// Bit k set: lane k holds a triangle.
-    pub valid: u32,
+    /// The mesh index of each lane's triangle; [`TriPacket::UNUSED`] in unused lanes.
+    pub ids: [u32; 4],
 }
 
 impl TriPacket {
-    pub fn new(tris: &[[Vec3; 3]], first_id: u32) -> TriPacket {
-        debug_assert!((1..=4).contains(&tris.len()));
+    /// The id of an unused lane (never a triangle's: meshes hold fewer than 2³⁰).
+    pub const UNUSED: u32 = u32::MAX;
+
+    /// The packet of the triangles `ids` (one to four) of `positions`.
+    pub fn new(positions: &[[Vec3; 3]], ids: &[u32]) -> TriPacket {
+        debug_assert!((1..=4).contains(&ids.len()));
+        let tris: [[Vec3; 3]; 4] =
+            std::array::from_fn(|k| positions[ids[k.min(ids.len() - 1)] as usize]);
         let mut v = [[Vec4::ZERO; 3]; 3];
         for (vertex, row) in v.iter_mut().enumerate() {
             for (axis, lanes) in row.iter_mut().enumerate() {
-                let mut a = [0.0f32; 4];
-                for (k, x) in a.iter_mut().enumerate() {
-                    *x = tris[k.min(tris.len() - 1)][vertex][axis];
-                }
-                *lanes = Vec4::from_array(a);
+                *lanes = Vec4::from_array(tris.map(|t| t[vertex][axis]));
             }
         }
         TriPacket {
             v,
-            first_id,
-            valid: (1u32 << tris.len()) - 1,
+            ids: std::array::from_fn(|k| ids.get(k).copied().unwrap_or(Self::UNUSED)),
         }
+    }
+
+    /// Bit k set: lane k holds a triangle.
+    #[inline(always)]
+    pub fn valid(&self) -> u32 {
+        UVec4::from_array(self.ids)
+            .cmpne(UVec4::splat(Self::UNUSED))
+            .bitmask()
     }
 
     /// The triangle in lane `k`.

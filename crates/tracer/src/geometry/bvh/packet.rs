@@ -162,7 +162,8 @@ pub(super) fn intersect_packet(r: &PacketRay<'_>, p: &TriPacket, t_max: f32) -> 
     let v = ax * cy - ay * cx;
     let w = bx * ay - by * ax;
     let zero = Vec4::ZERO;
-    let on_edge = (u.cmpeq(zero) | v.cmpeq(zero) | w.cmpeq(zero)).bitmask() & p.valid;
+    let valid = p.valid();
+    let on_edge = (u.cmpeq(zero) | v.cmpeq(zero) | w.cmpeq(zero)).bitmask() & valid;
     let outside = (u.cmplt(zero) | v.cmplt(zero) | w.cmplt(zero))
         & (u.cmpgt(zero) | v.cmpgt(zero) | w.cmpgt(zero));
     let det = u + v + w;
@@ -171,7 +172,7 @@ pub(super) fn intersect_packet(r: &PacketRay<'_>, p: &TriPacket, t_max: f32) -> 
     let in_range_pos = det.cmpgt(zero) & t_scaled.cmpgt(zero) & t_scaled.cmplt(limit);
     let in_range_neg = det.cmplt(zero) & t_scaled.cmplt(zero) & t_scaled.cmpgt(limit);
     let hit = !outside & (in_range_pos | in_range_neg);
-    let mask = hit.bitmask() & p.valid & !on_edge;
+    let mask = hit.bitmask() & valid & !on_edge;
     let mut out = PacketHits {
         mask,
         t_scaled: t_scaled.to_array(),
@@ -222,7 +223,8 @@ mod tests {
                 ];
             }
             let n = if case % 4 == 0 { 4 } else { case % 4 };
-            let packet = TriPacket::new(&tris[..n], 100);
+            let ids: Vec<u32> = (0..n as u32).collect();
+            let packet = TriPacket::new(&tris, &ids);
             let (o, d) = if case % 8 == 0 {
                 let q = (p3() * 4.0).round() * 0.25;
                 (Vec3::new(q.x, q.y, 2.0), -Vec3::Z)

@@ -108,12 +108,12 @@ mod tests {
             Vec3::new(rng(), rng(), rng()) * 1.5 - 0.75
         });
         assert!(small.len() <= super::super::flat::MAX_TRIANGLES_AVX2);
-        for (name, mut mesh, scale) in [
+        for (name, mesh, scale) in [
             ("soup", soup, 12.0f32),
             ("chain", chain, 0.1),
             ("small", small, 2.0),
         ] {
-            let bvh = Bvh::build(&mut mesh);
+            let bvh = Bvh::build(&mesh);
             if name == "chain" {
                 let depth = bvh.depth();
                 assert!(
