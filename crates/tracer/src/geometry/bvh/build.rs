@@ -366,6 +366,11 @@ impl Piece {
             rest = later;
             tails.push((base + offset, piece, slots));
         }
+        // What makes the caller's `set_len` sound: not a slot left unwritten.
+        assert!(
+            rest.is_empty(),
+            "a piece's length is its nodes and its tails'"
+        );
         tails
             .into_par_iter()
             .for_each(|(base, piece, slots)| piece.write_into(base, slots));
