@@ -426,15 +426,23 @@ impl<const N: usize> Bins<N> {
             best = Vec4::select(better, c, best);
             best_bin = Vec4::select(better, Vec4::splat(i as f32), best_bin);
         }
-        let (mut cost, mut axis) = (f32::INFINITY, 0);
-        for a in 0..4 {
-            if best[a] < cost {
-                (cost, axis) = (best[a], a);
-            }
-        }
+        let (cost, axis) = cheapest_axis(best);
         let unscale = f64::from(scale) * f64::from(scale);
         (cost < f32::INFINITY).then(|| (f64::from(cost) / unscale, axis, best_bin[axis] as u32))
     }
+}
+
+/// The lowest of the four axes' best costs (one per lane) and its axis, the first of equals in
+/// axis order; the cost is infinite where no axis has a split.
+#[inline(always)]
+fn cheapest_axis(best: Vec4) -> (f32, usize) {
+    let (mut cost, mut axis) = (f32::INFINITY, 0);
+    for a in 0..4 {
+        if best[a] < cost {
+            (cost, axis) = (best[a], a);
+        }
+    }
+    (cost, axis)
 }
 
 /// How to split a range.
@@ -561,12 +569,7 @@ fn best_sorted(prims: &[Prim], info: &Info) -> Option<(f64, Split)> {
         best = Vec4::select(better, c, best);
         best_count = Vec4::select(better, Vec4::splat(i as f32), best_count);
     }
-    let (mut cost, mut axis) = (f32::INFINITY, 0);
-    for a in 0..4 {
-        if best[a] < cost {
-            (cost, axis) = (best[a], a);
-        }
-    }
+    let (cost, axis) = cheapest_axis(best);
     let unscale = f64::from(scale) * f64::from(scale);
     (cost < f32::INFINITY).then(|| {
         let split = Split::Sorted {
