@@ -228,6 +228,15 @@ impl Info {
 /// 2²³: added to a float in [0, 2²³), it leaves the integer nearest to it in the low bits.
 const MAGIC: f32 = 8_388_608.0;
 
+/// The lanes of `v` (each in [0, 2²³)) rounded to the nearest integers, read from the bits of
+/// `v + 2²³` ([`MAGIC`]): cheaper than four saturating float-to-integer casts.
+#[inline(always)]
+fn rounded(v: Vec4) -> [u32; 4] {
+    (v + MAGIC)
+        .to_array()
+        .map(|x| x.to_bits() - MAGIC.to_bits())
+}
+
 /// Maps a key to its bin on each axis (x, y, z and size).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Mapper {
@@ -264,9 +273,8 @@ impl Mapper {
         let last = Vec4::splat((self.count - 1) as f32);
         let v = ((c - self.origin) * self.scale - 0.5)
             .max(Vec4::ZERO)
-            .min(last)
-            + MAGIC;
-        v.to_array().map(|x| x.to_bits() - MAGIC.to_bits())
+            .min(last);
+        rounded(v)
     }
 
     /// Whether `c` falls in a bin below `bin` on `axis`: `self.bins(c)[axis] < bin`, from the same
@@ -524,12 +532,7 @@ fn orders(prims: &[Prim]) -> [[u8; SWEEP_MAX]; 4] {
         for kj in &keys[i + 1..n] {
             rank += Vec4::select(kj.cmplt(ki), Vec4::ONE, Vec4::ZERO);
         }
-        // The ranks read from the floats' bits (as [`Mapper::bins`] does): four saturating
-        // float-to-integer casts cost more than the comparisons.
-        let rank = (rank + MAGIC)
-            .to_array()
-            .map(|r| r.to_bits() - MAGIC.to_bits());
-        for (order, r) in orders.iter_mut().zip(rank) {
+        for (order, r) in orders.iter_mut().zip(rounded(rank)) {
             order[r as usize & (SWEEP_MAX - 1)] = i as u8;
         }
     }
