@@ -214,6 +214,21 @@ async fn every_api_operation_has_a_command_that_works_with_and_without_json() {
     );
     assert!(ok(&farm, &["workers"]).await.contains("w1"));
 
+    // job ID --history: the convergence history, as JSON and as a table of the same points.
+    let h = json(&farm, &["job", &id, "--history"]).await;
+    let points = h["points"].as_array().expect("points");
+    let last = points.last().expect("a finished job has a history");
+    assert_eq!(last["samples_done"], 24 * 16 * 8, "{h}");
+    let text = ok(&farm, &["job", &id, "--history"]).await;
+    assert!(text.starts_with(&format!("{:>10}", "seconds")), "{text}");
+    assert_eq!(text.lines().count(), points.len() + 1, "{text}");
+    assert!(
+        text.lines()
+            .last()
+            .is_some_and(|l| l.contains(&(24 * 16 * 8).to_string())),
+        "{text}"
+    );
+
     // job ID --out: the image later, bit-identical to the local render; as PNG too.
     let exr = farm.dir.arg("job.exr");
     let text = ok(&farm, &["job", &id, "--out", &exr]).await;
@@ -345,6 +360,14 @@ async fn submit_frames_writes_one_file_per_frame_equal_to_local_renders() {
         assert_eq!(cols[1], "4", "{line}");
         assert!(cols[2].ends_with('%') && cols[3] == "complete", "{line}");
     }
+    // Each frame's own convergence history: frame 7's ends at its 20×12 pixels' 4 samples.
+    let h = json(&farm, &["job", &id, "--history", "--frame", "7"]).await;
+    let last = h["points"].as_array().and_then(|p| p.last()).cloned();
+    assert_eq!(
+        last.map(|p| p["samples_done"].clone()),
+        Some((20 * 12 * 4).into()),
+        "{h}"
+    );
     let again = farm.dir.arg("again_###.exr");
     let text = ok(&farm, &["job", &id, "--out", &again]).await;
     assert!(text.contains("wrote 3 frames"), "{text}");

@@ -162,7 +162,9 @@ impl Default for ConnectionLimits {
     }
 }
 
-#[derive(Clone, Debug)]
+/// The server's settings. `Debug` prints the database URL (which may hold a password) and the
+/// tokens as `***`.
+#[derive(Clone)]
 pub struct ServerConfig {
     /// `sqlite://FILE` or `postgres://…`.
     pub db_url: String,
@@ -249,6 +251,63 @@ pub struct ServerConfig {
     pub clock: std::sync::Arc<dyn crate::store::Clock>,
 }
 
+impl std::fmt::Debug for ServerConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Destructured whole, so that a new field cannot be left out (or printed) unnoticed.
+        let ServerConfig {
+            db_url: _,
+            client_tokens,
+            worker_tokens,
+            lease_duration,
+            max_lease_wait,
+            monitor_interval,
+            max_leases_per_worker,
+            worker_expiry,
+            max_workers,
+            max_task_samples,
+            min_task_samples,
+            limits,
+            job_retention,
+            quotas,
+            sqlite_synchronous,
+            verify_fraction,
+            target_write_load,
+            submission_batch_rows,
+            image_cache_bytes,
+            image_wait,
+            connections,
+            tls,
+            clock,
+        } = self;
+        let redacted = |tokens: &[String]| vec!["***"; tokens.len()];
+        f.debug_struct("ServerConfig")
+            .field("db_url", &"***")
+            .field("client_tokens", &redacted(client_tokens))
+            .field("worker_tokens", &redacted(worker_tokens))
+            .field("lease_duration", lease_duration)
+            .field("max_lease_wait", max_lease_wait)
+            .field("monitor_interval", monitor_interval)
+            .field("max_leases_per_worker", max_leases_per_worker)
+            .field("worker_expiry", worker_expiry)
+            .field("max_workers", max_workers)
+            .field("max_task_samples", max_task_samples)
+            .field("min_task_samples", min_task_samples)
+            .field("limits", limits)
+            .field("job_retention", job_retention)
+            .field("quotas", quotas)
+            .field("sqlite_synchronous", sqlite_synchronous)
+            .field("verify_fraction", verify_fraction)
+            .field("target_write_load", target_write_load)
+            .field("submission_batch_rows", submission_batch_rows)
+            .field("image_cache_bytes", image_cache_bytes)
+            .field("image_wait", image_wait)
+            .field("connections", connections)
+            .field("tls", tls)
+            .field("clock", clock)
+            .finish()
+    }
+}
+
 impl ServerConfig {
     /// The task sizes the scheduler plans with.
     pub fn task_sizes(&self) -> crate::scheduler::TaskSizes {
@@ -288,5 +347,28 @@ impl ServerConfig {
 
     pub fn auth_required(&self) -> bool {
         !self.client_tokens.is_empty() || !self.worker_tokens.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn debug_prints_no_secret() {
+        let mut config = ServerConfig::new("postgres://farm:hunter2@db.internal/farm");
+        config.client_tokens = vec!["c-7f3a".into(), "c-99b1".into()];
+        config.worker_tokens = vec!["w-77a0".into()];
+        let printed = format!("{config:?}");
+        for secret in ["hunter2", "db.internal", "c-7f3a", "c-99b1", "w-77a0"] {
+            assert!(!printed.contains(secret), "{secret} in {printed}");
+        }
+        // The rest is printed as before, the token lists' lengths included.
+        assert!(
+            printed.contains(r#"client_tokens: ["***", "***"]"#),
+            "{printed}"
+        );
+        assert!(printed.contains("lease_duration: 30s"), "{printed}");
+        assert!(printed.contains("clock: SystemClock"), "{printed}");
     }
 }

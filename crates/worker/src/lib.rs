@@ -269,7 +269,17 @@ async fn lane(
     let mut heartbeat = beat(&session);
     let mut report = WorkerReport::default();
     let mut rate = Rate::default();
-    let mut idle = Duration::from_millis(20);
+    // Waits between lease requests that found nothing (from a server that did not hold the
+    // request) and after a lease refused (429), each with full jitter: workers that a server's
+    // restart or a full queue stopped together do not come back together.
+    let mut idle = retry::Backoff::new(retry::Policy::new(
+        Duration::from_millis(20),
+        config.idle_poll.max(Duration::from_millis(20)),
+    ));
+    let mut refused = retry::Backoff::new(retry::Policy::new(
+        Duration::from_millis(250),
+        (session.lease_duration / 4).max(Duration::from_millis(250)),
+    ));
     let mut abandoned = Backoff::new(retry::ABANDONED);
     // The last slice of the task before, uploading while the next one is leased and rendered.
     let mut previous: Option<InFlight> = None;
@@ -333,10 +343,7 @@ async fn lane(
                 // The farm is leasing as fast as the server's store can take (back-pressure:
                 // its `Retry-After` says when), or leases this worker lost track of still count
                 // against its cap until they expire: wait for that rather than give up.
-                let after = e.retry_after().map_or(
-                    session.lease_duration.max(Duration::from_millis(100)) / 4,
-                    |asked| asked.min(retry::RETRY_AFTER_MAX),
-                );
+                let after = retry::wait_after(&e, refused.next_delay());
                 tracing::info!(error = %e, retry_in = ?after, "lease refused; waiting");
                 wait(&mut stop, after).await;
                 continue;
@@ -351,12 +358,12 @@ async fn lane(
             // (it does not wait, or it is shutting down) is asked again after a pause.
             let waited = long_poll.is_some_and(|t| t.elapsed() >= config.lease_wait / 2);
             if !waited {
-                wait(&mut stop, idle).await;
-                idle = (idle * 2).min(config.idle_poll);
+                wait(&mut stop, idle.next_delay()).await;
             }
             continue;
         };
-        idle = Duration::from_millis(20);
+        idle.reset();
+        refused.reset();
         *lock(&current) = Some((lease.task_id, lease.lease_token.clone()));
         lease_lost.store(false, std::sync::atomic::Ordering::SeqCst);
         let slices_before = report.slices;
@@ -876,6 +883,12 @@ mod tests {
 
     impl BrokenSceneServer {
         fn start() -> BrokenSceneServer {
+            Self::refusing_leases(None)
+        }
+
+        /// With `refuse` (`Some(Retry-After seconds, if any)`), every lease is answered 429
+        /// `too_many_leases` instead of a task.
+        fn refusing_leases(refuse: Option<Option<u32>>) -> BrokenSceneServer {
             let listener = TcpListener::bind("127.0.0.1:0").unwrap();
             let url = format!("http://{}", listener.local_addr().unwrap());
             let hits: Arc<Mutex<BTreeMap<String, u32>>> = Arc::default();
@@ -883,13 +896,17 @@ mod tests {
             std::thread::spawn(move || {
                 for conn in listener.incoming().flatten() {
                     let h = h.clone();
-                    std::thread::spawn(move || Self::serve(conn, &h));
+                    std::thread::spawn(move || Self::serve(conn, &h, refuse));
                 }
             });
             BrokenSceneServer { url, hits }
         }
 
-        fn serve(conn: TcpStream, hits: &Mutex<BTreeMap<String, u32>>) {
+        fn serve(
+            conn: TcpStream,
+            hits: &Mutex<BTreeMap<String, u32>>,
+            refuse: Option<Option<u32>>,
+        ) {
             let mut out = conn.try_clone().unwrap();
             let mut r = BufReader::new(conn);
             loop {
@@ -930,7 +947,18 @@ mod tests {
                     _ => "other",
                 };
                 *lock(hits).entry(route.to_string()).or_default() += 1;
+                let mut extra = String::new();
                 let (status, body) = match route {
+                    "lease" if refuse.is_some() => {
+                        if let Some(Some(seconds)) = refuse {
+                            extra = format!("retry-after: {seconds}\r\n");
+                        }
+                        (
+                            "429 Too Many Requests",
+                            r#"{"error":{"code":"too_many_leases","message":"at the cap"}}"#
+                                .to_string(),
+                        )
+                    }
                     "register" => (
                         "200 OK",
                         r#"{"worker_id":"w1","credential":"c1","lease_duration_ms":30000,"heartbeat_interval_ms":60000}"#
@@ -967,7 +995,7 @@ mod tests {
                     _ => ("404 Not Found", String::new()),
                 };
                 let head = format!(
-                    "HTTP/1.1 {status}\r\ncontent-type: application/json\r\ncontent-length: {}\r\n\r\n",
+                    "HTTP/1.1 {status}\r\ncontent-type: application/json\r\n{extra}content-length: {}\r\n\r\n",
                     body.len()
                 );
                 if out.write_all(head.as_bytes()).is_err()
@@ -1022,6 +1050,43 @@ mod tests {
         );
         assert_eq!(report.tasks, 0);
         assert_eq!(server.hits("deregister"), 1);
+    }
+
+    /// A lease refused with a 429 is asked again after waits that grow from a quarter of a second,
+    /// each drawn with full jitter (workers stopped together by a full queue do not come back
+    /// together), never shorter than the server's `Retry-After`; a stop cuts the wait short.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn refused_leases_are_asked_again_after_growing_jittered_waits() {
+        let leases_in = |refuse: Option<u32>, window: Duration| async move {
+            let server = BrokenSceneServer::refusing_leases(Some(refuse));
+            let mut config = WorkerConfig::new(server.url.clone());
+            config.threads = 1;
+            let (tx, rx) = watch::channel(false);
+            let worker = tokio::spawn(run(config, rx));
+            tokio::time::sleep(window).await;
+            let leases = server.hits("lease");
+            let t = Instant::now();
+            tx.send(true).unwrap();
+            let report = tokio::time::timeout(Duration::from_secs(5), worker)
+                .await
+                .expect("the worker stops")
+                .unwrap()
+                .unwrap();
+            assert!(
+                t.elapsed() < Duration::from_millis(800),
+                "{:?}",
+                t.elapsed()
+            );
+            assert_eq!(report.tasks, 0);
+            leases
+        };
+        // Ceilings of 0.25, 0.5, 1, 2 s (up to a quarter of the 30 s lease): about five tries in
+        // 2 s (the fixed 7.5 s wait before: one), and nothing like a hot loop.
+        let free = leases_in(None, Duration::from_secs(2)).await;
+        assert!((2..=12).contains(&free), "{free} leases in 2 s");
+        // `Retry-After: 1`: at most one try a second.
+        let paced = leases_in(Some(1), Duration::from_millis(2500)).await;
+        assert!((2..=3).contains(&paced), "{paced} leases in 2.5 s");
     }
 
     /// A server URL without a scheme stops the worker at once with an error naming it, instead of

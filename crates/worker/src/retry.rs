@@ -13,7 +13,9 @@
 //!   that (bounded by [`RETRY_AFTER_MAX`]).
 //!
 //! [`retry`] runs a call under a policy with backon's [`Retryable`]; [`Backoff`] gives the same waits
-//! to loops that decide for themselves when to try again (the worker's abandoned tasks).
+//! to loops that decide for themselves when to try again (the worker's abandoned tasks, its
+//! lease requests refused with a 429 — the wait then at least the `Retry-After` — and its polls of
+//! a server that answered at once that there is no work).
 
 use crate::client::ClientError;
 use backon::{BackoffBuilder, ExponentialBuilder, Retryable};

@@ -504,11 +504,49 @@ pub struct JobArgs {
     /// With --out FILE.exr: add the `variance` and `samples` channels.
     #[arg(long, requires = "out")]
     pub extra_channels: bool,
+    /// Print the job's convergence history instead of its details: the error against time, one
+    /// line a point (seconds since the first lease, samples merged, estimated relative error,
+    /// samples per second).
+    #[arg(long, conflicts_with = "out")]
+    pub history: bool,
+    /// With --history: the history of this frame of a frame job.
+    #[arg(long, requires = "history", allow_negative_numbers = true)]
+    pub frame: Option<i64>,
     #[command(flatten)]
     pub client: ClientArgs,
 }
 
+/// `job ID --history`: the convergence history as the API gives it (`--json`) or as a table.
+async fn history(args: &JobArgs) -> Result<()> {
+    let client = args.client.client()?;
+    let history = match args.frame {
+        Some(frame) => client.frame_convergence(&args.id, frame).await,
+        None => client.convergence(&args.id).await,
+    }
+    .with_context(|| format!("the convergence history of job {}", args.id))?;
+    if args.json {
+        return print_json(&history);
+    }
+    println!(
+        "{:>10}  {:>14}  {:>14}  {:>12}",
+        "seconds", "samples", "relative error", "samples/s"
+    );
+    for p in &history.points {
+        let error = p
+            .relative_error
+            .map_or("-".to_string(), |e| format!("{:.3} %", e * 100.0));
+        println!(
+            "{:>10.2}  {:>14}  {:>14}  {:>12.0}",
+            p.elapsed_s, p.samples_done, error, p.samples_per_second
+        );
+    }
+    Ok(())
+}
+
 pub async fn job(args: JobArgs) -> Result<()> {
+    if args.history {
+        return history(&args).await;
+    }
     // Checked before anything is downloaded: the folder, and an archive or image format.
     let archive = args
         .out
