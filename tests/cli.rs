@@ -920,22 +920,11 @@ async fn up_keeps_tokens_out_of_its_workers_environment() {
         ),
     )
     .expect("write the configuration");
-    let log = dir.path("up.log");
-    let out = std::fs::File::create(&log).expect("create the log");
-    let err = out.try_clone().expect("clone the log");
-    let child = command(&dir)
-        .args(["up", "--config", &config.to_string_lossy()])
+    let mut cmd = command(&dir);
+    cmd.args(["up", "--config", &config.to_string_lossy()])
         .env("PATHFARM_CLIENT_TOKENS", "env-client-secret")
-        .env("PATHFARM_DB", dir.arg("up.db"))
-        .stdout(out)
-        .stderr(err)
-        .spawn()
-        .expect("start pathfarm up");
-    let mut up = Proc {
-        name: "up".into(),
-        child,
-        log,
-    };
+        .env("PATHFARM_DB", dir.arg("up.db"));
+    let mut up = Proc::spawn("up", &dir, cmd, false);
     wait_healthy(port, &mut up).await;
     let url = format!("http://127.0.0.1:{port}");
     // The environment's client token won over the file's.

@@ -22,15 +22,13 @@ use pathfarm_wire::api::{JobSettings, JobState, WorkerState};
 use pathfarm_worker::client::ApiClient;
 use serde_json::{json, Value};
 use std::collections::BTreeSet;
-use std::fs::File;
 use std::future::Future;
 use std::io::{Read, Write};
 use std::net::{Ipv4Addr, SocketAddr, TcpStream};
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
-use support::{command, free_port, processes_with_args, TestDir, SCENE};
+use support::{command, free_port, processes_with_args, Proc, TestDir, SCENE};
 
 /// Debian's packages (`chromium`, `chromium-driver`); `PATHFARM_CHROMIUM` and
 /// `PATHFARM_CHROMEDRIVER` point elsewhere.
@@ -71,91 +69,6 @@ fn browser_installed() -> bool {
         missing.join(" and ")
     );
     false
-}
-
-/// A running child process and its process group (the workers `up` starts, the chromium
-/// chromedriver starts), all killed when dropped.
-struct Proc {
-    name: String,
-    child: Child,
-    log: PathBuf,
-}
-
-impl Proc {
-    /// Starts `cmd` in a new process group, stdout and stderr going to `DIR/NAME.log`.
-    fn start(name: &str, dir: &TestDir, mut cmd: Command) -> Proc {
-        let log = dir.path(&format!("{name}.log"));
-        let out = File::create(&log).expect("create a log file");
-        let err = out.try_clone().expect("clone the log file");
-        let child = cmd
-            .stdin(Stdio::null())
-            .stdout(out)
-            .stderr(err)
-            .process_group(0)
-            .spawn()
-            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
-        Proc {
-            name: name.to_string(),
-            child,
-            log,
-        }
-    }
-
-    /// `pathfarm ARGS…` with the end-to-end tests' clean environment, in the test directory.
-    fn pathfarm(name: &str, dir: &TestDir, args: &[&str]) -> Proc {
-        let mut cmd = command(dir);
-        cmd.args(args);
-        Proc::start(name, dir, cmd)
-    }
-
-    fn is_running(&mut self) -> bool {
-        matches!(self.child.try_wait(), Ok(None))
-    }
-
-    fn log_text(&self) -> String {
-        std::fs::read_to_string(&self.log).unwrap_or_default()
-    }
-
-    /// SIGINT to the process alone, then waits for it to exit by itself.
-    async fn interrupt_and_wait(&mut self, timeout: Duration) -> std::process::ExitStatus {
-        // SAFETY: kill(2) on a child this guard owns and has not reaped; no memory preconditions.
-        unsafe {
-            libc::kill(self.child.id() as libc::pid_t, libc::SIGINT);
-        }
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(status) = self.child.try_wait().expect("try_wait") {
-                return status;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "{} did not exit within {timeout:?} of SIGINT",
-                self.name
-            );
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        // SAFETY: kill(2) on the process group this guard's child leads (started with
-        // process_group(0), so its id is the group's); no memory-safety preconditions.
-        unsafe {
-            libc::kill(-(self.child.id() as libc::pid_t), libc::SIGKILL);
-        }
-        let _ = self.child.wait();
-        if std::thread::panicking() {
-            let log = self.log_text();
-            let lines: Vec<&str> = log.lines().collect();
-            eprintln!(
-                "---- last lines of {} ({}) ----\n{}",
-                self.name,
-                self.log.display(),
-                lines[lines.len().saturating_sub(40)..].join("\n")
-            );
-        }
-    }
 }
 
 /// The status code of `GET PATH` (a bare HTTP/1.1 request), or `None` without an answer.
@@ -258,7 +171,7 @@ impl Browser {
         let port = free_port();
         let mut cmd = Command::new(chromedriver());
         cmd.arg(format!("--port={port}"));
-        let mut driver = Proc::start("chromedriver", dir, cmd);
+        let mut driver = Proc::spawn("chromedriver", dir, cmd, true);
         wait_http_ok(port, "/status", &mut driver).await;
         let profile = dir.arg("chromium-profile");
         let caps = json!({
@@ -467,7 +380,9 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
     if let Some((client, worker)) = tokens {
         args.extend(["--client-token", client, "--worker-token", worker]);
     }
-    let mut up = Proc::pathfarm("up", &dir, &args);
+    let mut cmd = command(&dir);
+    cmd.args(&args);
+    let mut up = Proc::spawn("up", &dir, cmd, true);
     wait_http_ok(port, "/healthz", &mut up).await;
     let api = ApiClient::new(&url, tokens.map(|(c, _)| c.to_string())).expect("API client");
     let b = Browser::start(&dir, variant).await;
@@ -1080,7 +995,8 @@ async fn dashboard_flow(variant: &'static str, tokens: Option<(&str, &str)>) {
     );
 
     b.client.close().await.expect("close the browser");
-    let status = up.interrupt_and_wait(Duration::from_secs(30)).await;
+    up.signal(libc::SIGINT);
+    let status = up.wait_exit(Duration::from_secs(30)).await;
     assert!(status.success(), "`pathfarm up` exited {status}");
     eprintln!("{variant}: dashboard flow took {:?}", started.elapsed());
 }

@@ -144,22 +144,18 @@ async fn a_tls_terminating_proxy_in_front_of_two_servers_renders_a_job_bit_ident
         proxy_config(&dir, &ports, lb_port, &cert_path, &key_path),
     )
     .expect("write nginx.conf");
-    let nginx_log = std::fs::File::create(dir.path("nginx.log")).expect("nginx.log");
     let pid_file = dir.arg("nginx.pid");
-    let mut lb = std::process::Command::new(&nginx)
-        .arg("-p")
+    let mut cmd = std::process::Command::new(&nginx);
+    cmd.arg("-p")
         .arg(&dir.0)
         .arg("-e")
         .arg(dir.path("error.log"))
         .arg("-c")
         .arg(&conf)
         .arg("-g")
-        .arg(format!("daemon off; pid {pid_file};"))
-        .stdout(nginx_log.try_clone().expect("clone"))
-        .stderr(nginx_log)
-        .spawn()
-        .expect("start nginx");
-    let _stop_nginx = KillOnDrop(&mut lb);
+        .arg(format!("daemon off; pid {pid_file};"));
+    // Its group: nginx's own worker processes go with it.
+    let _lb = Proc::spawn("nginx", &dir, cmd, true);
 
     let url = format!("https://127.0.0.1:{lb_port}");
     let client = ApiClient::with_ca_cert(&url, Some(client_token.into()), Some(Path::new(&ca)))
@@ -247,15 +243,5 @@ async fn a_tls_terminating_proxy_in_front_of_two_servers_renders_a_job_bit_ident
     }
     for s in &mut servers {
         assert!(s.is_running(), "{} exited:\n{}", s.name, s.log_text());
-    }
-}
-
-/// Kills and reaps a child that is not a `pathfarm` [`Proc`] (nginx).
-struct KillOnDrop<'a>(&'a mut std::process::Child);
-
-impl Drop for KillOnDrop<'_> {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
     }
 }

@@ -10,6 +10,7 @@ use std::fs::File;
 use std::future::Future;
 use std::io::{Read, Write};
 use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
+use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -88,11 +89,13 @@ pub fn command_via(dir: &TestDir, wrapper: &[&str]) -> Command {
     cmd
 }
 
-/// A running child process, killed (and reaped) when dropped.
+/// A running child process, killed (and reaped) when dropped; with `group`, the process group it
+/// leads (the workers `up` starts, the browser chromedriver starts, nginx's workers).
 pub struct Proc {
     pub name: String,
     pub child: Child,
     pub log: PathBuf,
+    pub group: bool,
 }
 
 impl Proc {
@@ -104,11 +107,22 @@ impl Proc {
     /// Starts `WRAPPER… pathfarm ARGS…` (see [`command_via`]); the wrapper must exec `pathfarm`
     /// in place (as `ip netns exec` does), so that signals reach it.
     pub fn start_via(name: &str, dir: &TestDir, wrapper: &[&str], args: &[&str]) -> Proc {
+        let mut cmd = command_via(dir, wrapper);
+        cmd.args(args);
+        Proc::spawn(name, dir, cmd, false)
+    }
+
+    /// Starts `cmd` (any program), stdin empty, stdout and stderr going to `DIR/NAME.log`; with
+    /// `group`, in a process group of its own, all of which is killed when dropped.
+    pub fn spawn(name: &str, dir: &TestDir, mut cmd: Command, group: bool) -> Proc {
         let log = dir.path(&format!("{name}.log"));
         let out = File::create(&log).expect("create a log file");
         let err = out.try_clone().expect("clone the log file");
-        let child = command_via(dir, wrapper)
-            .args(args)
+        if group {
+            cmd.process_group(0);
+        }
+        let child = cmd
+            .stdin(Stdio::null())
             .stdout(out)
             .stderr(err)
             .spawn()
@@ -117,6 +131,7 @@ impl Proc {
             name: name.to_string(),
             child,
             log,
+            group,
         }
     }
 
@@ -166,7 +181,13 @@ impl Proc {
 
 impl Drop for Proc {
     fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(None)) {
+        if self.group {
+            // SAFETY: kill(2) on the process group this guard's child leads (started with
+            // process_group(0), so its id is the group's); no memory-safety preconditions.
+            unsafe {
+                libc::kill(-self.pid(), libc::SIGKILL);
+            }
+        } else if matches!(self.child.try_wait(), Ok(None)) {
             let _ = self.child.kill();
         }
         let _ = self.child.wait();

@@ -444,6 +444,9 @@ async fn wait(stop: &mut watch::Receiver<bool>, d: Duration) {
     let _ = tokio::time::timeout(d, stop.wait_for(|s| *s)).await;
 }
 
+/// How long a worker waits for an unreachable server before its retries are logged as warnings.
+const QUIET_REGISTRATION: Duration = Duration::from_secs(30);
+
 async fn register(
     client: &ApiClient,
     config: &WorkerConfig,
@@ -458,6 +461,7 @@ async fn register(
     if *stop.borrow() {
         return Ok(None);
     }
+    let started = Instant::now();
     let registered = retry::retry(
         retry::REGISTER,
         Limits {
@@ -465,7 +469,15 @@ async fn register(
             stop: Some(stop.clone()),
         },
         || client.register(&reg),
-        |e, d| tracing::info!(error = %e, retry_in = ?d, "server not reachable yet"),
+        // A worker started with its server (or before it) waits for it quietly a while; one that
+        // still cannot reach it after that says so louder, with each try's error.
+        |e, d| {
+            if started.elapsed() < QUIET_REGISTRATION {
+                tracing::info!(error = %e, retry_in = ?d, "server not reachable yet");
+            } else {
+                tracing::warn!(error = %e, retry_in = ?d, "server still not reachable; retrying");
+            }
+        },
     )
     .await;
     match registered {
