@@ -281,20 +281,54 @@ impl Scene {
         )
     }
 
-    /// [`Scene::surface`] of an instanced hit: the prototype's triangle moved to world space as
-    /// the flattening loader moves it (positions by the transform, normals by its inverse
-    /// transpose, tangents by its linear part with the handedness flipped under a mirror, and two
-    /// corners swapped under a mirror), then shaded as a world-space triangle.
+    /// [`Scene::surface`] of an instanced hit: the prototype's triangle moved to world space
+    /// ([`Scene::instance_triangle`]), its tangents by the transform's linear part with the
+    /// handedness flipped under a mirror, then shaded as a world-space triangle.
     #[inline(never)]
     fn instance_surface(&self, ray: &Ray, hit: &Hit) -> SurfaceInteraction {
         let (inst, proto) = self.instances.get(hit.instance);
         let mesh = &proto.mesh;
         let tri = hit.triangle as usize;
+        let world = self.instance_triangle(hit);
+        let sign = if inst.flip { -1.0 } else { 1.0 };
+        let tangents = mesh.tangents.as_ref().map(|t| {
+            let t = t[tri];
+            corner_order(inst.flip).map(|i| {
+                let xyz = inst
+                    .to_world
+                    .transform_vector3(t[i].truncate())
+                    .normalize_or_zero();
+                xyz.extend(t[i].w * sign)
+            })
+        });
+        interaction(
+            ray,
+            hit,
+            world.corners,
+            world.bary,
+            world.normals,
+            tangents,
+            uv_at(mesh, tri, hit.b1, hit.b2),
+            world.material,
+        )
+    }
+
+    /// The triangle of an instanced hit in world space, moved as the flattening loader moves it:
+    /// positions by the transform, normals by its inverse transpose (the flat normal where one
+    /// collapses), and two corners swapped under a mirror, with the hit's barycentrics swapped to
+    /// match. The scalar integrator's surfaces and the wavefront lanes both read instanced hits
+    /// through it, so both have the same bits.
+    #[inline(never)]
+    pub(crate) fn instance_triangle(&self, hit: &Hit) -> WorldTriangle {
+        let (inst, proto) = self.instances.get(hit.instance);
+        let mesh = &proto.mesh;
+        let tri = hit.triangle as usize;
+        let order = corner_order(inst.flip);
         // Corners (a, c, b) under a mirror: their weights are (b0, b2, b1).
-        let (order, bary) = if inst.flip {
-            ([0, 2, 1], (hit.b2, hit.b1))
+        let bary = if inst.flip {
+            (hit.b2, hit.b1)
         } else {
-            ([0, 1, 2], (hit.b1, hit.b2))
+            (hit.b1, hit.b2)
         };
         let corners = mesh.positions[tri];
         let positions = order.map(|i| inst.to_world.transform_point3(corners[i]));
@@ -311,27 +345,35 @@ impl Scene {
                 }
             })
         });
-        let sign = if inst.flip { -1.0 } else { 1.0 };
-        let tangents = mesh.tangents.as_ref().map(|t| {
-            let t = t[tri];
-            order.map(|i| {
-                let xyz = inst
-                    .to_world
-                    .transform_vector3(t[i].truncate())
-                    .normalize_or_zero();
-                xyz.extend(t[i].w * sign)
-            })
-        });
-        interaction(
-            ray,
-            hit,
-            positions,
-            bary,
+        WorldTriangle {
+            corners: positions,
             normals,
-            tangents,
-            uv_at(mesh, tri, hit.b1, hit.b2),
-            mesh.material[tri],
-        )
+            bary,
+            material: mesh.material[tri],
+        }
+    }
+}
+
+/// An instanced hit's triangle in world space (see [`Scene::instance_triangle`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct WorldTriangle {
+    /// Corners in front-face (counter-clockwise) order.
+    pub corners: [Vec3; 3],
+    /// The corners' vertex normals, for a mesh that has them.
+    pub normals: Option<[Vec3; 3]>,
+    /// The hit's barycentrics (b1, b2) for these corners.
+    pub bary: (f32, f32),
+    pub material: u32,
+}
+
+/// The order in which an instance's corners are read: two swap under a mirror, so that the
+/// counter-clockwise side stays the front, as the flattening loader does.
+#[inline(always)]
+fn corner_order(flip: bool) -> [usize; 3] {
+    if flip {
+        [0, 2, 1]
+    } else {
+        [0, 1, 2]
     }
 }
 

@@ -3,8 +3,9 @@
 //!
 //! 1. `refill` (scalar, `refill.rs`): lanes whose path ended take the next sample and its camera
 //!    ray, made sixteen samples ahead by `make_rays` (vector);
-//! 2. `trace_closest` (scalar): lanes without a hit yet trace their ray; lanes that hit nothing
-//!    end, the others load their triangle and material;
+//! 2. `trace_closest` (scalar, `trace.rs`): lanes without a hit yet trace their ray; lanes that
+//!    hit nothing end, the others load their triangle (moved to world space, for an instance's)
+//!    and material;
 //! 3. `shade_hit` (vector): the hit point and normal, emission seen by the ray, the light's
 //!    sample values;
 //! 4. the light triangle and point each lane's values choose: in the lanes, at the end of step 3,
@@ -13,8 +14,8 @@
 //!    its shadow ray traced at once (`light_punctual`, scalar);
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray;
-//! 6. `trace_shadows` (scalar): each shadow ray, together with the lane's next ray when the path
-//!    goes on (as `trace_path` does), and the results of the paths that ended.
+//! 6. `trace_shadows` (scalar, `trace.rs`): each shadow ray, together with the lane's next ray
+//!    when the path goes on (as `trace_path` does), and the results of the paths that ended.
 //!
 //! The vector steps are loops over the lanes whose bodies are the scalar integrator's code for one
 //! path: branches become selects, and a lane's result is only kept where its path is at that
@@ -27,7 +28,9 @@
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
 mod builds;
+mod normals;
 mod refill;
+mod trace;
 
 use refill::CameraRays;
 
@@ -35,7 +38,6 @@ use super::isa::{Isa, Kind};
 use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
 use crate::bsdf::lambert_at;
-use crate::geometry::Ray;
 use crate::integrator::direct::{punctual_at, LightGeometry, PunctualAt};
 use crate::integrator::path::survival;
 use crate::integrator::PathResult;
@@ -69,6 +71,9 @@ pub(super) struct Lanes<'a> {
     depth_limit: u32,
     /// The scene has punctual lights: each vertex samples one (`light_punctual`).
     punctual: bool,
+    /// Which of the scene's meshes have vertex normals (a constant of `shade_hit`'s: one of
+    /// [`normals`]).
+    normals: u8,
 
     // The sample each lane renders.
     x: U,
@@ -109,6 +114,9 @@ pub(super) struct Lanes<'a> {
     normal_a: V3,
     normal_b: V3,
     normal_c: V3,
+    /// The hit triangle's mesh has vertex normals (kept only where some meshes have them and
+    /// others not: `normals::MIXED`).
+    smooth: B,
     albedo: V3,
     emission_front: V3,
     emission_back: V3,
@@ -156,6 +164,7 @@ impl<'a> Lanes<'a> {
             settings,
             depth_limit: settings.depth_limit(),
             punctual: !scene.lights.punctual.is_empty(),
+            normals: normals::of(scene),
             x: [0; LANES],
             y: [0; LANES],
             index: [0; LANES],
@@ -184,6 +193,7 @@ impl<'a> Lanes<'a> {
             normal_a: V3::ZERO,
             normal_b: V3::ZERO,
             normal_c: V3::ZERO,
+            smooth: [false; LANES],
             albedo: V3::ZERO,
             emission_front: V3::ZERO,
             emission_back: V3::ZERO,
@@ -232,79 +242,15 @@ impl<'a> Lanes<'a> {
         }
     }
 
-    /// Traces the closest hit of every live lane that does not have it yet, and loads the hit
-    /// triangle's corners and material. `hit` is false for dead lanes and for rays that escaped.
-    #[inline(always)]
-    fn trace_closest(&mut self) {
-        let scene = self.scene;
-        // The lanes to trace, listed first: which lanes need a ray is random, and a branch on it
-        // per lane would be mispredicted about as often as not.
-        let mut trace = [0u8; LANES];
-        let mut n = 0;
-        for i in 0..LANES {
-            trace[n] = i as u8;
-            n += usize::from(self.alive[i] && self.untraced[i]);
-        }
-        for &i in &trace[..n] {
-            let i = usize::from(i);
-            self.rays[i] += 1;
-            let ray = Ray::new(self.o.get(i), self.d.get(i));
-            // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
-            self.found[i] = scene.intersect_in::<true>(&ray, f32::INFINITY, 0.0);
-        }
-        // Every lane loads a triangle (the first where there is no hit), so nothing here branches.
-        for i in 0..LANES {
-            let found = self.found[i].filter(|_| self.alive[i]);
-            self.hit[i] = found.is_some();
-            let hit = found.unwrap_or(Hit {
-                t: 0.0,
-                triangle: 0,
-                b1: 0.0,
-                b2: 0.0,
-                instance: Hit::WORLD,
-            });
-            self.t[i] = hit.t;
-            self.b1[i] = hit.b1;
-            self.b2[i] = hit.b2;
-            let tri = hit.triangle as usize;
-            let [a, b, c] = scene.mesh.positions[tri];
-            self.corner_a.set(i, a);
-            self.corner_b.set(i, b);
-            self.corner_c.set(i, c);
-            if let Some(normals) = &scene.mesh.normals {
-                let [na, nb, nc] = normals[tri];
-                self.normal_a.set(i, na);
-                self.normal_b.set(i, nb);
-                self.normal_c.set(i, nc);
-            }
-            let m = &self.materials[scene.mesh.material[tri] as usize];
-            self.albedo.set(i, m.albedo);
-            self.emission_front.set(i, m.emission_front);
-            self.emission_back.set(i, m.emission_back);
-            self.diffuse_on[i] = m.diffuse_on;
-            self.light_density[i] = m.light_density;
-            // Chosen by the tree, the density depends on the vertex the ray left (`p` and `ng`
-            // still hold it): `trace_path`'s `EmissionWeight::Mis`.
-            if self.lights.is_none() && self.hit[i] && self.mis[i] && m.emits {
-                let (from, n) = (self.p.get(i), self.ng.get(i));
-                self.light_density[i] =
-                    scene
-                        .lights
-                        .area
-                        .pdf(from, n, hit.triangle, scene.mesh.material[tri]);
-            }
-        }
-    }
-
     /// The surface at each hit (`Scene::surface`), the emission the ray
     /// sees (`trace_path` step 1), and the sample values of the light sample.
     #[inline(always)]
-    fn shade_hit(&mut self, isa: Isa) {
+    fn shade_hit<const NORMALS: u8>(&mut self, isa: Isa) {
         // Inputs and outputs are copied to locals: the compiler vectorises a loop over distinct
         // local arrays, not one over fields of `self` indexed by a variable.
         let (hit, ca, cb, cc) = (self.hit, self.corner_a, self.corner_b, self.corner_c);
         let (na, nb, nc) = (self.normal_a, self.normal_b, self.normal_c);
-        let smooth = self.scene.mesh.normals.is_some();
+        let smooth = self.smooth;
         let (b1s, b2s, ds, ts) = (self.b1, self.b2, self.d, self.t);
         let (ef, eb, mis, dens, pdfs) = (
             self.emission_front,
@@ -345,10 +291,11 @@ impl<'a> Lanes<'a> {
             ps.set(i, p);
             ngs.set(i, ng);
             let normals = [na.get(i), nb.get(i), nc.get(i)];
-            let ns = if smooth {
-                shading_normal(normals, [b0, b1, b2], ng)
-            } else {
-                ng
+            let ns = match NORMALS {
+                normals::FLAT => ng,
+                normals::SMOOTH => shading_normal(normals, [b0, b1, b2], ng),
+                _ if smooth[i] => shading_normal(normals, [b0, b1, b2], ng),
+                _ => ng,
             };
             nss.set(i, ns);
         }
@@ -592,69 +539,5 @@ impl<'a> Lanes<'a> {
         (self.shadow_t_max, self.shadow_value, self.rays) = (shadow_t_max, shadow_value, rays);
         (self.beta, self.bsdf_pdf, self.mis, self.o, self.d) = (betas, pdfs, mis, os, new_ds);
         (self.depth, self.cont) = (new_depths, conts);
-    }
-
-    /// Traces each lane's shadow ray (with its next ray, when the path goes on), adds the light
-    /// it lets through, and hands on the results of the paths that ended.
-    #[inline(always)]
-    fn trace_shadows(&mut self, each: &mut impl FnMut(u32, u32, u32, PathResult)) {
-        let scene = self.scene;
-        // Lanes listed by what they trace, without a branch per lane (as in `trace_closest`):
-        // a shadow ray with the next ray, a shadow ray alone, and the paths that end.
-        let (mut pairs, mut alone, mut ended) = ([0u8; LANES], [0u8; LANES], [0u8; LANES]);
-        let (mut n_pairs, mut n_alone, mut n_ended) = (0, 0, 0);
-        for i in 0..LANES {
-            let alive = self.alive[i];
-            let cont = self.go[i] && self.cont[i];
-            let shadow = self.go[i] && self.shadow[i];
-            pairs[n_pairs] = i as u8;
-            n_pairs += usize::from(alive && shadow && cont);
-            alone[n_alone] = i as u8;
-            n_alone += usize::from(alive && shadow && !cont);
-            ended[n_ended] = i as u8;
-            n_ended += usize::from(alive && !cont);
-            // A path that goes on without a shadow ray traces its next ray in `trace_closest`.
-            self.untraced[i] = !shadow;
-        }
-        for &i in &pairs[..n_pairs] {
-            let i = usize::from(i);
-            self.rays[i] += 1;
-            let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
-            let ray = Ray::new(self.o.get(i), self.d.get(i));
-            let (found, visible) = scene.intersect_and_visible_in::<true>(
-                &ray,
-                0.0,
-                &shadow,
-                self.shadow_t_max[i],
-                0.0,
-            );
-            self.found[i] = found;
-            self.add_if(i, visible);
-        }
-        for &i in &alone[..n_alone] {
-            let i = usize::from(i);
-            let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
-            let visible = scene.visible_in::<true>(&shadow, self.shadow_t_max[i], 0.0);
-            self.add_if(i, visible);
-        }
-        for &i in &ended[..n_ended] {
-            let i = usize::from(i);
-            self.alive[i] = false;
-            let result = PathResult {
-                radiance: self.l.get(i),
-                rays: self.rays[i],
-                vertices: self.vertices[i],
-            };
-            each(self.x[i], self.y[i], self.index[i], result);
-        }
-    }
-
-    /// Adds lane `i`'s light sample to its radiance if its shadow ray was clear (a select, not a
-    /// branch: visibility is random).
-    #[inline(always)]
-    fn add_if(&mut self, i: usize, visible: bool) {
-        let l = self.l.get(i);
-        let lit = l + self.shadow_value.get(i);
-        self.l.set(i, if visible { lit } else { l });
     }
 }

@@ -11,7 +11,8 @@
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
 //! untextured materials, emissive triangles and punctual lamps as the lights (no environment), no
-//! alpha, no tangents (vertex normals are interpolated as `Scene::surface` does); MIS
+//! alpha, no tangents (vertex normals are interpolated as `Scene::surface` does, and instanced
+//! meshes moved to world space as it moves them: `Scene::instance_triangle`); MIS
 //! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
 //! scalar integrator, with the same result it always had. Ray queries stay scalar, one lane at a
 //! time, through the scene's BVH.
@@ -97,10 +98,9 @@ pub(crate) struct DiffuseScene {
 
 impl DiffuseScene {
     /// The lanes' view of a scene, if every material is an untextured pure Lambertian (emissive
-    /// or not) without alpha or volume, the mesh has no tangents (it may have vertex normals), the
-    /// lights are emissive triangles and punctual lamps (at least one of either), no environment,
-    /// and no instanced meshes (the lanes trace the world-space mesh alone). The one place that
-    /// decides which scenes the lanes render.
+    /// or not) without alpha or volume, no mesh (world-space or instanced) has tangents (they may
+    /// have vertex normals), the lights are emissive triangles and punctual lamps (at least one of
+    /// either) and no environment. The one place that decides which scenes the lanes render.
     pub(crate) fn new(
         materials: &[Material],
         templates: &[Option<crate::bsdf::Bsdf>],
@@ -109,7 +109,10 @@ impl DiffuseScene {
         lights: &Lights,
     ) -> Option<DiffuseScene> {
         let area = &lights.area;
-        if !instances.is_empty() || mesh.tangents.is_some() || lights.environment.is_some() {
+        let tangents = std::iter::once(mesh)
+            .chain(instances.prototypes.iter().map(|p| &p.mesh))
+            .any(|m| m.tangents.is_some());
+        if tangents || lights.environment.is_some() {
             return None;
         }
         // Without a sampled light (area or punctual) there is nothing for the lanes to speed up.

@@ -384,3 +384,107 @@ fn a_scene_of_many_lights_chooses_by_the_tree_as_the_scalar_integrator_does() {
         assert_same_bits(&furnace, &settings(k as u64 + 11, rr, max_depth), 0..4);
     }
 }
+
+/// Instanced meshes (a two-level BVH): the lanes read a hit on an instance through
+/// `Scene::instance_triangle`, as `Scene::surface` does. Small copies of the box's walls placed
+/// inside it — one prototype flat, one with vertex normals, placed turned, scaled unevenly and
+/// mirrored (two corners swap, and the barycentrics with them) — beside the box itself; and the
+/// same copies with the walls alone under a lamp, without any world-space triangle.
+#[test]
+fn instanced_meshes_are_shaded_as_the_scalar_integrator_shades_them() {
+    use crate::geometry::{Mesh, Placement};
+    use crate::light::{PointLight, PunctualLight};
+    use glam::{DMat4, DQuat, DVec3};
+    let mut p = parts("cornell");
+    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    for corner in p.mesh.positions.iter().flatten() {
+        (lo, hi) = (lo.min(*corner), hi.max(*corner));
+    }
+    let (centre, size) = ((lo + hi) * 0.5, hi - lo);
+    // The box's walls moved to the unit cube around the origin (its light left out: emitters are
+    // never instanced).
+    let mut flat = Mesh::default();
+    for (tri, &m) in p.mesh.positions.iter().zip(&p.mesh.material) {
+        if !p.materials[m as usize].is_emissive() {
+            flat.positions.push(tri.map(|v| (v - centre) / size));
+            flat.material.push(m);
+        }
+    }
+    let mut smooth = flat.clone();
+    smooth.normals = Some(
+        smooth
+            .positions
+            .iter()
+            .enumerate()
+            .map(|(t, &[a, b, c])| {
+                let ng = (b - a).cross(c - a).normalize();
+                let tilt = |k: u32| {
+                    let h = crate::sampler::hash_u32(t as u32 * 3 + k);
+                    Vec3::new(h as f32, (h >> 8) as f32, (h >> 16) as f32) / 16_777_216.0
+                };
+                [0, 1, 2].map(|k| (ng + 0.5 * (tilt(k) - Vec3::splat(0.5))).normalize())
+            })
+            .collect(),
+    );
+    let (c, s) = (centre.as_dvec3(), size.as_dvec3());
+    let place = |prototype: u32, at: DVec3, scale: DVec3, turn: f64| Placement {
+        prototype,
+        to_world: DMat4::from_scale_rotation_translation(
+            s * scale,
+            DQuat::from_euler(glam::EulerRot::YXZ, turn, 0.3 * turn, -0.2 * turn),
+            c + s * at,
+        ),
+    };
+    p.prototypes = vec![flat, smooth];
+    p.placements = vec![
+        place(0, DVec3::new(-0.25, -0.3, 0.1), DVec3::splat(0.2), 0.4),
+        place(
+            1,
+            DVec3::new(0.2, -0.25, -0.1),
+            DVec3::new(0.25, 0.15, 0.2),
+            -0.7,
+        ),
+        // Mirrored: a negative determinant.
+        place(
+            1,
+            DVec3::new(0.0, 0.1, 0.0),
+            DVec3::new(-0.2, 0.2, 0.2),
+            1.1,
+        ),
+        place(
+            0,
+            DVec3::new(0.25, 0.2, 0.15),
+            DVec3::new(0.15, -0.15, 0.15),
+            2.0,
+        ),
+    ];
+    let boxed = scene(p.clone());
+    assert_eq!(boxed.info.instances, 4);
+    assert!(boxed.diffuse.is_some(), "the lanes take instanced meshes");
+    for (seed, rr) in [(8, RussianRoulette::Auto), (9, RussianRoulette::Off)] {
+        let max_depth = (rr == RussianRoulette::Off).then_some(5);
+        assert_same_bits(&boxed, &settings(seed, rr, max_depth), 0..8);
+    }
+    // The instances change the image: some samples see them.
+    let plain = scene(parts("cornell"));
+    let s = settings(8, RussianRoulette::Auto, None);
+    let differ = (0..s.height)
+        .flat_map(|y| (0..s.width).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            render_sample(&boxed, &s, x, y, 0).radiance
+                != render_sample(&plain, &s, x, y, 0).radiance
+        })
+        .count();
+    assert!(differ > (s.width * s.height / 10) as usize, "{differ}");
+    // Instances alone, lit by a lamp (the walls themselves placed as an instance): misses load
+    // the first instance's triangle.
+    p.mesh = Mesh::default();
+    p.placements.push(place(0, DVec3::ZERO, DVec3::ONE, 0.0));
+    p.punctual_lights = vec![PunctualLight::Point(PointLight {
+        position: centre + Vec3::new(0.1, 0.3, 0.2) * size,
+        intensity: Vec3::splat(0.5) * size.length_squared(),
+    })];
+    let alone = scene(p);
+    assert!(alone.mesh.is_empty() && alone.diffuse.is_some());
+    assert_same_bits(&alone, &settings(10, RussianRoulette::Auto, None), 0..8);
+}

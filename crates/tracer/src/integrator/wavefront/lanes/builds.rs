@@ -4,7 +4,7 @@
 //! processor runs them.
 
 use super::refill::CameraRays;
-use super::{Isa, Kind, Lanes};
+use super::{normals, Isa, Kind, Lanes};
 use crate::camera::Camera;
 use crate::integrator::PathResult;
 use crate::settings::RenderSettings;
@@ -72,7 +72,11 @@ impl Lanes<'_> {
         /// [`Lanes::shade_hit`] compiled for `isa`.
         fn shade_hit_for, shade_hit_avx512, shade_hit_avx2
             (&mut self, isa: Isa) {
-            self.shade_hit(isa);
+            match self.normals {
+                normals::FLAT => self.shade_hit::<{ normals::FLAT }>(isa),
+                normals::SMOOTH => self.shade_hit::<{ normals::SMOOTH }>(isa),
+                _ => self.shade_hit::<{ normals::MIXED }>(isa),
+            }
         }
 
         /// [`Lanes::scatter`] compiled for `isa`.

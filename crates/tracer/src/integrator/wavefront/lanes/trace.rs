@@ -1,0 +1,178 @@
+//! Steps 2 and 6 of the lanes, their scalar ray queries: `trace_closest` traces each lane's
+//! closest hit and loads its triangle and material; `trace_shadows` traces the shadow rays (with
+//! the next rays where a path goes on) and hands on the paths that ended.
+
+use super::{normals, Lanes, LANES};
+use crate::geometry::Ray;
+use crate::integrator::PathResult;
+use crate::scene::Hit;
+
+impl Lanes<'_> {
+    /// Traces the closest hit of every live lane that does not have it yet, and loads the hit
+    /// triangle's corners and material. `hit` is false for dead lanes and for rays that escaped.
+    #[inline(always)]
+    pub(super) fn trace_closest(&mut self) {
+        let scene = self.scene;
+        // The lanes to trace, listed first: which lanes need a ray is random, and a branch on it
+        // per lane would be mispredicted about as often as not.
+        let mut trace = [0u8; LANES];
+        let mut n = 0;
+        for i in 0..LANES {
+            trace[n] = i as u8;
+            n += usize::from(self.alive[i] && self.untraced[i]);
+        }
+        for &i in &trace[..n] {
+            let i = usize::from(i);
+            self.rays[i] += 1;
+            let ray = Ray::new(self.o.get(i), self.d.get(i));
+            // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
+            self.found[i] = scene.intersect_in::<true>(&ray, f32::INFINITY, 0.0);
+        }
+        // Every lane loads a triangle (`miss` where there is no hit), so nothing here branches
+        // but the instanced hits' move to world space.
+        let instanced = !scene.instances.is_empty();
+        // What a lane without a hit loads: a triangle of the scene, in its world-space mesh or in
+        // its first instance (never read).
+        let miss = Hit {
+            t: 0.0,
+            triangle: 0,
+            b1: 0.0,
+            b2: 0.0,
+            instance: if scene.mesh.is_empty() { 0 } else { Hit::WORLD },
+        };
+        let mixed = self.normals == normals::MIXED;
+        for i in 0..LANES {
+            let found = self.found[i].filter(|_| self.alive[i]);
+            self.hit[i] = found.is_some();
+            let hit = found.unwrap_or(miss);
+            self.t[i] = hit.t;
+            let material = if instanced && hit.instance != Hit::WORLD {
+                self.load_instanced(i, &hit, mixed)
+            } else {
+                self.load_world(i, &hit, mixed)
+            };
+            let m = &self.materials[material as usize];
+            self.albedo.set(i, m.albedo);
+            self.emission_front.set(i, m.emission_front);
+            self.emission_back.set(i, m.emission_back);
+            self.diffuse_on[i] = m.diffuse_on;
+            self.light_density[i] = m.light_density;
+            // Chosen by the tree, the density depends on the vertex the ray left (`p` and `ng`
+            // still hold it): `trace_path`'s `EmissionWeight::Mis`. Emitters are never instanced.
+            if self.lights.is_none() && self.hit[i] && self.mis[i] && m.emits {
+                debug_assert_eq!(hit.instance, Hit::WORLD);
+                let (from, n) = (self.p.get(i), self.ng.get(i));
+                self.light_density[i] = scene.lights.area.pdf(from, n, hit.triangle, material);
+            }
+        }
+    }
+
+    /// Loads lane `i`'s hit of the world-space mesh (its barycentrics, corners and vertex
+    /// normals, as `Scene::surface` reads them) and returns its material.
+    #[inline(always)]
+    fn load_world(&mut self, i: usize, hit: &Hit, mixed: bool) -> u32 {
+        let mesh = &*self.scene.mesh;
+        let tri = hit.triangle as usize;
+        (self.b1[i], self.b2[i]) = (hit.b1, hit.b2);
+        let [a, b, c] = mesh.positions[tri];
+        self.corner_a.set(i, a);
+        self.corner_b.set(i, b);
+        self.corner_c.set(i, c);
+        if mixed {
+            self.smooth[i] = mesh.normals.is_some();
+        }
+        if let Some(normals) = &mesh.normals {
+            let [na, nb, nc] = normals[tri];
+            self.normal_a.set(i, na);
+            self.normal_b.set(i, nb);
+            self.normal_c.set(i, nc);
+        }
+        mesh.material[tri]
+    }
+
+    /// [`Lanes::load_world`] of an instanced hit: its triangle moved to world space as
+    /// `Scene::surface` moves it (`Scene::instance_triangle`). (Not through one function with the
+    /// world-space mesh's hits: the lanes' loop ran 1–2 % slower on scenes without instances.)
+    #[inline(always)]
+    fn load_instanced(&mut self, i: usize, hit: &Hit, mixed: bool) -> u32 {
+        let world = self.scene.instance_triangle(hit);
+        (self.b1[i], self.b2[i]) = world.bary;
+        let [a, b, c] = world.corners;
+        self.corner_a.set(i, a);
+        self.corner_b.set(i, b);
+        self.corner_c.set(i, c);
+        if mixed {
+            self.smooth[i] = world.normals.is_some();
+        }
+        if let Some([na, nb, nc]) = world.normals {
+            self.normal_a.set(i, na);
+            self.normal_b.set(i, nb);
+            self.normal_c.set(i, nc);
+        }
+        world.material
+    }
+
+    /// Traces each lane's shadow ray (with its next ray, when the path goes on), adds the light
+    /// it lets through, and hands on the results of the paths that ended.
+    #[inline(always)]
+    pub(super) fn trace_shadows(&mut self, each: &mut impl FnMut(u32, u32, u32, PathResult)) {
+        let scene = self.scene;
+        // Lanes listed by what they trace, without a branch per lane (as in `trace_closest`):
+        // a shadow ray with the next ray, a shadow ray alone, and the paths that end.
+        let (mut pairs, mut alone, mut ended) = ([0u8; LANES], [0u8; LANES], [0u8; LANES]);
+        let (mut n_pairs, mut n_alone, mut n_ended) = (0, 0, 0);
+        for i in 0..LANES {
+            let alive = self.alive[i];
+            let cont = self.go[i] && self.cont[i];
+            let shadow = self.go[i] && self.shadow[i];
+            pairs[n_pairs] = i as u8;
+            n_pairs += usize::from(alive && shadow && cont);
+            alone[n_alone] = i as u8;
+            n_alone += usize::from(alive && shadow && !cont);
+            ended[n_ended] = i as u8;
+            n_ended += usize::from(alive && !cont);
+            // A path that goes on without a shadow ray traces its next ray in `trace_closest`.
+            self.untraced[i] = !shadow;
+        }
+        for &i in &pairs[..n_pairs] {
+            let i = usize::from(i);
+            self.rays[i] += 1;
+            let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
+            let ray = Ray::new(self.o.get(i), self.d.get(i));
+            let (found, visible) = scene.intersect_and_visible_in::<true>(
+                &ray,
+                0.0,
+                &shadow,
+                self.shadow_t_max[i],
+                0.0,
+            );
+            self.found[i] = found;
+            self.add_if(i, visible);
+        }
+        for &i in &alone[..n_alone] {
+            let i = usize::from(i);
+            let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
+            let visible = scene.visible_in::<true>(&shadow, self.shadow_t_max[i], 0.0);
+            self.add_if(i, visible);
+        }
+        for &i in &ended[..n_ended] {
+            let i = usize::from(i);
+            self.alive[i] = false;
+            let result = PathResult {
+                radiance: self.l.get(i),
+                rays: self.rays[i],
+                vertices: self.vertices[i],
+            };
+            each(self.x[i], self.y[i], self.index[i], result);
+        }
+    }
+
+    /// Adds lane `i`'s light sample to its radiance if its shadow ray was clear (a select, not a
+    /// branch: visibility is random).
+    #[inline(always)]
+    fn add_if(&mut self, i: usize, visible: bool) {
+        let l = self.l.get(i);
+        let lit = l + self.shadow_value.get(i);
+        self.l.set(i, if visible { lit } else { l });
+    }
+}
