@@ -18,6 +18,7 @@ pub mod fuzzing; // the checks of the fuzz targets (fuzz/), shared with tests/fu
 pub mod geometry;
 pub mod gltf;
 pub mod integrator;
+mod isa;
 pub mod light;
 pub mod material;
 pub mod math;

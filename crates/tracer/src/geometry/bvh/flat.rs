@@ -18,8 +18,8 @@
 //! one packet and each block one more, so most rays test one packet instead of two.
 //!
 //! It needs AVX-512F (a packet is one register) or AVX2 (a packet is two registers, tested one
-//! after the other), detected once when the mesh is built; without either, or for larger meshes,
-//! the tree is used. (AVX2 once tested both halves side by side, which spilled registers and
+//! after the other): the build the tracer's one detection names (`crate::isa`, the wavefront's
+//! too), asked when the mesh is built; without either, or for larger meshes, the tree is used. (AVX2 once tested both halves side by side, which spilled registers and
 //! measured within a few percent of the tree; one half after the other keeps a half's values in
 //! registers.)
 

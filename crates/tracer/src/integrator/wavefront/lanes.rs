@@ -34,13 +34,13 @@ mod trace;
 
 use refill::CameraRays;
 
-use super::isa::{Isa, Kind};
 use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::integrator::direct::{punctual_at, LightGeometry, PunctualAt};
 use crate::integrator::path::survival;
 use crate::integrator::PathResult;
+use crate::isa::{Isa, Kind};
 use crate::math::{is_black, offset_unit_normal, spawn_clearance, Frame};
 use crate::sampler::{bounce_dim, dims, owen_sobol_group_lanewise};
 use crate::sampling::power_heuristic;

@@ -1,8 +1,8 @@
 //! The light triangles of a wavefront scene laid out for the lanes, so that choosing a light and a
 //! point on it is one more vectorised loop rather than a search per lane.
 
-use super::isa::{Isa, Kind};
 use super::{DiffuseMaterial, LANES, V3};
+use crate::isa::{Isa, Kind};
 use crate::light::{point_on, AreaLights};
 use crate::sampling::sample_uniform_triangle;
 use glam::{Vec2, Vec3};

@@ -21,19 +21,18 @@
 //! do not idle while the longest path of a group finishes. Results therefore arrive out of index
 //! order; the accumulation is exact integer arithmetic, so the order does not change its bits.
 
-mod isa;
 mod lanes;
 mod lights;
 #[cfg(test)]
 mod tests;
 
 use super::PathResult;
+use crate::isa::Isa;
 use crate::light::Lights;
 use crate::material::Material;
 use crate::scene::Scene;
 use crate::settings::{DirectStrategy, RenderSettings, SamplerKind};
 use glam::Vec3;
-use isa::Isa;
 use lanes::Lanes;
 use lights::LightTable;
 

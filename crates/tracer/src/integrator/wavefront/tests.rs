@@ -26,7 +26,7 @@ fn assert_same_bits(scene: &Scene, settings: &RenderSettings, samples: std::ops:
     let Some(wavefront) = Wavefront::new(scene, settings) else {
         // Only where the processor has no build of the lanes (without AVX2, or not x86-64).
         assert!(
-            super::isa::Isa::detect().is_none(),
+            crate::isa::Isa::detect().is_none(),
             "the wavefront takes this scene"
         );
         eprintln!("SKIPPED: this processor runs no build of the wavefront's lanes");
@@ -40,7 +40,7 @@ fn assert_same_bits(scene: &Scene, settings: &RenderSettings, samples: std::ops:
         .iter()
         .flat_map(|&(x, y)| samples.clone().map(move |i| (x, y, i)))
         .collect();
-    for wavefront in super::isa::Isa::detected().map(|isa| wavefront.with_isa(isa)) {
+    for wavefront in crate::isa::Isa::detected().map(|isa| wavefront.with_isa(isa)) {
         let mut got = Vec::new();
         wavefront.render(work.iter().copied(), |x, y, i, r| got.push((x, y, i, r)));
         assert_eq!(got.len(), work.len(), "every sample is rendered once");
@@ -270,7 +270,7 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     assert!(cornell.diffuse.is_some());
     assert_eq!(
         Wavefront::new(&cornell, &base).is_some(),
-        super::isa::Isa::detect().is_some()
+        crate::isa::Isa::detect().is_some()
     );
     for other in [
         RenderSettings {
@@ -320,7 +320,7 @@ fn the_light_table_samples_what_area_lights_sample() {
                 u[0][i] = (i as f32 * 0.37 + u_select[i]).fract();
                 u[1][i] = (i as f32 * 0.61 + 0.5 * u_select[i]).fract();
             }
-            let isas = super::isa::Isa::detected().map(Some).chain([None]);
+            let isas = crate::isa::Isa::detected().map(Some).chain([None]);
             for got in isas.map(|isa| table.sample(&u_select, &u, isa)) {
                 for i in 0..chunk.len() {
                     let ls = area

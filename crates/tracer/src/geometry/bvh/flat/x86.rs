@@ -1,9 +1,11 @@
 //! The x86-64 lanes: AVX-512F (a packet in one register) and AVX2 (a packet in two). Every
 //! intrinsic needs its CPU feature, so every call is `unsafe`; the safety argument is the
-//! [`Avx512`] or [`Avx2`] value itself, which only [`Backend::detect`] makes.
+//! [`Avx512`] or [`Avx2`] value itself, which only [`Backend::of`] makes, from an [`Isa`] (the
+//! tracer's one detection).
 
 use super::{any_with, closest_with, pair_with, Lanes, Mesh, Packed, Query, WIDE};
 use crate::geometry::TriangleHit;
+use crate::isa::{Isa, Kind};
 use std::arch::x86_64::*;
 
 /// The instruction set a flat mesh is tested in.
@@ -14,16 +16,24 @@ pub(super) enum Backend {
 }
 
 impl Backend {
-    /// The widest this processor has, if any.
+    /// The build this process runs ([`Isa::detect`], the tracer's one detection), if any.
     pub fn detect() -> Option<Backend> {
-        Backend::detected().next()
+        Isa::detect().map(Backend::of)
     }
 
     /// Every one this processor has, widest first (tests check each).
+    #[cfg(test)]
     pub fn detected() -> impl Iterator<Item = Backend> {
-        let avx512 = is_x86_feature_detected!("avx512f").then_some(Backend::Avx512(Avx512(())));
-        let avx2 = is_x86_feature_detected!("avx2").then_some(Backend::Avx2(Avx2(())));
-        [avx512, avx2].into_iter().flatten()
+        Isa::detected().map(Backend::of)
+    }
+
+    /// The test's build for `isa`, whose existence proves the features it needs (AVX-512F, or
+    /// AVX2).
+    fn of(isa: Isa) -> Backend {
+        match isa.0 {
+            Kind::Avx512 => Backend::Avx512(Avx512(())),
+            Kind::Avx2 => Backend::Avx2(Avx2(())),
+        }
     }
 
     /// The largest mesh tested without a tree in this instruction set.
@@ -146,7 +156,7 @@ macro_rules! queries_compiled_for {
     };
 }
 
-/// Proof that the processor has AVX-512F (the field is private: only `Backend::detect` makes
+/// Proof that the processor has AVX-512F (the field is private: only `Backend::of` makes
 /// one). Its [`Lanes`] operations are one 16-lane register each; compares give a 16-bit mask.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Avx512(());
@@ -155,7 +165,7 @@ impl Avx512 {
     queries_compiled_for!("avx512f");
 }
 
-/// Proof that the processor has AVX2 (only `Backend::detect` makes one). Its [`Lanes`]
+/// Proof that the processor has AVX2 (only `Backend::of` makes one). Its [`Lanes`]
 /// operations are one 8-lane register each: a packet is two halves.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Avx2(());
