@@ -72,6 +72,16 @@ fn assert_same_bits(scene: &Scene, settings: &RenderSettings, samples: std::ops:
     }
 }
 
+/// The pixels whose first sample differs between two scenes: that a change to a scene shows.
+fn pixels_that_differ(a: &Scene, b: &Scene, s: &RenderSettings) -> usize {
+    (0..s.height)
+        .flat_map(|y| (0..s.width).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            render_sample(a, s, x, y, 0).radiance != render_sample(b, s, x, y, 0).radiance
+        })
+        .count()
+}
+
 fn settings(seed: u64, rr: RussianRoulette, max_depth: Option<u32>) -> RenderSettings {
     RenderSettings {
         seed,
@@ -170,13 +180,7 @@ fn vertex_normals_are_interpolated_as_the_scalar_integrator_does() {
     // The normals change the image: this is not the flat box again.
     let flat = self::scene(parts("cornell"));
     let s = settings(3, RussianRoulette::Auto, None);
-    let differ = (0..s.height)
-        .flat_map(|y| (0..s.width).map(move |x| (x, y)))
-        .filter(|&(x, y)| {
-            render_sample(&scene, &s, x, y, 0).radiance
-                != render_sample(&flat, &s, x, y, 0).radiance
-        })
-        .count();
+    let differ = pixels_that_differ(&scene, &flat, &s);
     assert!(differ > (s.width * s.height / 4) as usize, "{differ}");
 }
 
@@ -468,13 +472,7 @@ fn instanced_meshes_are_shaded_as_the_scalar_integrator_shades_them() {
     // The instances change the image: some samples see them.
     let plain = scene(parts("cornell"));
     let s = settings(8, RussianRoulette::Auto, None);
-    let differ = (0..s.height)
-        .flat_map(|y| (0..s.width).map(move |x| (x, y)))
-        .filter(|&(x, y)| {
-            render_sample(&boxed, &s, x, y, 0).radiance
-                != render_sample(&plain, &s, x, y, 0).radiance
-        })
-        .count();
+    let differ = pixels_that_differ(&boxed, &plain, &s);
     assert!(differ > (s.width * s.height / 10) as usize, "{differ}");
     // Instances alone, lit by a lamp (the walls themselves placed as an instance): misses load
     // the first instance's triangle.
