@@ -3,18 +3,25 @@
 //! [SPP]` with SCENE `cornell` (the shipped box, default) or `sphere330k` (the box plus the
 //! 327,680-triangle displaced sphere of `pathfarm bench speed`), or the path of a `.glb` (such as
 //! `scenes/suite/instanced.glb`; with `:flat` after it, its instanced meshes flattened into world
-//! triangles, to compare the two levels with one). Prints samples and rays per second and a hash
-//! of the accumulation: the hash must not change unless the image is meant to.
+//! triangles, to compare the two levels with one). `+sky` after any of them lights the scene with
+//! a uniform sky as well (radiance 0.6, 0.75, 1.0: the peer comparison's environment scene's).
+//! Prints samples and rays per second and a hash of the accumulation: the hash must not change
+//! unless the image is meant to.
 
 use pathfarm_bench::render::render_range;
 use pathfarm_bench::scenes;
 use pathfarm_tracer::gltf::{load_parts, LoadOptions, NoExternalResources};
+use pathfarm_tracer::light::Environment;
 use pathfarm_tracer::Scene;
 use std::path::Path;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let name = args.first().map_or("cornell", String::as_str);
+    let full_name = args.first().map_or("cornell", String::as_str);
+    let (name, sky) = match full_name.strip_suffix("+sky") {
+        Some(name) => (name, true),
+        None => (full_name, false),
+    };
     let threads: usize = args.get(1).map_or(Ok(2), |s| s.parse())?;
     let spp: u32 = args.get(2).map_or(Ok(64), |s| s.parse())?;
     let dir = Path::new("scenes");
@@ -38,6 +45,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         _ => scenes::load(&scenes::find(name)?, dir)?.scene,
     };
+    let scene = match sky {
+        true => {
+            scene.with_environment(Some(Environment::uniform(glam::Vec3::new(0.6, 0.75, 1.0))?))
+        }
+        false => scene,
+    };
     let settings = pathfarm_bench::speed::settings(256, 256, 1);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -51,7 +64,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .fold(h, |h, w| scenes::fnv1a(&w.to_le_bytes(), h))
     });
     println!(
-        "{name}: {threads} threads, {spp} spp: {:.3} s, {:.3} M samples/s, {:.2} M rays/s, hash {hash:016x}",
+        "{full_name}: {threads} threads, {spp} spp: {:.3} s, {:.3} M samples/s, {:.2} M rays/s, hash {hash:016x}",
         r.seconds,
         samples / r.seconds / 1e6,
         r.acc.rays as f64 / r.seconds / 1e6,

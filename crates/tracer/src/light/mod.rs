@@ -31,6 +31,8 @@ mod tree;
 pub(crate) use area::point_on;
 pub use area::{AreaLightSample, AreaLights, MAX_POWER_CHOSEN};
 pub use directional::DirectionalLight;
+#[cfg(test)]
+pub(crate) use environment::map_for_tests;
 pub use environment::{
     Environment, EnvironmentError, EnvironmentSample, MAX_DISTRIBUTION_SIZE, MAX_ENVIRONMENT_TEXELS,
 };

@@ -4,14 +4,15 @@
 //! 1. `refill` (scalar, `refill.rs`): lanes whose path ended take the next sample and its camera
 //!    ray, made sixteen samples ahead by `make_rays` (vector);
 //! 2. `trace_closest` (scalar, `trace.rs`): lanes without a hit yet trace their ray; lanes that
-//!    hit nothing end, the others load their triangle (moved to world space, for an instance's)
-//!    and material;
+//!    hit nothing end (and take the environment's light along the ray: `add_escaped`), the
+//!    others load their triangle (moved to world space, for an instance's) and material;
 //! 3. `shade_hit` (vector): the hit point and normal, emission seen by the ray, the light's
 //!    sample values;
-//! 4. the light triangle and point each lane's values choose: in the lanes, at the end of step 3,
-//!    from the scene's `LightTable`; for a scene of many lights, from the light tree, lane by lane
-//!    (`sample_by_tree`, scalar); and in a scene with punctual lamps, each lane's lamp sample with
-//!    its shadow ray traced at once (`light_punctual`, scalar);
+//! 4. the light each lane's values choose (`lights.rs`, at the end of step 3): the environment
+//!    (`sample_environment`, lane by lane) or an area light, whose triangle and point come from
+//!    the scene's `LightTable` in the lanes, or for a scene of many lights from the light tree,
+//!    lane by lane (`sample_by_tree`, scalar); and in a scene with punctual lamps, each lane's
+//!    lamp sample with its shadow ray traced at once (`light_punctual`, scalar);
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray;
 //! 6. `trace_shadows` (scalar, `trace.rs`): each shadow ray, together with the lane's next ray
@@ -28,6 +29,7 @@
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
 mod builds;
+mod lights;
 mod normals;
 mod refill;
 mod trace;
@@ -37,10 +39,11 @@ use refill::CameraRays;
 use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
 use crate::bsdf::lambert_at;
-use crate::integrator::direct::{punctual_at, LightGeometry, PunctualAt};
+use crate::integrator::direct::LightGeometry;
 use crate::integrator::path::survival;
 use crate::integrator::PathResult;
 use crate::isa::{Isa, Kind};
+use crate::light::Environment;
 use crate::math::{is_black, offset_unit_normal, spawn_clearance, Frame};
 use crate::sampler::{bounce_dim, dims, owen_sobol_group_lanewise};
 use crate::sampling::power_heuristic;
@@ -71,6 +74,8 @@ pub(super) struct Lanes<'a> {
     depth_limit: u32,
     /// The scene has punctual lights: each vertex samples one (`light_punctual`).
     punctual: bool,
+    /// The scene's environment, if it has one.
+    environment: Option<&'a Environment>,
     /// Which of the scene's meshes have vertex normals (a constant of `shade_hit`'s: one of
     /// [`normals`]).
     normals: u8,
@@ -149,6 +154,19 @@ pub(super) struct Lanes<'a> {
     shadow_value: V3,
     /// The path continues with the new ray in `o`, `d`.
     cont: B,
+
+    // Set at the end of `shade_hit` and by `light_environment`, in a scene with an environment.
+    /// The lane's light sample is the environment's (not an area light's): a direction
+    /// `env_wi` with radiance `env_radiance` and density `env_pdf` (× the environment's choice),
+    /// where `env_ok`. Then (`light_environment`) `env_ok` says whether it contributes
+    /// `env_value` if the shadow ray from `env_o` along `env_wi` is clear.
+    env_light: B,
+    env_ok: B,
+    env_wi: V3,
+    env_radiance: V3,
+    env_pdf: F,
+    env_value: V3,
+    env_o: V3,
 }
 
 impl<'a> Lanes<'a> {
@@ -164,6 +182,7 @@ impl<'a> Lanes<'a> {
             settings,
             depth_limit: settings.depth_limit(),
             punctual: !scene.lights.punctual.is_empty(),
+            environment: scene.lights.environment.as_ref(),
             normals: normals::of(scene),
             x: [0; LANES],
             y: [0; LANES],
@@ -210,6 +229,13 @@ impl<'a> Lanes<'a> {
             light_front: V3::ZERO,
             light_back: V3::ZERO,
             u_punctual: [0.0; LANES],
+            env_light: [false; LANES],
+            env_ok: [false; LANES],
+            env_wi: V3::ZERO,
+            env_radiance: V3::ZERO,
+            env_pdf: [0.0; LANES],
+            env_value: V3::ZERO,
+            env_o: V3::ZERO,
             shadow: [false; LANES],
             shadow_o: V3::ZERO,
             shadow_d: V3::ZERO,
@@ -233,11 +259,20 @@ impl<'a> Lanes<'a> {
                 return;
             }
             self.trace_closest_for(isa);
+            if let Some(env) = self.environment {
+                self.add_escaped(env);
+            }
             self.shade_hit_for(isa);
             if self.punctual {
                 self.light_punctual_for(isa);
             }
+            if self.environment.is_some() {
+                self.light_environment();
+            }
             self.scatter_for(isa);
+            if self.environment.is_some() {
+                self.take_environment_shadows();
+            }
             self.trace_shadows_for(isa, &mut each);
         }
     }
@@ -319,76 +354,7 @@ impl<'a> Lanes<'a> {
         }
         (self.l, self.vertices, self.go, self.p, self.ng) = (ls, vertices, go, ps, ngs);
         (self.ns, self.u_punctual) = (nss, u_punctual);
-        let Some(lights) = self.lights else {
-            self.sample_by_tree(&u_select, &u_light);
-            return;
-        };
-        // The light triangle and point, in the lanes.
-        let s = lights.sample(&u_select, &u_light, Some(isa));
-        let diffuse_on = self.diffuse_on;
-        let mut ok = [false; LANES];
-        for i in 0..LANES {
-            ok[i] = go[i] && diffuse_on[i];
-        }
-        (self.light_ok, self.light_point, self.light_normal) = (ok, s.point, s.normal);
-        (self.light_pdf_area, self.light_front, self.light_back) = (s.pdf_area, s.front, s.back);
-    }
-
-    /// Chooses each lane's light triangle and point by the light tree at the lane's vertex
-    /// (`AreaLights::sample`, one lane at a time: a walk per lane) and loads the light's emission.
-    fn sample_by_tree(&mut self, u_select: &F, u_light: &[F; 2]) {
-        let scene = self.scene;
-        for i in 0..LANES {
-            self.light_ok[i] = false;
-            if !(self.go[i] && self.diffuse_on[i]) {
-                continue;
-            }
-            let u = Vec2::new(u_light[0][i], u_light[1][i]);
-            let (p, ng) = (self.p.get(i), self.ng.get(i));
-            let Some(ls) = scene.lights.area.sample(p, ng, u_select[i], u) else {
-                continue;
-            };
-            let m = &self.materials[scene.mesh.material[ls.triangle as usize] as usize];
-            self.light_ok[i] = true;
-            self.light_point.set(i, ls.point);
-            self.light_normal.set(i, ls.normal);
-            self.light_pdf_area[i] = ls.pdf_area;
-            self.light_front.set(i, m.emission_front);
-            self.light_back.set(i, m.emission_back);
-        }
-    }
-
-    /// Each lane's punctual light sample, traced at once (`trace_path`'s `direct_punctual`, lane
-    /// by lane through its body `punctual_at`): added before the area light's sample, whose shadow
-    /// ray is traced later, as `trace_path` adds them.
-    #[inline(always)]
-    fn light_punctual(&mut self) {
-        let scene = self.scene;
-        for i in 0..LANES {
-            if !(self.go[i] && self.diffuse_on[i]) {
-                continue;
-            }
-            let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
-            let albedo = self.albedo.get(i);
-            let corners = [
-                self.corner_a.get(i),
-                self.corner_b.get(i),
-                self.corner_c.get(i),
-            ];
-            let at = PunctualAt {
-                p: self.p.get(i),
-                ng,
-                clearance: spawn_clearance(corners),
-                u_select: self.u_punctual[i],
-                alpha_u: 0.0,
-            };
-            let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
-            let rays = &mut self.rays[i];
-            // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
-            let value = punctual_at::<true>(scene, &at, rays, eval, |_| Vec3::ONE);
-            let l = self.l.get(i) + self.beta.get(i) * value;
-            self.l.set(i, l);
-        }
+        self.choose_lights(isa, &u_select, &u_light);
     }
 
     /// [`Lanes::scatter`] with the roulette's variant a constant in each copy: a `match` on it

@@ -10,7 +10,7 @@
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
-//! untextured materials, emissive triangles and punctual lamps as the lights (no environment), no
+//! untextured materials, emissive triangles, punctual lamps and the environment as the lights, no
 //! alpha, no tangents (vertex normals are interpolated as `Scene::surface` does, and instanced
 //! meshes moved to world space as it moves them: `Scene::instance_triangle`); MIS
 //! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
@@ -77,8 +77,8 @@ pub(crate) struct DiffuseMaterial {
     /// `Material::emission` towards the front side, and towards the back.
     pub emission_front: Vec3,
     pub emission_back: Vec3,
-    /// `AreaLights::power_density` of the material, when the lights are chosen by power (the
-    /// same at every point); zero when they are chosen by the tree.
+    /// `AreaLights::power_density` of the material × `Lights::area_choice`, when the lights are
+    /// chosen by power (the same at every point); zero when they are chosen by the tree.
     pub light_density: f32,
     /// Whether the material emits: a BSDF ray that hits it needs the light choice's density.
     pub emits: bool,
@@ -98,8 +98,9 @@ pub(crate) struct DiffuseScene {
 impl DiffuseScene {
     /// The lanes' view of a scene, if every material is an untextured pure Lambertian (emissive
     /// or not) without alpha or volume, no mesh (world-space or instanced) has tangents (they may
-    /// have vertex normals), the lights are emissive triangles and punctual lamps (at least one of
-    /// either) and no environment. The one place that decides which scenes the lanes render.
+    /// have vertex normals), and the scene has a light (emissive triangles, punctual lamps or an
+    /// environment, one colour or an image). The one place that decides which scenes the lanes
+    /// render.
     pub(crate) fn new(
         materials: &[Material],
         templates: &[Option<crate::bsdf::Bsdf>],
@@ -111,11 +112,11 @@ impl DiffuseScene {
         let tangents = std::iter::once(mesh)
             .chain(instances.prototypes.iter().map(|p| &p.mesh))
             .any(|m| m.tangents.is_some());
-        if tangents || lights.environment.is_some() {
+        if tangents {
             return None;
         }
-        // Without a sampled light (area or punctual) there is nothing for the lanes to speed up.
-        if area.is_empty() && lights.punctual.is_empty() {
+        // Without a light there is nothing for the lanes to speed up.
+        if area.is_empty() && lights.punctual.is_empty() && lights.environment.is_none() {
             return None;
         }
         let mut out = Vec::with_capacity(materials.len());
@@ -132,10 +133,11 @@ impl DiffuseScene {
                 diffuse_on: bsdf.has_non_delta(),
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),
+                // As `trace_path` weighs a hit emitter (× 1 exactly without an environment).
                 light_density: if area.has_tree() || area.is_empty() {
                     0.0
                 } else {
-                    area.power_density(m as u32)
+                    area.power_density(m as u32) * lights.area_choice
                 },
                 emits: material.is_emissive(),
             });

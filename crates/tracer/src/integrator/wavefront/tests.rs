@@ -363,6 +363,68 @@ fn the_light_table_samples_what_area_lights_sample() {
     }
 }
 
+/// An environment, one colour and an image, lights the lanes as it lights `trace_path`: each
+/// vertex's light sample chooses between it and the area lights as `light_query` chooses (with
+/// the box's light, chosen from the table, and with the furnace's facets, chosen by the tree), or
+/// always takes it (lamps and no emissive triangle; nothing but the environment), and a ray that
+/// leaves the box through its open side takes its light, in full from the camera and weighted by
+/// the power heuristic after a bounce.
+#[test]
+fn the_environment_lights_the_lanes_as_it_lights_the_scalar_integrator() {
+    use crate::light::{map_for_tests, Environment, PointLight, PunctualLight};
+    let sky = || Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
+    let image = || {
+        let texels = (0..16 * 8)
+            .map(|i| Vec3::new(0.2 + (i % 16) as f32 * 0.1, 1.0 + (i / 16) as f32, 0.5))
+            .collect();
+        map_for_tests(16, 8, texels, 30.0)
+    };
+    let box_alone = scene(parts("cornell"));
+    for (k, env) in [sky(), image()].into_iter().enumerate() {
+        let lit = scene(parts("cornell")).with_environment(Some(env.clone()));
+        let p_env = lit.lights.environment_choice;
+        assert!(p_env > 0.0 && p_env < 1.0, "both families are sampled");
+        assert!(lit.diffuse.is_some(), "the lanes take an environment");
+        assert!(
+            pixels_that_differ(&box_alone, &lit, &settings(1, RussianRoulette::Auto, None)) > 100,
+            "the environment is seen"
+        );
+        for (seed, rr) in [(21, RussianRoulette::Auto), (22, RussianRoulette::Off)] {
+            assert_same_bits(&lit, &settings(seed + k as u64, rr, None), 0..6);
+        }
+        // No emissive triangle: every light sample is the environment's, beside a lamp's.
+        let mut p = parts("cornell");
+        for m in &mut p.materials {
+            m.emissive = Vec3::ZERO;
+        }
+        let environment_only = scene(p.clone()).with_environment(Some(env.clone()));
+        assert_eq!(environment_only.lights.environment_choice, 1.0);
+        assert_same_bits(
+            &environment_only,
+            &settings(23, RussianRoulette::Auto, None),
+            0..6,
+        );
+        let corners = p.mesh.positions.iter().flatten();
+        let (lo, hi) = corners.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
+            (lo.min(*c), hi.max(*c))
+        });
+        p.punctual_lights = vec![PunctualLight::Point(PointLight {
+            position: lo + (hi - lo) * Vec3::new(0.4, 0.7, 0.5),
+            intensity: Vec3::splat(0.3) * (hi - lo).length_squared(),
+        })];
+        let with_lamp = scene(p).with_environment(Some(env.clone()));
+        assert_same_bits(
+            &with_lamp,
+            &settings(24, RussianRoulette::Auto, Some(3)),
+            0..6,
+        );
+        // Many lights, chosen by the tree, and the environment's share of the samples.
+        let furnace = scene(parts("furnace")).with_environment(Some(env));
+        assert!(furnace.lights.area.has_tree() && furnace.diffuse.is_some());
+        assert_same_bits(&furnace, &settings(25, RussianRoulette::Auto, None), 0..4);
+    }
+}
+
 /// A scene of more lights than the table holds chooses by the light tree, lane by lane: the
 /// choice, the point and the density of a BSDF ray's hit at each lane's own vertex, as
 /// `trace_path` makes them (1,280 emitting facets around the camera).

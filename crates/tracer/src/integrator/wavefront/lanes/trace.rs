@@ -62,7 +62,9 @@ impl Lanes<'_> {
             if self.lights.is_none() && self.hit[i] && self.mis[i] && m.emits {
                 debug_assert_eq!(hit.instance, Hit::WORLD);
                 let (from, n) = (self.p.get(i), self.ng.get(i));
-                self.light_density[i] = scene.lights.area.pdf(from, n, hit.triangle, material);
+                let choice = scene.lights.area_choice;
+                self.light_density[i] =
+                    scene.lights.area.pdf(from, n, hit.triangle, material) * choice;
             }
         }
     }

@@ -1,0 +1,217 @@
+//! The lanes' light samples (`trace_path`'s `light_query` and `direct_punctual`, lane by lane or in
+//! the lanes): which light each lane samples at its vertex (`choose_lights`: the environment or
+//! an area light, from the light table or the light tree), the environment's sample
+//! (`sample_environment`) and its light along the rays that leave the scene (`add_escaped`), and
+//! the punctual lamps' samples (`light_punctual`).
+
+use super::{Lanes, F, LANES};
+use crate::bsdf::lambert_at;
+use crate::integrator::direct::{punctual_at, PunctualAt};
+use crate::isa::Isa;
+use crate::light::Environment;
+use crate::math::{is_black, offset_unit_normal, spawn_clearance};
+use crate::sampling::power_heuristic;
+use glam::{Vec2, Vec3};
+
+impl Lanes<'_> {
+    /// Chooses each lane's light sample from its values (`light_query`): with an environment,
+    /// the environment with probability `Lights::environment_choice`, and otherwise an area light
+    /// chosen by the selection value remapped to the rest of its range; without one, always an
+    /// area light, by the value as drawn.
+    #[inline(always)]
+    pub(super) fn choose_lights(&mut self, isa: Isa, u_select: &F, u_light: &[F; 2]) {
+        let Some(env) = self.environment else {
+            self.choose_area_lights::<false>(isa, u_select, u_light);
+            return;
+        };
+        let lights = &self.scene.lights;
+        let (p_env, area_choice) = (lights.environment_choice, lights.area_choice);
+        let (mut to_env, mut u_area) = ([false; LANES], [0.0; LANES]);
+        for i in 0..LANES {
+            to_env[i] = u_select[i] < p_env;
+            u_area[i] = ((u_select[i] - p_env) / area_choice).min(1.0 - f32::EPSILON / 2.0);
+        }
+        self.env_light = to_env;
+        self.sample_environment(env, p_env, u_light);
+        self.choose_area_lights::<true>(isa, &u_area, u_light);
+    }
+
+    /// The area light's triangle and point for each lane that samples one, from the scene's
+    /// `LightTable`, in the lanes, or from the light tree, lane by lane. `ENV`: the scene has an
+    /// environment, which the lanes of `env_light` sample instead, and the area lights' densities
+    /// include their family's choice (without an environment, the code is what it was before
+    /// there was one: × 1 cost 3–5 % on the Cornell box).
+    #[inline(always)]
+    fn choose_area_lights<const ENV: bool>(&mut self, isa: Isa, u_area: &F, u_light: &[F; 2]) {
+        let Some(table) = self.lights else {
+            self.sample_by_tree::<ENV>(u_area, u_light);
+            return;
+        };
+        let s = table.sample(u_area, u_light, Some(isa));
+        let (go, diffuse_on, env_light) = (self.go, self.diffuse_on, self.env_light);
+        let mut ok = [false; LANES];
+        for i in 0..LANES {
+            ok[i] = go[i] && diffuse_on[i] && !(ENV && env_light[i]);
+        }
+        (self.light_ok, self.light_point, self.light_normal) = (ok, s.point, s.normal);
+        (self.light_pdf_area, self.light_front, self.light_back) = (s.pdf_area, s.front, s.back);
+        if ENV {
+            let area_choice = self.scene.lights.area_choice;
+            for pdf in &mut self.light_pdf_area {
+                *pdf *= area_choice;
+            }
+        }
+    }
+
+    /// Chooses each lane's light triangle and point by the light tree at the lane's vertex
+    /// (`AreaLights::sample`, one lane at a time: a walk per lane) and loads the light's emission.
+    fn sample_by_tree<const ENV: bool>(&mut self, u_select: &F, u_light: &[F; 2]) {
+        let scene = self.scene;
+        let area_choice = scene.lights.area_choice;
+        for i in 0..LANES {
+            self.light_ok[i] = false;
+            if !(self.go[i] && self.diffuse_on[i]) || (ENV && self.env_light[i]) {
+                continue;
+            }
+            let u = Vec2::new(u_light[0][i], u_light[1][i]);
+            let (p, ng) = (self.p.get(i), self.ng.get(i));
+            let Some(ls) = scene.lights.area.sample(p, ng, u_select[i], u) else {
+                continue;
+            };
+            let m = &self.materials[scene.mesh.material[ls.triangle as usize] as usize];
+            self.light_ok[i] = true;
+            self.light_point.set(i, ls.point);
+            self.light_normal.set(i, ls.normal);
+            self.light_pdf_area[i] = if ENV {
+                ls.pdf_area * area_choice
+            } else {
+                ls.pdf_area
+            };
+            self.light_front.set(i, m.emission_front);
+            self.light_back.set(i, m.emission_back);
+        }
+    }
+
+    /// The environment's direction, radiance and density (× its choice `p_env`) for each lane
+    /// that chose it (`env_light`) (`Environment::sample`, lane by lane: one colour or an image's distribution).
+    fn sample_environment(&mut self, env: &Environment, p_env: f32, u: &[F; 2]) {
+        for (i, (&u0, &u1)) in u[0].iter().zip(&u[1]).enumerate() {
+            self.env_ok[i] = false;
+            if !(self.env_light[i] && self.go[i] && self.diffuse_on[i]) {
+                continue;
+            }
+            let Some(es) = env.sample(Vec2::new(u0, u1)) else {
+                continue;
+            };
+            self.env_ok[i] = true;
+            self.env_wi.set(i, es.wi);
+            self.env_radiance.set(i, es.radiance);
+            self.env_pdf[i] = p_env * es.pdf;
+        }
+    }
+
+    /// `scatter`'s step 2 for the lanes whose light sample is the environment's (`light_query`):
+    /// its value and shadow ray's origin, before `scatter` moves the lanes to their next rays,
+    /// and handed to the shadow rays after it (`take_environment_shadows`). Inside `scatter`,
+    /// the same work cost 3 % on scenes without an environment.
+    pub(super) fn light_environment(&mut self) {
+        for i in 0..LANES {
+            if !self.env_light[i] {
+                continue;
+            }
+            let (p, ng, wi) = (self.p.get(i), self.ng.get(i), self.env_wi.get(i));
+            let (wo, albedo) = (-self.d.get(i), self.albedo.get(i));
+            let (f, bsdf_pdf) = lambert_at::eval_pdf(self.ns.get(i), ng, albedo, wo, wi);
+            let (radiance, pdf) = (self.env_radiance.get(i), self.env_pdf[i]);
+            self.env_ok[i] = self.go[i]
+                && self.env_ok[i]
+                && !is_black(f)
+                && !is_black(radiance)
+                && pdf > 0.0
+                && pdf.is_finite();
+            let value = f * radiance * (power_heuristic(pdf, bsdf_pdf) / pdf);
+            self.env_value.set(i, self.beta.get(i) * value);
+            let corners = [
+                self.corner_a.get(i),
+                self.corner_b.get(i),
+                self.corner_c.get(i),
+            ];
+            let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
+            self.env_o
+                .set(i, offset_unit_normal(p, side, spawn_clearance(corners)));
+        }
+    }
+
+    /// The environment's light samples as the lanes' shadow rays (after `scatter`, which gave
+    /// these lanes none).
+    pub(super) fn take_environment_shadows(&mut self) {
+        for i in 0..LANES {
+            if !self.env_light[i] {
+                continue;
+            }
+            let shadow = self.env_ok[i];
+            self.shadow[i] = shadow;
+            self.shadow_value.set(i, self.env_value.get(i));
+            self.rays[i] += u32::from(shadow);
+            self.shadow_o.set(i, self.env_o.get(i));
+            self.shadow_d.set(i, self.env_wi.get(i));
+            self.shadow_t_max[i] = f32::INFINITY;
+        }
+    }
+
+    /// Adds the environment's light along the ray of each live lane that hit nothing, weighted as
+    /// `trace_path` weighs it: in full for a camera ray, by the power heuristic against the
+    /// environment's sample after a BSDF sample.
+    #[inline(always)]
+    pub(super) fn add_escaped(&mut self, env: &Environment) {
+        let p_env = self.scene.lights.environment_choice;
+        for i in 0..LANES {
+            if !self.alive[i] || self.hit[i] {
+                continue;
+            }
+            let d = self.d.get(i);
+            let w = if self.mis[i] {
+                power_heuristic(self.bsdf_pdf[i], p_env * env.pdf(d))
+            } else {
+                1.0
+            };
+            if w > 0.0 {
+                let l = self.l.get(i) + self.beta.get(i) * env.radiance(d) * w;
+                self.l.set(i, l);
+            }
+        }
+    }
+
+    /// Each lane's punctual light sample, traced at once (`trace_path`'s `direct_punctual`, lane
+    /// by lane through its body `punctual_at`): added before the area light's sample, whose shadow
+    /// ray is traced later, as `trace_path` adds them.
+    #[inline(always)]
+    pub(super) fn light_punctual(&mut self) {
+        let scene = self.scene;
+        for i in 0..LANES {
+            if !(self.go[i] && self.diffuse_on[i]) {
+                continue;
+            }
+            let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
+            let albedo = self.albedo.get(i);
+            let corners = [
+                self.corner_a.get(i),
+                self.corner_b.get(i),
+                self.corner_c.get(i),
+            ];
+            let at = PunctualAt {
+                p: self.p.get(i),
+                ng,
+                clearance: spawn_clearance(corners),
+                u_select: self.u_punctual[i],
+                alpha_u: 0.0,
+            };
+            let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
+            let rays = &mut self.rays[i];
+            // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
+            let value = punctual_at::<true>(scene, &at, rays, eval, |_| Vec3::ONE);
+            let l = self.l.get(i) + self.beta.get(i) * value;
+            self.l.set(i, l);
+        }
+    }
+}
