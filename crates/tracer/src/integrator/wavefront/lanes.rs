@@ -156,6 +156,8 @@ pub(super) struct Lanes<'a> {
     cont: B,
 
     // Set at the end of `shade_hit` and by `light_environment`, in a scene with an environment.
+    // Declared last: among the fields above, they slowed the steps of every scene
+    // (docs/benchmarks.md, December 5).
     /// The lane's light sample is the environment's (not an area light's): a direction
     /// `env_wi` with radiance `env_radiance` and density `env_pdf` (× the environment's choice),
     /// where `env_ok`. Then (`light_environment`) `env_ok` says whether it contributes

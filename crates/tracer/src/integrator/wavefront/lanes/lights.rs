@@ -40,7 +40,7 @@ impl Lanes<'_> {
     /// `LightTable`, in the lanes, or from the light tree, lane by lane. `ENV`: the scene has an
     /// environment, which the lanes of `env_light` sample instead, and the area lights' densities
     /// include their family's choice (without an environment, the code is what it was before
-    /// there was one: × 1 cost 3–5 % on the Cornell box).
+    /// there was one).
     #[inline(always)]
     fn choose_area_lights<const ENV: bool>(&mut self, isa: Isa, u_area: &F, u_light: &[F; 2]) {
         let Some(table) = self.lights else {
@@ -112,8 +112,8 @@ impl Lanes<'_> {
 
     /// `scatter`'s step 2 for the lanes whose light sample is the environment's (`light_query`):
     /// its value and shadow ray's origin, before `scatter` moves the lanes to their next rays,
-    /// and handed to the shadow rays after it (`take_environment_shadows`). Inside `scatter`,
-    /// the same work cost 3 % on scenes without an environment.
+    /// and handed to the shadow rays after it (`take_environment_shadows`): inside `scatter`, the
+    /// same work slowed scenes without an environment (docs/benchmarks.md, December 5).
     pub(super) fn light_environment(&mut self) {
         for i in 0..LANES {
             if !self.env_light[i] {
