@@ -14,7 +14,8 @@
 //!    lane by lane (`sample_by_tree`, scalar); and in a scene with punctual lamps, each lane's
 //!    lamp sample with its shadow ray traced at once (`light_punctual`, scalar);
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
-//!    roulette and the next ray;
+//!    roulette and the next ray (for a Lambertian; a specular material's lanes take theirs after
+//!    it, lane by lane: `scatter_specular`, `specular.rs`);
 //! 6. `trace_shadows` (scalar, `trace.rs`): each shadow ray, together with the lane's next ray
 //!    when the path goes on (as `trace_path` does), and the results of the paths that ended.
 //!
@@ -32,6 +33,7 @@ mod builds;
 mod lights;
 mod normals;
 mod refill;
+mod specular;
 mod trace;
 
 use refill::CameraRays;
@@ -169,6 +171,11 @@ pub(super) struct Lanes<'a> {
     env_pdf: F,
     env_value: V3,
     env_o: V3,
+
+    /// The hit's material (for a specular one's BSDF: `scatter_specular`).
+    material: U,
+    /// Some material is specular (`DiffuseMaterial::specular`).
+    any_specular: bool,
 }
 
 impl<'a> Lanes<'a> {
@@ -238,6 +245,8 @@ impl<'a> Lanes<'a> {
             env_pdf: [0.0; LANES],
             env_value: V3::ZERO,
             env_o: V3::ZERO,
+            material: [0; LANES],
+            any_specular: diffuse.materials.iter().any(|m| m.specular.is_some()),
             shadow: [false; LANES],
             shadow_o: V3::ZERO,
             shadow_d: V3::ZERO,
@@ -269,11 +278,14 @@ impl<'a> Lanes<'a> {
                 self.light_punctual_for(isa);
             }
             if self.environment.is_some() {
-                self.light_environment();
+                self.light_environment_for(isa);
             }
             self.scatter_for(isa);
             if self.environment.is_some() {
-                self.take_environment_shadows();
+                self.take_environment_shadows_for(isa);
+            }
+            if self.any_specular {
+                self.scatter_specular();
             }
             self.trace_shadows_for(isa, &mut each);
         }

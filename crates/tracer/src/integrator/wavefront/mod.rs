@@ -9,8 +9,10 @@
 //! vectorises them, and IEEE arithmetic lane by lane rounds as it does one value at a time (Rust
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
-//! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian,
-//! untextured materials, emissive triangles, punctual lamps and the environment as the lights, no
+//! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian and
+//! purely specular (a perfect mirror, smooth glass: delta lobes only, sampled lane by lane through
+//! `Bsdf::sample`) untextured materials, emissive triangles, punctual lamps and the environment as
+//! the lights, no
 //! alpha, no tangents (vertex normals are interpolated as `Scene::surface` does, and instanced
 //! meshes moved to world space as it moves them: `Scene::instance_triangle`); MIS
 //! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
@@ -70,8 +72,12 @@ impl V3 {
 /// What a lane needs of a material, for a scene the wavefront can render.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct DiffuseMaterial {
-    /// The sanitised base colour of the Lambertian lobe.
+    /// The sanitised base colour of the Lambertian lobe (zero for a specular material, so that
+    /// the Lambertian continuation of `scatter` gives its lanes none).
     pub albedo: Vec3,
+    /// A material of delta lobes only (a perfect mirror, smooth glass): its BSDF, sampled lane by
+    /// lane after `scatter` (`Lanes::scatter_specular`). None for a Lambertian.
+    pub specular: Option<crate::bsdf::Bsdf>,
     /// The lobe is not black (`Bsdf::has_non_delta`): direct lighting is estimated.
     pub diffuse_on: bool,
     /// `Material::emission` towards the front side, and towards the back.
@@ -96,8 +102,9 @@ pub(crate) struct DiffuseScene {
 }
 
 impl DiffuseScene {
-    /// The lanes' view of a scene, if every material is an untextured pure Lambertian (emissive
-    /// or not) without alpha or volume, no mesh (world-space or instanced) has tangents (they may
+    /// The lanes' view of a scene, if every material is untextured, without alpha or an
+    /// absorbing volume, and either a pure Lambertian (emissive or not) or made of delta lobes
+    /// only (a perfect mirror, smooth glass: no light sample at its vertices), no mesh (world-space or instanced) has tangents (they may
     /// have vertex normals), and the scene has a light (emissive triangles, punctual lamps or an
     /// environment, one colour or an image). The one place that decides which scenes the lanes
     /// render.
@@ -123,13 +130,20 @@ impl DiffuseScene {
         for (m, (material, template)) in materials.iter().zip(templates).enumerate() {
             let bsdf = template.as_ref()?;
             let untextured = material.emissive_texture.is_none();
-            let plain = !material.has_alpha() && material.volume.is_none();
-            if !bsdf.single_lobe() || !untextured || !plain {
+            // A volume that absorbs nothing changes no throughput's bits (× e⁻⁰ = × 1).
+            let clear = material.volume.is_none_or(|v| v.sigma_a == Vec3::ZERO);
+            let plain = !material.has_alpha() && clear;
+            let specular = !bsdf.single_lobe() && !bsdf.has_non_delta();
+            if !(bsdf.single_lobe() || specular) || !untextured || !plain {
                 return None;
             }
             let no_uv = [glam::Vec2::ZERO; 2];
             out.push(DiffuseMaterial {
-                albedo: bsdf.params().base_color,
+                albedo: match specular {
+                    true => Vec3::ZERO,
+                    false => bsdf.params().base_color,
+                },
+                specular: specular.then_some(*bsdf),
                 diffuse_on: bsdf.has_non_delta(),
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),

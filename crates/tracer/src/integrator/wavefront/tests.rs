@@ -288,12 +288,71 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     ] {
         assert!(Wavefront::new(&cornell, &other).is_none());
     }
-    for name in ["glossy", "caustics", "textured"] {
+    for name in ["glossy", "textured"] {
         assert!(
             scene(parts(name)).diffuse.is_none(),
             "{name} needs more than the lanes model"
         );
     }
+    // Glass that absorbs (a volume with an attenuation) tracks its medium: the scalar path's.
+    let mut absorbing = parts("caustics");
+    for m in &mut absorbing.materials {
+        if let Some(v) = &mut m.volume {
+            v.sigma_a = Vec3::new(0.5, 0.2, 0.1);
+        }
+    }
+    assert!(scene(absorbing).diffuse.is_none());
+}
+
+/// Specular materials (delta lobes only: a perfect mirror, smooth glass with a clear volume)
+/// continue their paths lane by lane through `Bsdf::sample` (`scatter_specular`), as
+/// `trace_path` does: the caustics scene's glass and mirror spheres, and the box with a mirror
+/// wall and a glass wall, with and without an environment seen through the glass.
+#[test]
+fn specular_materials_scatter_as_the_scalar_integrator_scatters() {
+    use crate::light::Environment;
+    use crate::material::Volume;
+    // Why a clear volume's medium needs no tracking: its transmittance is exactly 1.
+    assert_eq!(crate::math::det::exp(-0.0 * 3.5), 1.0);
+    let caustics = scene(parts("caustics"));
+    assert!(
+        caustics.diffuse.is_some(),
+        "the lanes take mirrors and glass"
+    );
+    for (seed, rr) in [(31, RussianRoulette::Auto), (32, RussianRoulette::Max)] {
+        assert_same_bits(&caustics, &settings(seed, rr, None), 0..8);
+    }
+    let mut p = parts("cornell");
+    let wall = |name: &str| {
+        p.materials
+            .iter()
+            .position(|m| m.name.as_deref() == Some(name))
+    };
+    let (red, green) = (wall("red").expect("red"), wall("green").expect("green"));
+    let mirror = &mut p.materials[red];
+    (mirror.metallic, mirror.roughness, mirror.base_color) = (1.0, 0.0, Vec4::ONE);
+    let glass = &mut p.materials[green];
+    (glass.transmission, glass.roughness, glass.metallic) = (1.0, 0.0, 0.0);
+    glass.volume = Some(Volume {
+        sigma_a: Vec3::ZERO,
+    });
+    let specular = scene(p.clone());
+    assert!(specular.diffuse.is_some());
+    assert!(
+        pixels_that_differ(
+            &scene(parts("cornell")),
+            &specular,
+            &settings(1, RussianRoulette::Auto, None)
+        ) > 100
+    );
+    assert_same_bits(&specular, &settings(33, RussianRoulette::Auto, None), 0..8);
+    let sky = Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
+    let under_sky = scene(p).with_environment(Some(sky));
+    assert_same_bits(
+        &under_sky,
+        &settings(34, RussianRoulette::Auto, Some(6)),
+        0..8,
+    );
 }
 
 /// The lanes' choice of light and point is `AreaLights::sample`'s, bit for bit, on a grid of

@@ -79,6 +79,18 @@ impl Lanes<'_> {
             }
         }
 
+        /// [`Lanes::light_environment`] compiled for `isa`.
+        fn light_environment_for, light_environment_avx512, light_environment_avx2
+            (&mut self, isa: Isa) {
+            self.light_environment();
+        }
+
+        /// [`Lanes::take_environment_shadows`] compiled for `isa`.
+        fn take_environment_shadows_for, take_environment_shadows_avx512,
+            take_environment_shadows_avx2 (&mut self, isa: Isa) {
+            self.take_environment_shadows();
+        }
+
         /// [`Lanes::scatter`] compiled for `isa`.
         fn scatter_for, scatter_avx512, scatter_avx2
             (&mut self, isa: Isa) {

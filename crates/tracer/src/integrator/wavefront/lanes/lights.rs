@@ -4,7 +4,7 @@
 //! (`sample_environment`) and its light along the rays that leave the scene (`add_escaped`), and
 //! the punctual lamps' samples (`light_punctual`).
 
-use super::{Lanes, F, LANES};
+use super::{Lanes, F, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::integrator::direct::{punctual_at, PunctualAt};
 use crate::isa::Isa;
@@ -113,50 +113,59 @@ impl Lanes<'_> {
     /// `scatter`'s step 2 for the lanes whose light sample is the environment's (`light_query`):
     /// its value and shadow ray's origin, before `scatter` moves the lanes to their next rays,
     /// and handed to the shadow rays after it (`take_environment_shadows`): inside `scatter`, the
-    /// same work slowed scenes without an environment (docs/benchmarks.md, December 5).
+    /// same work slowed scenes without an environment (docs/benchmarks.md, December 5). Vector
+    /// code, as `scatter`'s loops: every lane computed, the environment's lanes kept.
+    #[inline(always)]
     pub(super) fn light_environment(&mut self) {
+        let (env_light, env_ok, go) = (self.env_light, self.env_ok, self.go);
+        let (ps, ngs, nss, ds) = (self.p, self.ng, self.ns, self.d);
+        let (albedos, betas) = (self.albedo, self.beta);
+        let (wis, radiances, pdfs) = (self.env_wi, self.env_radiance, self.env_pdf);
+        let (ca, cb, cc) = (self.corner_a, self.corner_b, self.corner_c);
+        let (mut ok, mut values, mut origins) = ([false; LANES], V3::ZERO, V3::ZERO);
         for i in 0..LANES {
-            if !self.env_light[i] {
-                continue;
-            }
-            let (p, ng, wi) = (self.p.get(i), self.ng.get(i), self.env_wi.get(i));
-            let (wo, albedo) = (-self.d.get(i), self.albedo.get(i));
-            let (f, bsdf_pdf) = lambert_at::eval_pdf(self.ns.get(i), ng, albedo, wo, wi);
-            let (radiance, pdf) = (self.env_radiance.get(i), self.env_pdf[i]);
-            self.env_ok[i] = self.go[i]
-                && self.env_ok[i]
+            let (p, ng, wi) = (ps.get(i), ngs.get(i), wis.get(i));
+            let (wo, albedo) = (-ds.get(i), albedos.get(i));
+            let (f, bsdf_pdf) = lambert_at::eval_pdf(nss.get(i), ng, albedo, wo, wi);
+            let (radiance, pdf) = (radiances.get(i), pdfs[i]);
+            ok[i] = env_light[i]
+                && go[i]
+                && env_ok[i]
                 && !is_black(f)
                 && !is_black(radiance)
                 && pdf > 0.0
                 && pdf.is_finite();
             let value = f * radiance * (power_heuristic(pdf, bsdf_pdf) / pdf);
-            self.env_value.set(i, self.beta.get(i) * value);
-            let corners = [
-                self.corner_a.get(i),
-                self.corner_b.get(i),
-                self.corner_c.get(i),
-            ];
+            values.set(i, betas.get(i) * value);
+            let clearance = spawn_clearance([ca.get(i), cb.get(i), cc.get(i)]);
             let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
-            self.env_o
-                .set(i, offset_unit_normal(p, side, spawn_clearance(corners)));
+            origins.set(i, offset_unit_normal(p, side, clearance));
         }
+        (self.env_ok, self.env_value, self.env_o) = (ok, values, origins);
     }
 
     /// The environment's light samples as the lanes' shadow rays (after `scatter`, which gave
     /// these lanes none).
+    #[inline(always)]
     pub(super) fn take_environment_shadows(&mut self) {
+        let (env_light, env_ok) = (self.env_light, self.env_ok);
+        let (values, origins, wis) = (self.env_value, self.env_o, self.env_wi);
+        let (mut shadow, mut rays) = (self.shadow, self.rays);
+        let (mut shadow_value, mut shadow_o) = (self.shadow_value, self.shadow_o);
+        let (mut shadow_d, mut shadow_t_max) = (self.shadow_d, self.shadow_t_max);
         for i in 0..LANES {
-            if !self.env_light[i] {
-                continue;
+            if env_light[i] {
+                shadow[i] = env_ok[i];
+                rays[i] += u32::from(env_ok[i]);
+                shadow_value.set(i, values.get(i));
+                shadow_o.set(i, origins.get(i));
+                shadow_d.set(i, wis.get(i));
+                shadow_t_max[i] = f32::INFINITY;
             }
-            let shadow = self.env_ok[i];
-            self.shadow[i] = shadow;
-            self.shadow_value.set(i, self.env_value.get(i));
-            self.rays[i] += u32::from(shadow);
-            self.shadow_o.set(i, self.env_o.get(i));
-            self.shadow_d.set(i, self.env_wi.get(i));
-            self.shadow_t_max[i] = f32::INFINITY;
         }
+        (self.shadow, self.rays) = (shadow, rays);
+        (self.shadow_value, self.shadow_o) = (shadow_value, shadow_o);
+        (self.shadow_d, self.shadow_t_max) = (shadow_d, shadow_t_max);
     }
 
     /// Adds the environment's light along the ray of each live lane that hit nothing, weighted as

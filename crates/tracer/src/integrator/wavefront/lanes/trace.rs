@@ -53,6 +53,7 @@ impl Lanes<'_> {
             };
             let m = &self.materials[material as usize];
             self.albedo.set(i, m.albedo);
+            self.material[i] = material;
             self.emission_front.set(i, m.emission_front);
             self.emission_back.set(i, m.emission_back);
             self.diffuse_on[i] = m.diffuse_on;
