@@ -9,12 +9,12 @@
 //! vectorises them, and IEEE arithmetic lane by lane rounds as it does one value at a time (Rust
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
-//! It models only what the scenes it takes need (see [`DiffuseScene`]): pure Lambertian and
-//! purely specular (a perfect mirror, smooth glass: delta lobes only, sampled lane by lane through
-//! `Bsdf::sample`) untextured materials, emissive triangles, punctual lamps and the environment as
-//! the lights, no
-//! alpha, no tangents (vertex normals are interpolated as `Scene::surface` does, and instanced
-//! meshes moved to world space as it moves them: `Scene::instance_triangle`); MIS
+//! It models only what the scenes it takes need (see [`DiffuseScene`]): untextured materials,
+//! pure Lambertian or purely specular (a perfect mirror, smooth glass: delta lobes only, sampled
+//! lane by lane through `Bsdf::sample`); emissive triangles, punctual lamps and the environment
+//! as the lights; no alpha, no tangents (vertex normals are interpolated as `Scene::surface`
+//! does, and instanced meshes moved to world space as it moves them:
+//! `Scene::instance_triangle`); MIS
 //! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
 //! scalar integrator, with the same result it always had. Ray queries stay scalar, one lane at a
 //! time, through the scene's BVH.
@@ -104,10 +104,10 @@ pub(crate) struct DiffuseScene {
 impl DiffuseScene {
     /// The lanes' view of a scene, if every material is untextured, without alpha or an
     /// absorbing volume, and either a pure Lambertian (emissive or not) or made of delta lobes
-    /// only (a perfect mirror, smooth glass: no light sample at its vertices), no mesh (world-space or instanced) has tangents (they may
-    /// have vertex normals), and the scene has a light (emissive triangles, punctual lamps or an
-    /// environment, one colour or an image). The one place that decides which scenes the lanes
-    /// render.
+    /// only (a perfect mirror, smooth glass: no light sample at its vertices); no mesh
+    /// (world-space or instanced) has tangents (they may have vertex normals); and the scene has
+    /// a light (emissive triangles, punctual lamps or an environment, one colour or an image).
+    /// The one place that decides which scenes the lanes render.
     pub(crate) fn new(
         materials: &[Material],
         templates: &[Option<crate::bsdf::Bsdf>],
