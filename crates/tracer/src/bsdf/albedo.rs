@@ -43,6 +43,18 @@ impl AlbedoRow {
         }
     }
 
+    /// The row's index and fraction, as plain values (`glossy.rs`).
+    #[inline(always)]
+    pub(super) fn parts(&self) -> (u16, f32) {
+        (self.k, self.fy)
+    }
+
+    /// The row of [`AlbedoRow::parts`].
+    #[inline(always)]
+    pub(super) fn from_parts(k: u16, fy: f32) -> Self {
+        AlbedoRow { k, fy }
+    }
+
     /// (A, B) at μ = cos θo.
     #[inline]
     pub(super) fn lookup(&self, mu: f32) -> (f32, f32) {

@@ -35,7 +35,7 @@ impl Ggx {
     }
 
     /// Normal distribution D(m) for a unit microfacet normal `m` (zero below the surface).
-    #[inline]
+    #[inline(always)]
     pub fn d(&self, m: Vec3) -> f32 {
         if m.z <= 0.0 {
             return 0.0;
@@ -46,7 +46,7 @@ impl Ggx {
     }
 
     /// a(w) = |w.z| √(1 + α² tan²θ), the common factor of Λ and G1.
-    #[inline]
+    #[inline(always)]
     fn a(&self, w: Vec3) -> f32 {
         let a2 = self.alpha * self.alpha;
         (w.z * w.z + a2 * (w.x * w.x + w.y * w.y)).sqrt()
@@ -70,7 +70,7 @@ impl Ggx {
     }
 
     /// Height-correlated masking-shadowing G2(o, i) = 1 / (1 + Λ(o) + Λ(i)).
-    #[inline]
+    #[inline(always)]
     pub fn g2(&self, o: Vec3, i: Vec3) -> f32 {
         let (zo, zi) = (o.z.abs(), i.z.abs());
         let den = zi * self.a(o) + zo * self.a(i);
@@ -81,7 +81,7 @@ impl Ggx {
     }
 
     /// Visibility term V = G2 / (4 |o.z| |i.z|), in its cancellation-free form.
-    #[inline]
+    #[inline(always)]
     pub fn vis(&self, o: Vec3, i: Vec3) -> f32 {
         let den = i.z.abs() * self.a(o) + o.z.abs() * self.a(i);
         if den <= 0.0 {
@@ -92,7 +92,7 @@ impl Ggx {
 
     /// Samples a visible microfacet normal for `o` (`o.z > 0`) with density
     /// [`Ggx::visible_normal_pdf`] (Dupuy & Benyoub 2023: a spherical cap in the stretched space).
-    #[inline]
+    #[inline(always)]
     pub fn sample_visible_normal(&self, o: Vec3, u: Vec2) -> Vec3 {
         let a = self.alpha;
         // Stretch the view direction to the configuration where the distribution is a hemisphere.
@@ -114,7 +114,7 @@ impl Ggx {
 
     /// Density of [`Ggx::sample_visible_normal`] over microfacet normals:
     /// D_o(m) = G1(o) max(0, o·m) D(m) / o.z.
-    #[inline]
+    #[inline(always)]
     pub fn visible_normal_pdf(&self, o: Vec3, m: Vec3) -> f32 {
         let om = o.dot(m);
         if om <= 0.0 || o.z <= 0.0 {
@@ -125,7 +125,7 @@ impl Ggx {
 
     /// Solid-angle density of `i = reflect(o, h)` when `h` is a sampled visible normal:
     /// D_o(h) / (4 o·h) = G1(o) D(h) / (4 o.z).
-    #[inline]
+    #[inline(always)]
     pub fn reflection_pdf(&self, o: Vec3, h: Vec3) -> f32 {
         if o.z <= 0.0 {
             return 0.0;

@@ -69,6 +69,7 @@ mod clearcoat;
 mod conductor;
 mod dielectric;
 mod fresnel;
+mod glossy;
 mod lambert;
 pub mod microfacet;
 mod params;
@@ -76,6 +77,8 @@ mod sheen;
 mod specular_layer;
 
 pub use params::PbrParams;
+
+pub(crate) use glossy::GlossyLobes;
 
 pub(crate) use lambert::at as lambert_at;
 
@@ -409,7 +412,7 @@ impl Bsdf {
         if self.layered {
             return self.layered_eval_pdf::<EVAL, PDF>(wo, wi);
         }
-        self.general_eval_pdf_in::<EVAL, PDF, false>(wo, wi)
+        self.general_eval_pdf_in::<EVAL, PDF, false>(wo, wi, |co| self.row.lookup(co))
     }
 
     /// [`Bsdf::general_eval_pdf`] of a material with layers.
@@ -419,20 +422,24 @@ impl Bsdf {
         wo: Vec3,
         wi: Vec3,
     ) -> (Vec3, f32) {
-        self.general_eval_pdf_in::<EVAL, PDF, true>(wo, wi)
+        self.general_eval_pdf_in::<EVAL, PDF, true>(wo, wi, |co| self.row.lookup(co))
     }
 
+    /// `albedo_terms`: the GGX albedo table's (A, B) at cos θo (`AlbedoRow::lookup`, or the same
+    /// values looked up before, as the wavefront's lanes do).
     #[inline(always)]
     fn general_eval_pdf_in<const EVAL: bool, const PDF: bool, const LAYERED: bool>(
         &self,
         wo: Vec3,
         wi: Vec3,
+        albedo_terms: impl FnOnce(f32) -> (f32, f32),
     ) -> (Vec3, f32) {
         let Some((o, i, entering)) = self.local_pair(wo, wi) else {
             return (Vec3::ZERO, 0.0);
         };
         let eta = self.interface.eta(entering);
-        let t = self.wo_terms::<LAYERED>(o, if entering { 1.0 } else { -1.0 }, eta);
+        let s = if entering { 1.0 } else { -1.0 };
+        let t = self.wo_terms::<LAYERED>(o, s, eta, albedo_terms);
         self.eval_pdf_local::<EVAL, PDF, LAYERED>(o, i, eta, &t)
     }
 
@@ -453,21 +460,23 @@ impl Bsdf {
         if self.layered {
             return self.layered_sample(wo, u_lobe, u);
         }
-        self.general_sample_in::<false>(wo, u_lobe, u)
+        self.general_sample_in::<false>(wo, u_lobe, u, |co| self.row.lookup(co))
     }
 
     /// [`Bsdf::general_sample`] of a material with layers.
     #[inline(never)]
     fn layered_sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
-        self.general_sample_in::<true>(wo, u_lobe, u)
+        self.general_sample_in::<true>(wo, u_lobe, u, |co| self.row.lookup(co))
     }
 
+    /// `albedo_terms` as in [`Bsdf::general_eval_pdf_in`].
     #[inline(always)]
     fn general_sample_in<const LAYERED: bool>(
         &self,
         wo: Vec3,
         u_lobe: f32,
         u: Vec2,
+        albedo_terms: impl FnOnce(f32) -> (f32, f32),
     ) -> Option<BsdfSample> {
         let lo = self.frame.to_local(wo);
         if lo.z == 0.0 || lo.z.is_nan() {
@@ -476,7 +485,7 @@ impl Bsdf {
         let s = if lo.z > 0.0 { 1.0 } else { -1.0 };
         let o = Vec3::new(lo.x, lo.y, lo.z.abs());
         let eta = self.interface.eta(lo.z > 0.0);
-        let t = self.wo_terms::<LAYERED>(o, s, eta);
+        let t = self.wo_terms::<LAYERED>(o, s, eta, albedo_terms);
         let [p_d, p_s, p_t] = t.p;
         let lt = &t.layers;
         let p_base = p_d + p_s + p_t;
@@ -594,7 +603,7 @@ impl Bsdf {
     }
 
     /// Maps a local sample back to world space, applies the light-leak guard and packs it.
-    #[inline]
+    #[inline(always)]
     fn finish(
         &self,
         wo: Vec3,
@@ -622,14 +631,14 @@ impl Bsdf {
 
     /// True when the geometric normal agrees with the shading frame on whether (wo, wi) is a
     /// reflection or a transmission.
-    #[inline]
+    #[inline(always)]
     fn guard(&self, wo: Vec3, wi: Vec3, lo_z: f32, li_z: f32) -> bool {
         guard(self.ng, wo, wi, lo_z, li_z)
     }
 
     /// Local directions with wo mirrored into the upper hemisphere (the lobes are isotropic, so the
     /// mirror through the tangent plane changes nothing), and whether wo is on the front side.
-    #[inline]
+    #[inline(always)]
     fn local_pair(&self, wo: Vec3, wi: Vec3) -> Option<(Vec3, Vec3, bool)> {
         let lo = self.frame.to_local(wo);
         let li = self.frame.to_local(wi);
@@ -650,9 +659,16 @@ impl Bsdf {
     }
 
     /// Diffuse weight and lobe probabilities for the local (mirrored) wo `o` (`o.z` > 0) on the
-    /// side `s` (±1) of the shading surface.
-    #[inline]
-    fn wo_terms<const LAYERED: bool>(&self, o: Vec3, s: f32, eta: f32) -> WoTerms {
+    /// side `s` (±1) of the shading surface; `albedo_terms(o.z)` gives the rough lobe's albedo
+    /// terms (`AlbedoRow::lookup`).
+    #[inline(always)]
+    fn wo_terms<const LAYERED: bool>(
+        &self,
+        o: Vec3,
+        s: f32,
+        eta: f32,
+        albedo_terms: impl FnOnce(f32) -> (f32, f32),
+    ) -> WoTerms {
         let co = o.z;
         let mut layers = LayerTerms::NONE;
         let (mut est_c, mut est_sh) = (0.0, 0.0);
@@ -667,7 +683,7 @@ impl Bsdf {
                 self.w_metal * conductor::mirror(base, co) + (self.w_base * self.layer.weight) * fl;
             (kd, mean(m))
         } else {
-            let ab = self.row.lookup(co);
+            let ab = albedo_terms(co);
             let kd = self.w_base * self.layer.diffuse_factor(ab);
             let est = self.w_metal * conductor::mean_albedo(self.mean_base, ab)
                 + self.w_base * self.layer.mean_albedo(ab);
@@ -698,7 +714,10 @@ impl Bsdf {
             (est_d, est_s, est_t, est_d + est_s + est_t)
         };
         let p = if sum > 0.0 {
-            [est_d / sum, est_s / sum, est_t / sum]
+            // Without the interface, p_t is 0 (as 0 / sum): written so that a BSDF whose
+            // `trans_on` is a constant (`GlossyLobes::at`) drops the interface's branches.
+            let p_t = if self.trans_on { est_t / sum } else { 0.0 };
+            [est_d / sum, est_s / sum, p_t]
         } else {
             [0.0; 3]
         };
@@ -740,7 +759,7 @@ impl Bsdf {
     }
 
     /// f·|cos θi| and/or the pdf of the non-delta lobes, in the local frame with `o.z > 0`.
-    #[inline]
+    #[inline(always)]
     fn eval_pdf_local<const EVAL: bool, const PDF: bool, const LAYERED: bool>(
         &self,
         o: Vec3,
@@ -794,7 +813,7 @@ impl Bsdf {
     }
 
     /// [`Bsdf::eval_pdf_local`] of the material under the layers (all of it, without layers).
-    #[inline]
+    #[inline(always)]
     fn base_eval_pdf_local<const EVAL: bool, const PDF: bool>(
         &self,
         o: Vec3,

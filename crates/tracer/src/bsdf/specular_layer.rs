@@ -56,6 +56,23 @@ impl SpecularLayer {
         }
     }
 
+    /// The tinted f0's largest and mean channel (`glossy.rs`).
+    pub(super) fn f0_summary(&self) -> (f32, f32) {
+        (self.f0_max, self.f0_mean)
+    }
+
+    /// The layer of these values (those of [`SpecularLayer::new`] and
+    /// [`SpecularLayer::f0_summary`]).
+    #[inline(always)]
+    pub(super) fn from_parts(weight: f32, f0: Vec3, f0_max: f32, f0_mean: f32) -> Self {
+        SpecularLayer {
+            weight,
+            f0,
+            f0_max,
+            f0_mean,
+        }
+    }
+
     /// F at a microfacet with cos(v, h) = `cos_vh` (not yet multiplied by the weight).
     #[inline]
     pub(super) fn fresnel(&self, cos_vh: f32) -> Vec3 {

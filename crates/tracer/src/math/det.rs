@@ -71,7 +71,7 @@ pub fn sin_cos(x: f32) -> (f32, f32) {
 
 /// (sin 2πt, cos 2πt) for t ∈ [0, 1): the angle of a uniform random number, reduced exactly in
 /// turns before converting to radians.
-#[inline]
+#[inline(always)]
 pub fn sin_cos_turns(t: f32) -> (f32, f32) {
     if t.is_nan() || t.abs() >= 1e6 {
         return sin_cos(t * (2.0 * PI));

@@ -14,8 +14,9 @@
 //!    lane by lane (`sample_by_tree`, scalar); and in a scene with punctual lamps, each lane's
 //!    lamp sample with its shadow ray traced at once (`light_punctual`, scalar);
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
-//!    roulette and the next ray (for a Lambertian; a specular material's lanes take theirs after
-//!    it, lane by lane: `scatter_specular`, `specular.rs`);
+//!    roulette and the next ray (for a Lambertian, and for a glossy material where the scene has
+//!    one: its BSDF made again in the lanes, `glossy.rs`; a specular material's lanes take theirs
+//!    after it, lane by lane: `scatter_specular`, `specular.rs`);
 //! 6. `trace_shadows` (scalar, `trace.rs`): each shadow ray, together with the lane's next ray
 //!    when the path goes on (as `trace_path` does), and the results of the paths that ended.
 //!
@@ -30,12 +31,14 @@
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
 mod builds;
+mod glossy;
 mod lights;
 mod normals;
 mod refill;
 mod specular;
 mod trace;
 
+use glossy::GlossyLanes;
 use refill::CameraRays;
 
 use super::lights::LightTable;
@@ -176,6 +179,9 @@ pub(super) struct Lanes<'a> {
     material: U,
     /// Some material is specular (`DiffuseMaterial::specular`).
     any_specular: bool,
+    /// Some material is glossy (`DiffuseMaterial::glossy`): the vector steps that evaluate and
+    /// sample the BSDF run their copies that model it (`GLOSSY`).
+    any_glossy: bool,
 }
 
 impl<'a> Lanes<'a> {
@@ -247,6 +253,7 @@ impl<'a> Lanes<'a> {
             env_o: V3::ZERO,
             material: [0; LANES],
             any_specular: diffuse.materials.iter().any(|m| m.specular.is_some()),
+            any_glossy: diffuse.materials.iter().any(|m| m.glossy.is_some()),
             shadow: [false; LANES],
             shadow_o: V3::ZERO,
             shadow_d: V3::ZERO,
@@ -374,25 +381,31 @@ impl<'a> Lanes<'a> {
     /// [`Lanes::scatter`] with the roulette's variant a constant in each copy: a `match` on it
     /// inside the loop would keep the loop from being vectorised.
     #[inline(always)]
-    fn scatter_by_roulette(&mut self) {
+    fn scatter_by_roulette<const GLOSSY: bool>(&mut self) {
         match self.settings.rr {
-            RussianRoulette::Off => self.scatter(RussianRoulette::Off),
-            RussianRoulette::Auto => self.scatter(RussianRoulette::Auto),
-            RussianRoulette::Max => self.scatter(RussianRoulette::Max),
-            RussianRoulette::Fixed(p) => self.scatter(RussianRoulette::Fixed(p)),
+            RussianRoulette::Off => self.scatter::<GLOSSY>(RussianRoulette::Off),
+            RussianRoulette::Auto => self.scatter::<GLOSSY>(RussianRoulette::Auto),
+            RussianRoulette::Max => self.scatter::<GLOSSY>(RussianRoulette::Max),
+            RussianRoulette::Fixed(p) => self.scatter::<GLOSSY>(RussianRoulette::Fixed(p)),
             RussianRoulette::Threshold { terminate, below } => {
-                self.scatter(RussianRoulette::Threshold { terminate, below })
+                self.scatter::<GLOSSY>(RussianRoulette::Threshold { terminate, below })
             }
         }
     }
 
     /// `trace_path` steps 2 to 4 for every lane whose path goes on from its hit: the light
     /// sample's value and shadow ray (traced later), the BSDF sample, Russian roulette and the
-    /// next ray. A lane whose path ends here keeps `cont` false.
+    /// next ray. A lane whose path ends here keeps `cont` false. `GLOSSY`: some lanes may hold a
+    /// glossy material, whose BSDF is evaluated and sampled beside the Lambertian's in every
+    /// lane, the glossy lanes keeping its results (`lanes/glossy.rs`).
     #[inline(always)]
-    fn scatter(&mut self, rr: RussianRoulette) {
+    fn scatter<const GLOSSY: bool>(&mut self, rr: RussianRoulette) {
         // Copied to locals, as in `shade_hit`.
         let (gos, ps, ngs, ds, albedos) = (self.go, self.p, self.ng, self.d, self.albedo);
+        let glossy = match GLOSSY {
+            true => self.glossy_lanes(),
+            false => GlossyLanes::none(),
+        };
         let nss = self.ns;
         // How far from the surface rays spawned at the hit start (`spawn_clearance`), from the
         // hit triangles' corners, which are still in place.
@@ -410,6 +423,18 @@ impl<'a> Lanes<'a> {
         let (mut shadows, mut shadow_o, mut shadow_d) = ([false; LANES], V3::ZERO, V3::ZERO);
         let (mut shadow_t_max, mut shadow_value) = ([0.0; LANES], V3::ZERO);
         let mut light_wi = V3::ZERO;
+        // The glossy lanes' BSDF values towards their light points (`glossy.rs`).
+        let (glossy_f, glossy_pdf) = match GLOSSY {
+            true => {
+                let mut wi = V3::ZERO;
+                for i in 0..LANES {
+                    let (p, point) = (ps.get(i), light_point.get(i));
+                    wi.set(i, LightGeometry::new(p, point, light_normal.get(i)).wi);
+                }
+                glossy.eval_pdf(&nss, &ngs, &ds, &wi)
+            }
+            false => (V3::ZERO, [0.0; LANES]),
+        };
         let (mut os, mut new_ds, mut pdfs, mut mis) = (self.o, ds, self.bsdf_pdf, self.mis);
         let (mut new_depths, mut conts) = (depths, [false; LANES]);
         for i in 0..LANES {
@@ -428,6 +453,10 @@ impl<'a> Lanes<'a> {
                 light_back.get(i)
             };
             let (f, bsdf_pdf) = lambert_at::eval_pdf(nss.get(i), ng, albedo, wo, g.wi);
+            let (f, bsdf_pdf) = match GLOSSY && glossy.on[i] {
+                true => (glossy_f.get(i), glossy_pdf[i]),
+                false => (f, bsdf_pdf),
+            };
             let query = g.value(light_pdf[i], le, f, bsdf_pdf, Vec3::ONE, true);
             let shadow = go && light_ok[i] && query.is_some();
             let value = query.unwrap_or(Vec3::ZERO);
@@ -457,12 +486,29 @@ impl<'a> Lanes<'a> {
         // The roulette's value is drawn for every lane, whether or not it plays: a pure function
         // of the lane's sample, so drawing it changes nothing else.
         let (mut u0, mut u1, mut u_rr) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+        let mut u_lobe = [0.0; LANES];
         for i in 0..LANES {
             // One group of four dimensions (`dims`), as in `shade_hit`.
             let group = bounce_dim(depths[i], dims::BSDF_DIR);
-            let offsets = [0, 1, dims::ROULETTE - dims::BSDF_DIR];
-            [u0[i], u1[i], u_rr[i]] = owen_sobol_group_lanewise(keys[i], revs[i], group, offsets);
+            let (lobe, roulette) = (
+                dims::BSDF_LOBE - dims::BSDF_DIR,
+                dims::ROULETTE - dims::BSDF_DIR,
+            );
+            if GLOSSY {
+                // The lobe's value too (a Lambertian lane does not read it).
+                let offsets = [0, 1, lobe, roulette];
+                [u0[i], u1[i], u_lobe[i], u_rr[i]] =
+                    owen_sobol_group_lanewise(keys[i], revs[i], group, offsets);
+            } else {
+                let offsets = [0, 1, roulette];
+                [u0[i], u1[i], u_rr[i]] =
+                    owen_sobol_group_lanewise(keys[i], revs[i], group, offsets);
+            }
         }
+        let glossy_sample = match GLOSSY {
+            true => Some(glossy.sample(&nss, &ngs, &ds, [&u_lobe, &u0, &u1])),
+            false => None,
+        };
         for i in 0..LANES {
             let ng = ngs.get(i);
             let wo = -ds.get(i);
@@ -475,6 +521,13 @@ impl<'a> Lanes<'a> {
             sampled_ok[i] = bs.is_some();
             let (wi, weight, pdf) =
                 bs.map_or((Vec3::Z, Vec3::ZERO, 0.0), |bs| (bs.wi, bs.weight, bs.pdf));
+            let (wi, weight, pdf) = match &glossy_sample {
+                Some(s) if glossy.on[i] => {
+                    sampled_ok[i] = s.ok[i];
+                    (s.wi.get(i), s.weight.get(i), s.pdf[i])
+                }
+                _ => (wi, weight, pdf),
+            };
             sampled_wi.set(i, wi);
             sampled_weight.set(i, weight);
             sampled_pdf[i] = pdf;

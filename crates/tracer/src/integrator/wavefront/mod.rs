@@ -10,8 +10,10 @@
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): untextured materials,
-//! pure Lambertian or purely specular (a perfect mirror, smooth glass: delta lobes only, sampled
-//! lane by lane through `Bsdf::sample`); emissive triangles, punctual lamps and the environment
+//! pure Lambertian, glossy (a rough metal, a Lambertian base under a rough specular layer, or a
+//! mix: `bsdf::GlossyLobes`, evaluated and sampled in the lanes by the BSDF's own code) or purely
+//! specular (a perfect mirror, smooth glass: delta lobes only, sampled lane by lane through
+//! `Bsdf::sample`); emissive triangles, punctual lamps and the environment
 //! as the lights; no alpha, no tangents (vertex normals are interpolated as `Scene::surface`
 //! does, and instanced meshes moved to world space as it moves them:
 //! `Scene::instance_triangle`); MIS
@@ -72,12 +74,16 @@ impl V3 {
 /// What a lane needs of a material, for a scene the wavefront can render.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct DiffuseMaterial {
-    /// The sanitised base colour of the Lambertian lobe (zero for a specular material, so that
-    /// the Lambertian continuation of `scatter` gives its lanes none).
+    /// The sanitised base colour of the Lambertian lobe (zero for a specular or glossy material,
+    /// so that the Lambertian code of `scatter` gives its lanes nothing).
     pub albedo: Vec3,
     /// A material of delta lobes only (a perfect mirror, smooth glass): its BSDF, sampled lane by
     /// lane after `scatter` (`Lanes::scatter_specular`). None for a Lambertian.
     pub specular: Option<crate::bsdf::Bsdf>,
+    /// A glossy material (a rough metal, a Lambertian base under a rough specular layer, or a
+    /// mix: `bsdf::GlossyLobes`): its lobes, which the vector steps evaluate and sample beside the
+    /// Lambertian's (`lanes/glossy.rs`). None for the others.
+    pub glossy: Option<crate::bsdf::GlossyLobes>,
     /// The lobe is not black (`Bsdf::has_non_delta`): direct lighting is estimated.
     pub diffuse_on: bool,
     /// `Material::emission` towards the front side, and towards the back.
@@ -103,7 +109,8 @@ pub(crate) struct DiffuseScene {
 
 impl DiffuseScene {
     /// The lanes' view of a scene, if every material is untextured, without alpha or an
-    /// absorbing volume, and either a pure Lambertian (emissive or not) or made of delta lobes
+    /// absorbing volume, and either a pure Lambertian (emissive or not), glossy
+    /// (`Bsdf::glossy_lobes`: rough, without transmission or layers) or made of delta lobes
     /// only (a perfect mirror, smooth glass: no light sample at its vertices); no mesh
     /// (world-space or instanced) has tangents (they may have vertex normals); and the scene has
     /// a light (emissive triangles, punctual lamps or an environment, one colour or an image).
@@ -134,16 +141,18 @@ impl DiffuseScene {
             let clear = material.volume.is_none_or(|v| v.sigma_a == Vec3::ZERO);
             let plain = !material.has_alpha() && clear;
             let specular = !bsdf.single_lobe() && !bsdf.has_non_delta();
-            if !(bsdf.single_lobe() || specular) || !untextured || !plain {
+            let glossy = bsdf.glossy_lobes();
+            if !(bsdf.single_lobe() || specular || glossy.is_some()) || !untextured || !plain {
                 return None;
             }
             let no_uv = [glam::Vec2::ZERO; 2];
             out.push(DiffuseMaterial {
-                albedo: match specular {
-                    true => Vec3::ZERO,
-                    false => bsdf.params().base_color,
+                albedo: match bsdf.single_lobe() {
+                    true => bsdf.params().base_color,
+                    false => Vec3::ZERO,
                 },
                 specular: specular.then_some(*bsdf),
+                glossy,
                 diffuse_on: bsdf.has_non_delta(),
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),

@@ -288,11 +288,19 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     ] {
         assert!(Wavefront::new(&cornell, &other).is_none());
     }
-    for name in ["glossy", "textured"] {
-        assert!(
-            scene(parts(name)).diffuse.is_none(),
-            "{name} needs more than the lanes model"
-        );
+    assert!(
+        scene(parts("textured")).diffuse.is_none(),
+        "textures need more than the lanes model"
+    );
+    // Rough glass, a clear coat, a sheen: the BSDF's lobes that the lanes do not model.
+    for change in [
+        |m: &mut crate::material::Material| (m.transmission, m.roughness) = (1.0, 0.3),
+        |m: &mut crate::material::Material| m.clearcoat = 1.0,
+        |m: &mut crate::material::Material| m.sheen_color = Vec3::ONE,
+    ] {
+        let mut p = parts("glossy");
+        change(&mut p.materials[0]);
+        assert!(scene(p).diffuse.is_none());
     }
     // Glass that absorbs (a volume with an attenuation) tracks its medium: the scalar path's.
     let mut absorbing = parts("caustics");
@@ -353,6 +361,70 @@ fn specular_materials_scatter_as_the_scalar_integrator_scatters() {
         &settings(34, RussianRoulette::Auto, Some(6)),
         0..8,
     );
+}
+
+/// Glossy materials (a rough metal, a Lambertian base under a rough specular layer, mixes of
+/// the two) are evaluated and sampled in the lanes by the BSDF's own code (`lanes/glossy.rs`):
+/// the bench's glossy scene, and the box with Principled walls of every kind, lit by its light,
+/// by lamps and by a sky.
+#[test]
+fn glossy_materials_are_shaded_as_the_scalar_integrator_shades_them() {
+    use crate::light::{Environment, PointLight, PunctualLight};
+    let glossy = scene(parts("glossy"));
+    assert!(glossy.diffuse.is_some(), "the lanes take rough metal");
+    for (seed, rr) in [(41, RussianRoulette::Auto), (42, RussianRoulette::Max)] {
+        assert_same_bits(&glossy, &settings(seed, rr, None), 0..6);
+    }
+    let mut p = parts("cornell");
+    let kinds = [
+        // Plastic: a base under the specular layer (Blender's Principled default).
+        (0.0, 0.5, 1.0, Vec3::ONE, 1.5),
+        // Metal, rough and nearly smooth.
+        (1.0, 0.3, 1.0, Vec3::ONE, 1.5),
+        (1.0, 0.05, 1.0, Vec3::ONE, 1.5),
+        // Half metal; a tinted, weaker layer of another index.
+        (0.5, 0.7, 1.0, Vec3::ONE, 1.5),
+        (0.0, 0.4, 0.6, Vec3::new(1.0, 0.5, 0.2), 1.8),
+    ];
+    let mut changed = 0;
+    for (k, m) in p.materials.iter_mut().enumerate() {
+        if m.emissive != Vec3::ZERO {
+            continue;
+        }
+        let (metallic, roughness, specular, tint, ior) = kinds[k % kinds.len()];
+        (m.metallic, m.roughness, m.ior) = (metallic, roughness, ior);
+        (m.specular, m.specular_color) = (specular, tint);
+        changed += 1;
+    }
+    assert!(changed >= 3);
+    let principled = scene(p.clone());
+    assert!(principled.diffuse.is_some());
+    let diffuse_box = scene(parts("cornell"));
+    let s = settings(1, RussianRoulette::Auto, None);
+    assert!(pixels_that_differ(&diffuse_box, &principled, &s) > 500);
+    for (seed, rr) in [
+        (43, RussianRoulette::Auto),
+        (44, RussianRoulette::Fixed(0.7)),
+    ] {
+        assert_same_bits(&principled, &settings(seed, rr, None), 0..6);
+    }
+    // A lamp (`light_punctual`'s evaluation) and a sky (`light_environment`'s).
+    let (lo, hi) = p
+        .mesh
+        .positions
+        .iter()
+        .flatten()
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
+            (lo.min(*c), hi.max(*c))
+        });
+    p.punctual_lights = vec![PunctualLight::Point(PointLight {
+        position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
+        intensity: Vec3::splat((hi - lo).length_squared()),
+    })];
+    let sky = Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
+    let lit = scene(p).with_environment(Some(sky));
+    assert!(lit.diffuse.is_some());
+    assert_same_bits(&lit, &settings(45, RussianRoulette::Auto, Some(6)), 0..6);
 }
 
 /// The lanes' choice of light and point is `AreaLights::sample`'s, bit for bit, on a grid of

@@ -82,7 +82,10 @@ impl Lanes<'_> {
         /// [`Lanes::light_environment`] compiled for `isa`.
         fn light_environment_for, light_environment_avx512, light_environment_avx2
             (&mut self, isa: Isa) {
-            self.light_environment();
+            match self.any_glossy {
+                true => self.light_environment::<true>(),
+                false => self.light_environment::<false>(),
+            }
         }
 
         /// [`Lanes::take_environment_shadows`] compiled for `isa`.
@@ -94,7 +97,10 @@ impl Lanes<'_> {
         /// [`Lanes::scatter`] compiled for `isa`.
         fn scatter_for, scatter_avx512, scatter_avx2
             (&mut self, isa: Isa) {
-            self.scatter_by_roulette();
+            match self.any_glossy {
+                true => self.scatter_by_roulette::<true>(),
+                false => self.scatter_by_roulette::<false>(),
+            }
         }
     }
 }

@@ -4,7 +4,7 @@
 //! (`sample_environment`) and its light along the rays that leave the scene (`add_escaped`), and
 //! the punctual lamps' samples (`light_punctual`).
 
-use super::{Lanes, F, LANES, V3};
+use super::{GlossyLanes, Lanes, F, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::integrator::direct::{punctual_at, PunctualAt};
 use crate::isa::Isa;
@@ -115,18 +115,31 @@ impl Lanes<'_> {
     /// and handed to the shadow rays after it (`take_environment_shadows`): inside `scatter`, the
     /// same work slowed scenes without an environment (docs/benchmarks.md, December 5). Vector
     /// code, as `scatter`'s loops: every lane computed, the environment's lanes kept.
+    /// `GLOSSY` as in `scatter`.
     #[inline(always)]
-    pub(super) fn light_environment(&mut self) {
+    pub(super) fn light_environment<const GLOSSY: bool>(&mut self) {
+        let glossy = match GLOSSY {
+            true => self.glossy_lanes(),
+            false => GlossyLanes::none(),
+        };
         let (env_light, env_ok, go) = (self.env_light, self.env_ok, self.go);
         let (ps, ngs, nss, ds) = (self.p, self.ng, self.ns, self.d);
         let (albedos, betas) = (self.albedo, self.beta);
         let (wis, radiances, pdfs) = (self.env_wi, self.env_radiance, self.env_pdf);
         let (ca, cb, cc) = (self.corner_a, self.corner_b, self.corner_c);
         let (mut ok, mut values, mut origins) = ([false; LANES], V3::ZERO, V3::ZERO);
+        let (glossy_f, glossy_pdf) = match GLOSSY {
+            true => glossy.eval_pdf(&nss, &ngs, &ds, &wis),
+            false => (V3::ZERO, [0.0; LANES]),
+        };
         for i in 0..LANES {
             let (p, ng, wi) = (ps.get(i), ngs.get(i), wis.get(i));
             let (wo, albedo) = (-ds.get(i), albedos.get(i));
             let (f, bsdf_pdf) = lambert_at::eval_pdf(nss.get(i), ng, albedo, wo, wi);
+            let (f, bsdf_pdf) = match GLOSSY && glossy.on[i] {
+                true => (glossy_f.get(i), glossy_pdf[i]),
+                false => (f, bsdf_pdf),
+            };
             let (radiance, pdf) = (radiances.get(i), pdfs[i]);
             ok[i] = env_light[i]
                 && go[i]
@@ -215,10 +228,19 @@ impl Lanes<'_> {
                 u_select: self.u_punctual[i],
                 alpha_u: 0.0,
             };
-            let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
             let rays = &mut self.rays[i];
             // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
-            let value = punctual_at::<true>(scene, &at, rays, eval, |_| Vec3::ONE);
+            let value = match &self.materials[self.material[i] as usize].glossy {
+                // The glossy BSDF as `trace_path` evaluates it (`Bsdf::eval`, out of line).
+                Some(lobes) => {
+                    let bsdf = lobes.at(ns, ng);
+                    punctual_at::<true>(scene, &at, rays, |wi| bsdf.eval(wo, wi), |_| Vec3::ONE)
+                }
+                None => {
+                    let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
+                    punctual_at::<true>(scene, &at, rays, eval, |_| Vec3::ONE)
+                }
+            };
             let l = self.l.get(i) + self.beta.get(i) * value;
             self.l.set(i, l);
         }

@@ -1,0 +1,163 @@
+//! The glossy materials in the lanes (`bsdf::GlossyLobes`: a rough metal, a Lambertian base under
+//! a rough specular layer, or a mix): each lane's lobes loaded one array per value, with the
+//! albedo table's values at its cos θo, so that the vector steps make the lane's BSDF again
+//! (`GlossyLobes::at`) and run its queries beside the Lambertian's, keeping the glossy lanes'
+//! results.
+
+use super::{Lanes, B, F, LANES, U, V3};
+use crate::bsdf::{Bsdf, GlossyLobes};
+use crate::integrator::wavefront::DiffuseMaterial;
+use crate::math::is_black;
+use glam::{Vec2, Vec3};
+
+/// Every lane's glossy lobes (zero where the lane's material is not glossy: `on` false).
+pub(super) struct GlossyLanes {
+    /// The lane's material is glossy.
+    pub on: B,
+    base_color: V3,
+    alpha: F,
+    weight: F,
+    f0: V3,
+    f0_max: F,
+    f0_mean: F,
+    w_metal: F,
+    w_base: F,
+    mean_base: F,
+    diffuse_on: B,
+    spec_on: B,
+    /// The albedo table's (A, B) at the lane's cos θo.
+    terms_a: F,
+    terms_b: F,
+}
+
+impl GlossyLanes {
+    /// No lane glossy.
+    #[inline(always)]
+    pub(super) fn none() -> Self {
+        GlossyLanes {
+            on: [false; LANES],
+            base_color: V3::ZERO,
+            alpha: [0.0; LANES],
+            weight: [0.0; LANES],
+            f0: V3::ZERO,
+            f0_max: [0.0; LANES],
+            f0_mean: [0.0; LANES],
+            w_metal: [0.0; LANES],
+            w_base: [0.0; LANES],
+            mean_base: [0.0; LANES],
+            diffuse_on: [false; LANES],
+            spec_on: [false; LANES],
+            terms_a: [0.0; LANES],
+            terms_b: [0.0; LANES],
+        }
+    }
+
+    /// Loads each lane's lobes from its material, and the albedo table's values at cos θo =
+    /// |wo · ns| (wo = −d), which the BSDF looks up with the same value (`to_local`'s z). Scalar
+    /// loads and gathers, kept out of the vector loops.
+    #[inline(always)]
+    pub(super) fn load(materials: &[DiffuseMaterial], material: &U, ns: &V3, d: &V3) -> Self {
+        let mut g = Self::none();
+        for i in 0..LANES {
+            let Some(l) = materials[material[i] as usize].glossy else {
+                continue;
+            };
+            g.on[i] = true;
+            g.base_color.set(i, l.base_color);
+            g.alpha[i] = l.alpha;
+            g.weight[i] = l.weight;
+            g.f0.set(i, l.f0);
+            g.f0_max[i] = l.f0_max;
+            g.f0_mean[i] = l.f0_mean;
+            g.w_metal[i] = l.w_metal;
+            g.w_base[i] = l.w_base;
+            g.mean_base[i] = l.mean_base;
+            g.diffuse_on[i] = l.diffuse_on;
+            g.spec_on[i] = l.spec_on;
+            let wo = -d.get(i);
+            (g.terms_a[i], g.terms_b[i]) = l.albedo_terms(wo.dot(ns.get(i)).abs());
+        }
+        g
+    }
+
+    /// Lane `i`'s BSDF at its hit (normals `ns`, `ng`), and the albedo table's values for its
+    /// queries ([`Bsdf::glossy_eval_pdf`], [`Bsdf::glossy_sample`]).
+    #[inline(always)]
+    pub(super) fn bsdf(&self, i: usize, ns: Vec3, ng: Vec3) -> (Bsdf, (f32, f32)) {
+        let lobes = GlossyLobes {
+            base_color: self.base_color.get(i),
+            alpha: self.alpha[i],
+            weight: self.weight[i],
+            f0: self.f0.get(i),
+            f0_max: self.f0_max[i],
+            f0_mean: self.f0_mean[i],
+            w_metal: self.w_metal[i],
+            w_base: self.w_base[i],
+            mean_base: self.mean_base[i],
+            diffuse_on: self.diffuse_on[i],
+            spec_on: self.spec_on[i],
+            // The table's values are given: the row is not read.
+            row_k: 0,
+            row_fy: 0.0,
+        };
+        (lobes.at(ns, ng), (self.terms_a[i], self.terms_b[i]))
+    }
+
+    /// `Bsdf::eval_pdf(wo, wi)` of every lane's glossy BSDF (wo = −d), in a loop of its own
+    /// with nothing but the BSDF in it (inside the light sample's loop it kept that loop
+    /// scalar). Lanes that are not glossy compute values that are never read.
+    #[inline(always)]
+    pub(super) fn eval_pdf(&self, ns: &V3, ng: &V3, d: &V3, wi: &V3) -> (V3, F) {
+        let (mut f, mut pdf) = (V3::ZERO, [0.0; LANES]);
+        for (i, pdf) in pdf.iter_mut().enumerate() {
+            let (bsdf, terms) = self.bsdf(i, ns.get(i), ng.get(i));
+            let fi;
+            (fi, *pdf) = bsdf.glossy_eval_pdf(-d.get(i), wi.get(i), terms);
+            f.set(i, fi);
+        }
+        (f, pdf)
+    }
+
+    /// `Bsdf::sample(wo, u_lobe, u)` of every lane's glossy BSDF, as [`GlossyLanes::eval_pdf`]:
+    /// the direction, weight and density where `ok`, the sample being kept only with a weight
+    /// that is not black (`trace_path`'s filter).
+    #[inline(always)]
+    pub(super) fn sample(&self, ns: &V3, ng: &V3, d: &V3, u: [&F; 3]) -> Sample {
+        let mut s = Sample {
+            wi: V3::ZERO,
+            weight: V3::ZERO,
+            pdf: [0.0; LANES],
+            ok: [false; LANES],
+        };
+        let [u_lobe, u0, u1] = u;
+        for i in 0..LANES {
+            let (bsdf, terms) = self.bsdf(i, ns.get(i), ng.get(i));
+            let bs = bsdf.glossy_sample(-d.get(i), u_lobe[i], Vec2::new(u0[i], u1[i]), terms);
+            let bs = bs.filter(|bs| !is_black(bs.weight));
+            s.ok[i] = bs.is_some();
+            let (wi, weight, pdf) =
+                bs.map_or((Vec3::Z, Vec3::ZERO, 0.0), |bs| (bs.wi, bs.weight, bs.pdf));
+            s.wi.set(i, wi);
+            s.weight.set(i, weight);
+            s.pdf[i] = pdf;
+        }
+        s
+    }
+}
+
+/// Each lane's BSDF sample (`GlossyLanes::sample`).
+pub(super) struct Sample {
+    pub wi: V3,
+    pub weight: V3,
+    pub pdf: F,
+    pub ok: B,
+}
+
+impl Lanes<'_> {
+    /// The lanes' glossy lobes at their hits (`shade_hit` has set `ns`; `d` is still the ray
+    /// that found the hit).
+    #[inline(always)]
+    pub(super) fn glossy_lanes(&self) -> GlossyLanes {
+        GlossyLanes::load(self.materials, &self.material, &self.ns, &self.d)
+    }
+}
