@@ -423,8 +423,9 @@ impl<'a> Lanes<'a> {
         let (mut shadows, mut shadow_o, mut shadow_d) = ([false; LANES], V3::ZERO, V3::ZERO);
         let (mut shadow_t_max, mut shadow_value) = ([0.0; LANES], V3::ZERO);
         let mut light_wi = V3::ZERO;
-        // The glossy lanes' BSDF values towards their light points (`glossy.rs`).
-        let (glossy_f, glossy_pdf) = match GLOSSY {
+        // The glossy lanes' BSDF values towards their light points (`glossy.rs`), where some
+        // lane has one (none in a scene lit by lamps alone).
+        let (glossy_f, glossy_pdf) = match GLOSSY && light_ok.iter().any(|&ok| ok) {
             true => {
                 let mut wi = V3::ZERO;
                 for i in 0..LANES {
@@ -458,7 +459,9 @@ impl<'a> Lanes<'a> {
                 false => (f, bsdf_pdf),
             };
             let query = g.value(light_pdf[i], le, f, bsdf_pdf, Vec3::ONE, true);
-            let shadow = go && light_ok[i] && query.is_some();
+            // `&`, not `&&`: the short-circuit's branch kept this whole loop scalar
+            // (docs/benchmarks.md, December 6).
+            let shadow = go & light_ok[i] & query.is_some();
             let value = query.unwrap_or(Vec3::ZERO);
             shadows[i] = shadow;
             light_wi.set(i, g.wi);
