@@ -180,20 +180,36 @@ pub(crate) fn light_query(
     } else {
         (v.bsdf.eval(v.wo, es.wi), 0.0)
     };
-    if is_black(f) || is_black(es.radiance) || !(pdf > 0.0 && pdf.is_finite()) {
-        return None;
-    }
+    let value = environment_value(es.radiance, pdf, f, bsdf_pdf, mis)?;
+    Some(ShadowQuery {
+        ray: v.spawn(es.wi),
+        t_max: f32::INFINITY,
+        alpha_u: s.bounce1(depth, dims::ALPHA),
+        value,
+    })
+}
+
+/// What the environment's light sample contributes if its shadow ray is clear: f · L / pdf, with
+/// the power-heuristic weight under `mis`, for a direction drawn with density `pdf` (its family's
+/// choice included) bringing radiance `radiance`, where the BSDF gives `f` (and `bsdf_pdf`).
+/// None when it contributes nothing. As [`LightGeometry::value`], everything is computed before
+/// anything is rejected: the wavefront's lanes call it in a vector loop.
+#[inline(always)]
+pub(crate) fn environment_value(
+    radiance: Vec3,
+    pdf: f32,
+    f: Vec3,
+    bsdf_pdf: f32,
+    mis: bool,
+) -> Option<Vec3> {
     let w = if mis {
         power_heuristic(pdf, bsdf_pdf)
     } else {
         1.0
     };
-    Some(ShadowQuery {
-        ray: v.spawn(es.wi),
-        t_max: f32::INFINITY,
-        alpha_u: s.bounce1(depth, dims::ALPHA),
-        value: f * es.radiance * (w / pdf),
-    })
+    let value = f * radiance * (w / pdf);
+    let valid = !is_black(f) & !is_black(radiance) & (pdf > 0.0) & pdf.is_finite();
+    valid.then_some(value)
 }
 
 /// A point on an area light chosen for the vertex (from `u_sel`, by power or by the light tree; the

@@ -6,10 +6,10 @@
 
 use super::{GlossyLanes, Lanes, F, LANES, V3};
 use crate::bsdf::lambert_at;
-use crate::integrator::direct::{punctual_at, PunctualAt};
+use crate::integrator::direct::{environment_value, punctual_at, PunctualAt};
 use crate::isa::Isa;
 use crate::light::Environment;
-use crate::math::{is_black, offset_unit_normal, spawn_clearance};
+use crate::math::{offset_unit_normal, spawn_clearance};
 use crate::sampling::power_heuristic;
 use glam::{Vec2, Vec3};
 
@@ -141,14 +141,9 @@ impl Lanes<'_> {
                 false => (f, bsdf_pdf),
             };
             let (radiance, pdf) = (radiances.get(i), pdfs[i]);
-            ok[i] = env_light[i]
-                && go[i]
-                && env_ok[i]
-                && !is_black(f)
-                && !is_black(radiance)
-                && pdf > 0.0
-                && pdf.is_finite();
-            let value = f * radiance * (power_heuristic(pdf, bsdf_pdf) / pdf);
+            let query = environment_value(radiance, pdf, f, bsdf_pdf, true);
+            ok[i] = env_light[i] & go[i] & env_ok[i] & query.is_some();
+            let value = query.unwrap_or(Vec3::ZERO);
             values.set(i, betas.get(i) * value);
             let clearance = spawn_clearance([ca.get(i), cb.get(i), cc.get(i)]);
             let side = if wi.dot(ng) > 0.0 { ng } else { -ng };
