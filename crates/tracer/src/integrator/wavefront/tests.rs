@@ -369,7 +369,7 @@ fn specular_materials_scatter_as_the_scalar_integrator_scatters() {
 /// by lamps and by a sky.
 #[test]
 fn glossy_materials_are_shaded_as_the_scalar_integrator_shades_them() {
-    use crate::light::{Environment, PointLight, PunctualLight};
+    use crate::light::{DirectionalLight, Environment, PointLight, PunctualLight};
     let glossy = scene(parts("glossy"));
     assert!(glossy.diffuse.is_some(), "the lanes take rough metal");
     for (seed, rr) in [(41, RussianRoulette::Auto), (42, RussianRoulette::Max)] {
@@ -417,13 +417,20 @@ fn glossy_materials_are_shaded_as_the_scalar_integrator_shades_them() {
         .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
             (lo.min(*c), hi.max(*c))
         });
-    p.punctual_lights = vec![PunctualLight::Point(PointLight {
-        position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
-        intensity: Vec3::splat((hi - lo).length_squared()),
-    })];
+    // Two lamps: chosen at each point by what they send there (`lamp_weights` in the lanes).
+    p.punctual_lights = vec![
+        PunctualLight::Point(PointLight {
+            position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
+            intensity: Vec3::splat((hi - lo).length_squared()),
+        }),
+        PunctualLight::Directional(DirectionalLight {
+            direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
+            illuminance: Vec3::new(1.0, 0.9, 0.8),
+        }),
+    ];
     let sky = Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
     let lit = scene(p).with_environment(Some(sky));
-    assert!(lit.diffuse.is_some());
+    assert!(lit.diffuse.is_some() && lit.lights.punctual_per_point);
     assert_same_bits(&lit, &settings(45, RussianRoulette::Auto, Some(6)), 0..6);
 }
 
