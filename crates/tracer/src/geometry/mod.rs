@@ -6,7 +6,7 @@ mod mesh;
 mod ray;
 mod triangle;
 
-pub use bvh::{Bvh, RayQuery};
+pub use bvh::{Bvh, RayQuery, BUNDLE};
 pub use instances::{
     flatten_into, usable_placements, Instance, InstanceError, InstanceHit, Instances, Placement,
     Prototype, Unplaced,

@@ -10,6 +10,7 @@
 
 mod binned;
 mod build;
+mod bundle;
 mod flat;
 mod node;
 mod packet;
@@ -18,6 +19,7 @@ mod stack;
 mod walk;
 
 pub(crate) use binned::{binary_tree, BinaryNode};
+pub use bundle::BUNDLE;
 pub use pair::RayQuery;
 
 use super::{box_reciprocal, Mesh, RayPrecomp, TriangleHit};

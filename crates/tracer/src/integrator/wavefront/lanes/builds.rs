@@ -7,6 +7,7 @@ use super::refill::CameraRays;
 use super::{normals, Isa, Kind, Lanes};
 use crate::camera::Camera;
 use crate::integrator::PathResult;
+use crate::scene::Scene;
 use crate::settings::RenderSettings;
 
 /// For each step: `$name(isa, args…)`, which runs the build `isa` names, and the two builds, the
@@ -111,6 +112,12 @@ impl CameraRays {
         fn make_rays_for, make_rays_avx512, make_rays_avx2
             (&mut self, isa: Isa, camera: &Camera, settings: &RenderSettings) {
             self.make_rays(camera, settings);
+        }
+
+        /// [`CameraRays::trace`] compiled for `isa`.
+        fn trace_for, trace_avx512, trace_avx2
+            (&mut self, isa: Isa, scene: &Scene) {
+            self.trace(scene);
         }
     }
 }

@@ -7,10 +7,15 @@
 
 use super::{Lanes, F, U};
 use crate::camera::{Camera, Projection};
+use crate::geometry::{Ray, BUNDLE};
 use crate::integrator::wavefront::{Isa, LANES, V3};
 use crate::integrator::PathResult;
 use crate::sampler::{dims, hash_words, owen_sobol_group_lanewise};
+use crate::scene::{Hit, Scene};
 use crate::settings::RenderSettings;
+
+// A batch of camera rays is traced as one bundle.
+const _: () = assert!(LANES <= BUNDLE);
 use glam::{Vec2, Vec3};
 
 /// The next samples of the work, up to [`LANES`], with their camera rays: `render_sample`'s
@@ -23,6 +28,9 @@ pub(super) struct CameraRays {
     index_rev: U,
     o: V3,
     d: V3,
+    /// Each ray's closest hit, traced as one bundle when the rays are made
+    /// ([`CameraRays::trace`]).
+    found: [Option<Hit>; LANES],
     /// Entries `0..len` hold the batch; `next` is the first not yet handed to a lane.
     len: usize,
     next: usize,
@@ -41,6 +49,7 @@ impl CameraRays {
             index_rev: [0; LANES],
             o: V3::ZERO,
             d: V3::ZERO,
+            found: [None; LANES],
             len: 0,
             next: 0,
             keyed: None,
@@ -51,7 +60,7 @@ impl CameraRays {
     fn fill(
         &mut self,
         isa: Isa,
-        camera: &Camera,
+        scene: &Scene,
         settings: &RenderSettings,
         work: &mut impl Iterator<Item = (u32, u32, u32)>,
     ) -> bool {
@@ -71,9 +80,29 @@ impl CameraRays {
         }
         (self.len, self.next) = (len, 0);
         if len > 0 {
-            self.make_rays_for(isa, camera, settings);
+            self.make_rays_for(isa, &scene.camera, settings);
+            self.trace_for(isa, scene);
         }
         len > 0
+    }
+
+    /// Traces the batch's camera rays together (`Scene::intersect_bundle_in`): the samples of
+    /// a batch are mostly of one pixel, so their rays enter the same boxes. A ray that is not
+    /// finite (its sample is handed on without a path) is traced as the batch's first ray, and
+    /// its answer never read.
+    #[inline(always)]
+    pub(super) fn trace(&mut self, scene: &Scene) {
+        let first = Ray::new(self.o.get(0), self.d.get(0));
+        let rays: [Ray; LANES] = std::array::from_fn(|k| {
+            let (o, d) = (self.o.get(k), self.d.get(k));
+            if d.is_finite() && o.is_finite() {
+                Ray::new(o, d)
+            } else {
+                first
+            }
+        });
+        // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
+        scene.intersect_bundle_in::<true>(&rays[..self.len], 0.0, &mut self.found);
     }
 
     /// [`CameraRays::make_rays_with`] with the camera's projection fixed in each copy: a `match`
@@ -136,8 +165,7 @@ impl Lanes<'_> {
             }
             loop {
                 let rays = &mut self.camera_rays;
-                if rays.next == rays.len && !rays.fill(isa, &self.scene.camera, self.settings, work)
-                {
+                if rays.next == rays.len && !rays.fill(isa, self.scene, self.settings, work) {
                     return;
                 }
                 let k = rays.next;
@@ -163,9 +191,11 @@ impl Lanes<'_> {
                 self.mis[i] = false;
                 self.bsdf_pdf[i] = 0.0;
                 self.depth[i] = 0;
-                self.rays[i] = 0;
+                // The camera ray was traced with its batch's (`CameraRays::trace`).
+                self.found[i] = rays.found[k];
+                self.rays[i] = 1;
                 self.vertices[i] = 0;
-                self.untraced[i] = true;
+                self.untraced[i] = false;
                 break;
             }
         }
