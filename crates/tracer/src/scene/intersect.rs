@@ -2,7 +2,7 @@
 //! interaction at a hit.
 
 use super::Scene;
-use crate::geometry::{InstanceHit, Mesh, Ray, RayPrecomp, RayQuery, TriangleHit, BUNDLE};
+use crate::geometry::{InstanceHit, Mesh, Ray, RayPrecomp, RayQuery, TriangleHit};
 use crate::sampler::hash_u32;
 use glam::{Vec2, Vec3, Vec4};
 
@@ -24,7 +24,7 @@ impl Hit {
 
     /// The hit of triangle `triangle` that the BVH reports.
     #[inline(always)]
-    fn from_bvh((triangle, h): (u32, TriangleHit)) -> Hit {
+    pub(super) fn from_bvh((triangle, h): (u32, TriangleHit)) -> Hit {
         Hit {
             t: h.t,
             triangle,
@@ -83,7 +83,7 @@ impl Scene {
     /// Whether a ray passes through the (alpha-tested) surface of `triangle` at barycentrics
     /// (b1, b2). `u` drives stochastic (BLEND) coverage.
     #[inline]
-    fn passes_through(&self, triangle: usize, b1: f32, b2: f32, u: f32) -> bool {
+    pub(super) fn passes_through(&self, triangle: usize, b1: f32, b2: f32, u: f32) -> bool {
         self.passes_through_in(&self.mesh, triangle, 0, b1, b2, u)
     }
 
@@ -147,49 +147,9 @@ impl Scene {
         self.intersect_instances(ray, t_max, alpha_u, found)
     }
 
-    /// [`Scene::intersect_in`] of each of `rays` (at most [`BUNDLE`]) in (0, ∞), written to
-    /// `out`: the world-space mesh's tree walked once for the whole bundle (`Bvh::closest_bundle_in`),
-    /// for rays that start together (a pixel's camera rays). The same answers as the single
-    /// queries.
-    #[inline(always)]
-    pub(crate) fn intersect_bundle_in<const INLINED: bool>(
-        &self,
-        rays: &[Ray],
-        alpha_u: f32,
-        out: &mut [Option<Hit>],
-    ) {
-        let n = rays.len();
-        let pres: [RayPrecomp; BUNDLE] =
-            std::array::from_fn(|r| RayPrecomp::new(&rays[r.min(n.max(1) - 1)]));
-        let mut found = [None; BUNDLE];
-        if self.any_alpha {
-            self.bvh.closest_bundle_in::<INLINED>(
-                &pres[..n],
-                f32::INFINITY,
-                |_, id, h| !self.passes_through(id as usize, h.b1, h.b2, alpha_u),
-                &mut found,
-            );
-        } else {
-            self.bvh.closest_bundle_in::<INLINED>(
-                &pres[..n],
-                f32::INFINITY,
-                |_, _, _| true,
-                &mut found,
-            );
-        }
-        for (r, slot) in out[..n].iter_mut().enumerate() {
-            let hit = found[r].map(Hit::from_bvh);
-            *slot = if self.instances.is_empty() {
-                hit
-            } else {
-                self.intersect_instances(&rays[r], f32::INFINITY, alpha_u, hit)
-            };
-        }
-    }
-
     /// The closest instanced hit that beats `found` (the world-space mesh's), or `found`.
     #[inline(never)]
-    fn intersect_instances(
+    pub(super) fn intersect_instances(
         &self,
         ray: &Ray,
         t_max: f32,

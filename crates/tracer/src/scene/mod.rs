@@ -2,6 +2,7 @@
 //! camera. Built once (from glTF by [`crate::gltf`], or by hand in tests) and then only read, from any
 //! number of threads.
 
+mod bundle;
 mod intersect;
 mod world;
 

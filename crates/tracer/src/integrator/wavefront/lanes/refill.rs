@@ -102,7 +102,8 @@ impl CameraRays {
             }
         });
         // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
-        scene.intersect_bundle_in::<true>(&rays[..self.len], 0.0, &mut self.found);
+        let alpha_u = [0.0; LANES];
+        scene.intersect_bundle_in::<true>(&rays[..self.len], &alpha_u, &mut self.found);
     }
 
     /// [`CameraRays::make_rays_with`] with the camera's projection fixed in each copy: a `match`
