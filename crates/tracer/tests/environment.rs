@@ -391,28 +391,48 @@ fn area_lights_and_the_environment_add_up() {
         Vec3::new(2.0, 1.0, 2.0),
         Vec3::new(3.0, 0.0, 1.5),
     ]];
-    let env = || Some(Environment::from_image(&hdr_bytes(w, h, &texels), 0.5, 0.0).unwrap());
-    let both = plane_facing(Vec3::Z, 0.5, tri.clone(), 4.0).with_environment(env());
-    let env_only = plane_facing(Vec3::Z, 0.5, tri.clone(), 0.0).with_environment(env());
-    let light_only = plane_facing(Vec3::Z, 0.5, tri, 4.0);
-    assert!(both.lights.environment_choice > 0.0 && both.lights.area_choice > 0.0);
-    for direct in [
-        DirectStrategy::Mis,
-        DirectStrategy::Light,
-        DirectStrategy::Cosine,
+    // An image, light-sampled beside the emitter, and one colour, which only the paths' own
+    // BSDF samples find (`Lights::set_environment`): under the light strategy the emitter's
+    // light comes from the light sample alone and the colour's from the path's rays alone.
+    let image = || Environment::from_image(&hdr_bytes(w, h, &texels), 0.5, 0.0).unwrap();
+    let colour = || Environment::uniform(Vec3::new(0.3, 0.4, 0.5)).unwrap();
+    for (name, env) in [
+        ("image", &image as &dyn Fn() -> Environment),
+        ("colour", &colour),
     ] {
-        let spp = if direct == DirectStrategy::Cosine {
-            512
-        } else {
-            128
-        };
-        let (a, sa) = render_mean(&both, direct, SamplerKind::Independent, spp);
-        let (b, sb) = render_mean(&env_only, direct, SamplerKind::Sobol, spp);
-        let (c, sc) = render_mean(&light_only, direct, SamplerKind::Sobol, spp);
-        let z = (a - b - c) / (sa * sa + sb * sb + sc * sc).sqrt();
-        eprintln!("{direct}: both {a:.5} ± {sa:.5}, env {b:.5} + light {c:.5}, z = {z:+.2}");
-        assert!(z.abs() < 3.5, "{direct}: {a} ≠ {b} + {c} (z = {z:.2})");
-        assert!(c > 10.0 * sc, "the emitter must light the plane visibly");
+        let both = plane_facing(Vec3::Z, 0.5, tri.clone(), 4.0).with_environment(Some(env()));
+        let env_only = plane_facing(Vec3::Z, 0.5, tri.clone(), 0.0).with_environment(Some(env()));
+        let light_only = plane_facing(Vec3::Z, 0.5, tri.clone(), 4.0);
+        let sampled = both.lights.environment_choice > 0.0;
+        assert_eq!(sampled, name == "image", "{name}: light-sampled");
+        assert!(both.lights.area_choice > 0.0);
+        for direct in [
+            DirectStrategy::Mis,
+            DirectStrategy::Light,
+            DirectStrategy::Cosine,
+        ] {
+            let spp = if direct == DirectStrategy::Cosine {
+                512
+            } else {
+                128
+            };
+            let (a, sa) = render_mean(&both, direct, SamplerKind::Independent, spp);
+            let (b, sb) = render_mean(&env_only, direct, SamplerKind::Sobol, spp);
+            let (c, sc) = render_mean(&light_only, direct, SamplerKind::Sobol, spp);
+            let z = (a - b - c) / (sa * sa + sb * sb + sc * sc).sqrt();
+            eprintln!(
+                "{name} {direct}: both {a:.5} ± {sa:.5}, env {b:.5} + light {c:.5}, z = {z:+.2}"
+            );
+            assert!(
+                z.abs() < 3.5,
+                "{name} {direct}: {a} ≠ {b} + {c} (z = {z:.2})"
+            );
+            assert!(c > 10.0 * sc, "the emitter must light the plane visibly");
+            assert!(
+                b > 10.0 * sb,
+                "the environment must light the plane visibly"
+            );
+        }
     }
 }
 

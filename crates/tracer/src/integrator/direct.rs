@@ -165,7 +165,7 @@ pub(crate) fn light_query(
 ) -> Option<ShadowQuery> {
     let u_sel = s.bounce1(depth, dims::LIGHT_SELECT);
     let lights = &scene.lights;
-    let Some(env) = &lights.environment else {
+    let Some(env) = lights.sampled_environment() else {
         return area_light_query(scene, v, s, depth, mis, u_sel, 1.0);
     };
     let p_env = lights.environment_choice;

@@ -23,8 +23,10 @@ use glam::Vec3;
 pub(crate) enum EmissionWeight {
     /// Camera rays and rays leaving delta lobes: no other estimator can reach this light.
     Full,
-    /// Direct lighting at the previous vertex already accounted for area lights.
-    Skip,
+    /// Direct lighting at the previous vertex already accounted for area lights, and for the
+    /// environment where `environment` (a light sample that may choose it, or a direction
+    /// sample, which finds it).
+    Skip { environment: bool },
     /// MIS with light sampling: the power-heuristic weight of the BSDF strategy, whose solid-angle
     /// pdf was this.
     Mis {

@@ -56,7 +56,13 @@ pub fn trace_path(
             if let Some(env) = &scene.lights.environment {
                 let w = match emission {
                     EmissionWeight::Full => 1.0,
-                    EmissionWeight::Skip => 0.0,
+                    EmissionWeight::Skip { environment } => {
+                        if environment {
+                            0.0
+                        } else {
+                            1.0
+                        }
+                    }
                     EmissionWeight::Mis { bsdf_pdf, .. } => {
                         power_heuristic(bsdf_pdf, scene.lights.environment_choice * env.pdf(ray.d))
                     }
@@ -80,7 +86,7 @@ pub fn trace_path(
             if !is_black(le) {
                 let w = match emission {
                     EmissionWeight::Full => 1.0,
-                    EmissionWeight::Skip => 0.0,
+                    EmissionWeight::Skip { .. } => 0.0,
                     EmissionWeight::Mis { bsdf_pdf, from, n } => {
                         let cos_l = ray.d.dot(si.ng).abs();
                         // Emitters are never instanced (`Scene::build` refuses them).
@@ -179,7 +185,11 @@ pub fn trace_path(
                 },
                 DirectStrategy::Light | DirectStrategy::Hemisphere | DirectStrategy::Cosine => {
                     if has_sampled {
-                        EmissionWeight::Skip
+                        // A direction sample finds the environment; a light sample only where it
+                        // may choose it.
+                        let environment = strategy != DirectStrategy::Light
+                            || scene.lights.sampled_environment().is_some();
+                        EmissionWeight::Skip { environment }
                     } else {
                         EmissionWeight::Full
                     }

@@ -202,6 +202,11 @@ impl Environment {
         4.0 * PI * PI * scene_radius * scene_radius * self.mean_luminance
     }
 
+    /// One radiance from every direction (no image).
+    pub fn is_uniform(&self) -> bool {
+        matches!(self.kind, Kind::Uniform(_))
+    }
+
     /// Radiance arriving from direction `w` (a unit vector pointing away from the scene).
     #[inline]
     pub fn radiance(&self, w: Vec3) -> Vec3 {

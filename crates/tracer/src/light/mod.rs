@@ -116,7 +116,8 @@ pub struct Lights {
     /// The environment, if the render has one (see [`Lights::set_environment`]).
     pub environment: Option<Environment>,
     /// Probability that a vertex's light sample goes to the environment rather than to an area
-    /// light (by power; 1 without area lights, 0 without an environment).
+    /// light (by power; 1 without area lights, 0 without an environment, and 0 for an
+    /// environment of one colour: see [`Lights::set_environment`]).
     pub environment_choice: f32,
     /// 1 − `environment_choice`: the probability of the area lights (exactly 1 without an
     /// environment, so the area lights' densities keep their bits).
@@ -147,10 +148,17 @@ impl Lights {
 
     /// Sets the environment (none, or one whose every direction is black, removes it) and the
     /// choice between it and the area lights, by power over a scene of radius `scene_radius`.
+    ///
+    /// An environment of one colour is never light-sampled (its choice is 0): the path's own
+    /// BSDF-sampled rays find it, counted in full. Sampling it can only spend a shadow ray on a
+    /// direction the BSDF would draw at least as well: the same radiance everywhere, drawn
+    /// uniformly over the sphere (half of it below the surface) against the BSDF's own lobe.
+    /// Cycles does the same for a constant world. Measured: docs/benchmarks.md (December 6).
     pub fn set_environment(&mut self, environment: Option<Environment>, scene_radius: f32) {
         self.environment = environment.filter(|e| !e.is_black());
         (self.environment_choice, self.area_choice) = match &self.environment {
             None => (0.0, 1.0),
+            Some(env) if env.is_uniform() => (0.0, 1.0),
             Some(_) if self.area.is_empty() => (1.0, 0.0),
             Some(env) => {
                 let env_power = env.power(scene_radius) as f64;
@@ -162,10 +170,19 @@ impl Lights {
         };
     }
 
-    /// Area lights or the environment: something for the shared light sample to find.
+    /// Area lights or a light-sampled environment: something for the shared light sample to find.
     #[inline]
     pub fn has_sampled(&self) -> bool {
-        !self.area.is_empty() || self.environment.is_some()
+        !self.area.is_empty() || self.sampled_environment().is_some()
+    }
+
+    /// The environment, where the shared light sample may choose it (see
+    /// [`Lights::set_environment`]).
+    #[inline]
+    pub fn sampled_environment(&self) -> Option<&Environment> {
+        self.environment
+            .as_ref()
+            .filter(|_| self.environment_choice > 0.0)
     }
 
     /// Chooses a punctual light for the point `p` with unit normal `n` (zero: none): by the tree

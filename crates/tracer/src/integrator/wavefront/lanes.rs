@@ -81,6 +81,8 @@ pub(super) struct Lanes<'a> {
     punctual: bool,
     /// The scene's environment, if it has one.
     environment: Option<&'a Environment>,
+    /// The light sample may choose the environment (`Lights::sampled_environment`).
+    sampled_environment: bool,
     /// Which of the scene's meshes have vertex normals (a constant of `shade_hit`'s: one of
     /// [`normals`]).
     normals: u8,
@@ -198,6 +200,7 @@ impl<'a> Lanes<'a> {
             depth_limit: settings.depth_limit(),
             punctual: !scene.lights.punctual.is_empty(),
             environment: scene.lights.environment.as_ref(),
+            sampled_environment: scene.lights.sampled_environment().is_some(),
             normals: normals::of(scene),
             x: [0; LANES],
             y: [0; LANES],
@@ -284,11 +287,11 @@ impl<'a> Lanes<'a> {
             if self.punctual {
                 self.light_punctual_for(isa);
             }
-            if self.environment.is_some() {
+            if self.sampled_environment {
                 self.light_environment_for(isa);
             }
             self.scatter_for(isa);
-            if self.environment.is_some() {
+            if self.sampled_environment {
                 self.take_environment_shadows_for(isa);
             }
             if self.any_specular {

@@ -502,9 +502,10 @@ fn the_light_table_samples_what_area_lights_sample() {
 }
 
 /// An environment, one colour and an image, lights the lanes as it lights `trace_path`: each
-/// vertex's light sample chooses between it and the area lights as `light_query` chooses (with
-/// the box's light, chosen from the table, and with the furnace's facets, chosen by the tree), or
-/// always takes it (lamps and no emissive triangle; nothing but the environment), and a ray that
+/// vertex's light sample chooses between the image and the area lights as `light_query` chooses
+/// (with the box's light, chosen from the table, and with the furnace's facets, chosen by the
+/// tree), or always takes it (lamps and no emissive triangle; nothing but the environment), never
+/// the one colour (`Lights::set_environment`), and a ray that
 /// leaves the box through its open side takes its light, in full from the camera and weighted by
 /// the power heuristic after a bounce.
 #[test]
@@ -521,7 +522,11 @@ fn the_environment_lights_the_lanes_as_it_lights_the_scalar_integrator() {
     for (k, env) in [sky(), image()].into_iter().enumerate() {
         let lit = scene(parts("cornell")).with_environment(Some(env.clone()));
         let p_env = lit.lights.environment_choice;
-        assert!(p_env > 0.0 && p_env < 1.0, "both families are sampled");
+        if env.is_uniform() {
+            assert_eq!(p_env, 0.0, "one colour is left to the BSDF's samples");
+        } else {
+            assert!(p_env > 0.0 && p_env < 1.0, "both families are sampled");
+        }
         assert!(lit.diffuse.is_some(), "the lanes take an environment");
         assert!(
             pixels_that_differ(&box_alone, &lit, &settings(1, RussianRoulette::Auto, None)) > 100,
@@ -536,7 +541,8 @@ fn the_environment_lights_the_lanes_as_it_lights_the_scalar_integrator() {
             m.emissive = Vec3::ZERO;
         }
         let environment_only = scene(p.clone()).with_environment(Some(env.clone()));
-        assert_eq!(environment_only.lights.environment_choice, 1.0);
+        let only_choice = environment_only.lights.environment_choice;
+        assert_eq!(only_choice, if env.is_uniform() { 0.0 } else { 1.0 });
         assert_same_bits(
             &environment_only,
             &settings(23, RussianRoulette::Auto, None),

@@ -20,7 +20,7 @@ impl Lanes<'_> {
     /// area light, by the value as drawn.
     #[inline(always)]
     pub(super) fn choose_lights(&mut self, isa: Isa, u_select: &F, u_light: &[F; 2]) {
-        let Some(env) = self.environment else {
+        let Some(env) = self.environment.filter(|_| self.sampled_environment) else {
             self.choose_area_lights::<false>(isa, u_select, u_light);
             return;
         };
