@@ -13,10 +13,10 @@ use crate::integrator::PathResult;
 use crate::sampler::{dims, hash_words, owen_sobol_group_lanewise};
 use crate::scene::{Hit, Scene};
 use crate::settings::RenderSettings;
+use glam::{Vec2, Vec3};
 
 // A batch of camera rays is traced as one bundle.
 const _: () = assert!(LANES <= BUNDLE);
-use glam::{Vec2, Vec3};
 
 /// The next samples of the work, up to [`LANES`], with their camera rays: `render_sample`'s
 /// sampler key, jitter and ray.
@@ -88,17 +88,16 @@ impl CameraRays {
 
     /// Traces the batch's camera rays together (`Scene::intersect_bundle_in`): the samples of
     /// a batch are mostly of one pixel, so their rays enter the same boxes. A ray that is not
-    /// finite (its sample is handed on without a path) is traced as the batch's first ray, and
-    /// its answer never read.
+    /// finite (its sample is handed on without a path) is traced as a harmless one, and its
+    /// answer never read.
     #[inline(always)]
     pub(super) fn trace(&mut self, scene: &Scene) {
-        let first = Ray::new(self.o.get(0), self.d.get(0));
         let rays: [Ray; LANES] = std::array::from_fn(|k| {
             let (o, d) = (self.o.get(k), self.d.get(k));
             if d.is_finite() && o.is_finite() {
                 Ray::new(o, d)
             } else {
-                first
+                Ray::new(Vec3::ZERO, Vec3::Z)
             }
         });
         // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
