@@ -160,6 +160,19 @@ impl Bvh {
         &self,
         pres: &[RayPrecomp],
         t_max: f32,
+        accept: impl FnMut(usize, u32, &TriangleHit) -> bool,
+        out: &mut [Option<(u32, TriangleHit)>],
+    ) {
+        self.closest_bundle_with::<INLINED, STACK>(pres, t_max, accept, out);
+    }
+
+    /// [`Bvh::closest_bundle_in`] with a walk stack of `S` entries (tests give it a small one, so
+    /// that the ray-by-ray fallback of a full stack runs).
+    #[inline(always)]
+    fn closest_bundle_with<const INLINED: bool, const S: usize>(
+        &self,
+        pres: &[RayPrecomp],
+        t_max: f32,
         mut accept: impl FnMut(usize, u32, &TriangleHit) -> bool,
         out: &mut [Option<(u32, TriangleHit)>],
     ) {
@@ -189,7 +202,7 @@ impl Bvh {
         let mut best_t = [t_max; BUNDLE];
         let shear = BundleShear::new(|r| *ray(r));
         let all = (1u32 << n) - 1;
-        let mut stack: Stack<u64, STACK> = Stack::new();
+        let mut stack: Stack<u64, S> = Stack::new();
         let mut entry = Some((root, all));
         while let Some((node, mask)) = entry {
             if node.is_leaf() && mask.count_ones() >= RAYS_FOR_VECTOR_LEAF {
@@ -432,11 +445,15 @@ mod tests {
             let accept = |r: usize, id: u32, _: &TriangleHit| {
                 !(filtered && r % 2 == 1 && id.is_multiple_of(7))
             };
+            // The walk's own stack, and one so small that most nodes go on ray by ray.
             let mut got = [None; BUNDLE];
             bvh.closest_bundle_in::<false>(&pres, t_max, accept, &mut got);
+            let mut small = [None; BUNDLE];
+            bvh.closest_bundle_with::<false, 5>(&pres, t_max, accept, &mut small);
             for (r, (ray, pre)) in rays.iter().zip(&pres).enumerate() {
                 let want = bvh.closest(pre, ray.d, t_max, |id, h| accept(r, id, h));
                 assert_eq!(got[r], want, "case {case}, ray {r} of {n}");
+                assert_eq!(small[r], want, "case {case}, ray {r} of {n}, small stack");
                 hits += usize::from(want.is_some());
                 if let Some((_, h)) = want {
                     edges += usize::from(h.b1 == 0.0 || h.b2 == 0.0 || h.b1 + h.b2 == 1.0);
