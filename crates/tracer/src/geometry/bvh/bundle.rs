@@ -15,7 +15,7 @@
 use super::node::TriPacket;
 use super::packet::PacketRay;
 use super::stack::Stack;
-use super::{BoxRay, Bvh, Closest, NodeRef, FAR_WIDEN};
+use super::{sort4_descending, BoxRay, Bvh, Closest, NodeRef, FAR_WIDEN};
 use crate::geometry::{intersect_watertight, RayPrecomp, TriangleHit};
 
 /// The most rays in one bundle (the lanes of one AVX-512 register).
@@ -354,18 +354,7 @@ fn far_to_near(masks: &[u32; 4], near: &[f32; 4]) -> [usize; 4] {
         // Non-negative floats order as their bits do.
         (u64::from(d.to_bits()) << 2) | k as u64
     };
-    let mut e = [key(0), key(1), key(2), key(3)];
-    let mut exchange = |i: usize, j: usize| {
-        let (a, b) = (e[i], e[j]);
-        e[i] = a.max(b);
-        e[j] = a.min(b);
-    };
-    exchange(0, 1);
-    exchange(2, 3);
-    exchange(0, 2);
-    exchange(1, 3);
-    exchange(1, 2);
-    e.map(|key| (key & 3) as usize)
+    sort4_descending([key(0), key(1), key(2), key(3)]).map(|key| (key & 3) as usize)
 }
 
 /// `a.min(b)` for values that are never NaN, as one instruction (`f32::min` also handles NaN).

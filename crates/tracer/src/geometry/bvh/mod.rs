@@ -380,7 +380,13 @@ fn sort_far_to_near(mask: u32, near: Vec4, n: &Node4) -> [u64; 4] {
         let hit = 0u64.wrapping_sub(u64::from(mask >> k & 1));
         ((u64::from(near[k].to_bits()) + 1) << 32 | u64::from(n.child[k].0)) & hit
     };
-    let mut e = [key(0), key(1), key(2), key(3)];
+    sort4_descending([key(0), key(1), key(2), key(3)])
+}
+
+/// Four keys, largest first: a sorting network of integer `max`/`min` (conditional moves, no
+/// branches), for the walks' child orders (`sort_far_to_near`, and the bundle's).
+#[inline(always)]
+fn sort4_descending(mut e: [u64; 4]) -> [u64; 4] {
     let mut exchange = |i: usize, j: usize| {
         let (a, b) = (e[i], e[j]);
         e[i] = a.max(b);
