@@ -37,3 +37,20 @@ pub(crate) fn triangle_soup(
     }
     mesh
 }
+
+/// A [`triangle_soup`] whose first corners are drawn from `vertices` random points in ±5 (drawn
+/// first from `rng`): many triangles share a corner, as a mesh's do.
+pub(crate) fn shared_corner_soup(
+    rng: &mut impl FnMut() -> f32,
+    vertices: usize,
+    count: usize,
+    duplicate_every: usize,
+) -> Mesh {
+    let verts: Vec<Vec3> = (0..vertices)
+        .map(|_| Vec3::new(rng(), rng(), rng()) * 10.0 - 5.0)
+        .collect();
+    triangle_soup(rng, count, duplicate_every, |rng| {
+        let i = |r: f32| ((r * verts.len() as f32) as usize).min(verts.len() - 1);
+        verts[i(rng())]
+    })
+}

@@ -380,7 +380,7 @@ fn max(a: f32, b: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{Mesh, Ray};
+    use crate::geometry::Ray;
     use glam::Vec3;
 
     /// Bundles of rays from one point into a small cone (camera rays of one pixel), of others
@@ -390,14 +390,7 @@ mod tests {
     #[test]
     fn every_ray_of_a_bundle_gets_its_own_closest_hit() {
         let mut rng = crate::testing::uniform_stream(0x1234_5678_9abc_def1u64);
-        let mut verts: Vec<Vec3> = Vec::new();
-        for _ in 0..800 {
-            verts.push(Vec3::new(rng(), rng(), rng()) * 10.0 - 5.0);
-        }
-        let mut mesh: Mesh = crate::testing::triangle_soup(&mut rng, 5000, 60, |rng| {
-            let i = |r: f32| ((r * verts.len() as f32) as usize).min(verts.len() - 1);
-            verts[i(rng())]
-        });
+        let mut mesh = crate::testing::shared_corner_soup(&mut rng, 800, 5000, 60);
         // A grid of unit squares at z = 6, two triangles each.
         for i in -4..4 {
             for j in -4..4 {

@@ -584,15 +584,8 @@ mod tests {
     #[test]
     fn matches_brute_force_on_a_random_soup() {
         let mut rng = crate::testing::uniform_stream(0x2545_f491_4f6c_dd1du64);
-        let mut verts: Vec<Vec3> = Vec::new();
-        for _ in 0..600 {
-            verts.push(Vec3::new(rng(), rng(), rng()) * 10.0 - 5.0);
-        }
         // Small triangles around shared vertices, plus exact duplicates (ties).
-        let mesh = crate::testing::triangle_soup(&mut rng, 3000, 50, |rng| {
-            let i = |r: f32| ((r * verts.len() as f32) as usize).min(verts.len() - 1);
-            verts[i(rng())]
-        });
+        let mesh = crate::testing::shared_corner_soup(&mut rng, 600, 3000, 50);
         let bvh = Bvh::build(&mesh);
         assert!(bvh.depth() >= 3, "depth {}", bvh.depth());
         let mut hits = 0;
