@@ -1,8 +1,8 @@
 //! Instancing without flattening: a two-level BVH.
 //!
 //! A mesh that several nodes place is kept once, in its own (object) space, with its own 4-wide BVH
-//! (a [`Prototype`]); each placement is an [`Instance`] (a transform and its inverse), and a binary
-//! BVH over the instances' world boxes finds the instances a ray may hit. A ray entering an instance
+//! (a [`Prototype`]); each placement is an [`Instance`] (a transform and its inverse), and a 4-wide
+//! tree over the instances' world boxes ([`BoxTree`]) finds the instances a ray may hit. A ray entering an instance
 //! is moved into object space (o and d by the inverse transform; d is not renormalised, so t is
 //! the same parameter in both spaces) and answered by the prototype's BVH. Which meshes are kept
 //! this way is the loader's decision (`gltf::instancing`); hand-built scenes pass their own.
@@ -12,8 +12,8 @@
 //! depends on the order the tree is walked in; the instance boxes are padded so that they never cull
 //! an instance whose object-space test would hit.
 
-use super::bvh::{binary_tree, BinaryNode};
-use super::{box_reciprocal, Bvh, Mesh, Ray, RayPrecomp, TriangleHit};
+use super::bvh::{BoxTree, MAX_BOXES};
+use super::{Bvh, Mesh, Ray, RayPrecomp, TriangleHit};
 use glam::{Affine3A, DAffine3, DMat3, DMat4, DVec3, Mat3A, Vec3, Vec3A};
 use std::sync::Arc;
 
@@ -49,10 +49,6 @@ pub struct Instance {
     pub flip: bool,
 }
 
-/// A node of the top-level tree: a box, and either two children (`count` 0: at `first` and
-/// `first + 1`) or `count` instances from `first`.
-type TopNode = BinaryNode;
-
 /// The SAH cost of a node visit against one instance test, for the top-level tree's leaf decision:
 /// with one instance a leaf it decides nothing (every range of two or more is split), and is
 /// obvhs' default, which built this tree before.
@@ -66,7 +62,7 @@ pub struct Instances {
     pub prototypes: Vec<Arc<Prototype>>,
     /// In the top-level tree's leaf order (the index is the instance's identity in hits).
     pub instances: Vec<Instance>,
-    nodes: Vec<TopNode>,
+    tree: BoxTree,
 }
 
 /// Placements dropped for a singular or non-finite transform, and the triangles they would have
@@ -86,6 +82,8 @@ pub enum InstanceError {
         prototype: u32,
         count: usize,
     },
+    #[error("{count} instances: at most {max} can be placed")]
+    TooMany { count: usize, max: usize },
 }
 
 impl Prototype {
@@ -223,36 +221,6 @@ fn just_above(t: f32) -> f32 {
     }
 }
 
-/// The per-ray constants of the top-level box tests.
-struct TopRay {
-    o: Vec3A,
-    inv_d: Vec3A,
-}
-
-impl TopRay {
-    #[inline]
-    fn new(ray: &Ray) -> TopRay {
-        TopRay {
-            o: Vec3A::from(ray.o),
-            inv_d: Vec3A::from_array(box_reciprocal(ray.d)),
-        }
-    }
-
-    /// Where the ray enters the node's box within [0, t_max], if it does.
-    #[inline]
-    fn enters(&self, n: &TopNode, t_max: f32) -> Option<f32> {
-        let a = (n.lo - self.o) * self.inv_d;
-        let b = (n.hi - self.o) * self.inv_d;
-        let near = a.min(b).max_element().max(0.0);
-        let far = a.max(b).min_element().min(t_max) * (1.0 + 4.0 * f32::EPSILON);
-        (near <= far).then_some(near)
-    }
-}
-
-/// Entries of the top-level traversal stack kept on the machine stack; a deeper tree spills the
-/// rest to the heap.
-const TOP_STACK: usize = 64;
-
 impl Instances {
     /// The prototypes (their BVHs built) and the placements that are usable, with the tree over
     /// them. A singular or non-finite transform drops its placement (nothing of it could be hit):
@@ -293,8 +261,14 @@ impl Instances {
                 dropped,
             ));
         }
+        if instances.len() >= MAX_BOXES {
+            return Err(InstanceError::TooMany {
+                count: instances.len(),
+                max: MAX_BOXES - 1,
+            });
+        }
         // One instance a leaf: each placement's own box is tested before its ray is moved.
-        let (nodes, order) = binary_tree(&boxes, 1, TOP_TRAVERSAL_COST);
+        let (tree, order) = BoxTree::build(&boxes, TOP_TRAVERSAL_COST);
         // The instances in leaf order, so that a leaf's range indexes them directly.
         let ordered: Vec<Instance> = order
             .iter()
@@ -304,7 +278,7 @@ impl Instances {
             Instances {
                 prototypes,
                 instances: ordered,
-                nodes,
+                tree,
             },
             dropped,
         ))
@@ -318,7 +292,7 @@ impl Instances {
 
     /// The world-space box of everything instanced, or `None` without instances.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
-        self.nodes.first().map(|n| (n.lo.into(), n.hi.into()))
+        self.tree.bounds()
     }
 
     /// Triangles stored once per prototype.
@@ -338,7 +312,7 @@ impl Instances {
     pub fn bytes(&self) -> usize {
         self.prototypes.iter().map(|p| p.bytes()).sum::<usize>()
             + self.instances.len() * std::mem::size_of::<Instance>()
-            + self.nodes.len() * std::mem::size_of::<TopNode>()
+            + self.tree.bytes()
     }
 
     /// The instance and its prototype.
@@ -354,69 +328,12 @@ impl Instances {
     fn walk(
         &self,
         ray: &Ray,
-        mut limit: f32,
+        limit: f32,
         mut visit: impl FnMut(u32, &Instance, f32) -> Option<f32>,
     ) {
-        if self.nodes.is_empty() {
-            return;
-        }
-        let top = TopRay::new(ray);
-        let mut stack = [0u32; TOP_STACK];
-        let mut spill: Vec<u32> = Vec::new();
-        let mut len = 0usize;
-        let mut node = 0u32;
-        if top.enters(&self.nodes[0], limit).is_none() {
-            return;
-        }
-        loop {
-            let n = &self.nodes[node as usize];
-            let mut next = None;
-            if n.count > 0 {
-                for k in n.first..n.first + n.count {
-                    match visit(k, &self.instances[k as usize], limit) {
-                        Some(l) => limit = l,
-                        None => return,
-                    }
-                }
-            } else {
-                let (a, b) = (n.first, n.first + 1);
-                let ea = top.enters(&self.nodes[a as usize], limit);
-                let eb = top.enters(&self.nodes[b as usize], limit);
-                let (near, far) = match (ea, eb) {
-                    (Some(x), Some(y)) if y < x => (Some(b), Some(a)),
-                    (Some(_), Some(_)) => (Some(a), Some(b)),
-                    (Some(_), None) => (Some(a), None),
-                    (None, Some(_)) => (Some(b), None),
-                    (None, None) => (None, None),
-                };
-                if let Some(f) = far {
-                    if len < TOP_STACK {
-                        stack[len] = f;
-                        len += 1;
-                    } else {
-                        spill.push(f);
-                    }
-                }
-                next = near;
-            }
-            node = match next {
-                Some(n) => n,
-                // A deferred node whose box lies beyond the limit found since is skipped.
-                None => loop {
-                    let popped = if let Some(s) = spill.pop() {
-                        s
-                    } else if len > 0 {
-                        len -= 1;
-                        stack[len]
-                    } else {
-                        return;
-                    };
-                    if top.enters(&self.nodes[popped as usize], limit).is_some() {
-                        break popped;
-                    }
-                },
-            };
-        }
+        self.tree.walk(ray.o, ray.d, limit, |k, limit| {
+            visit(k, &self.instances[k as usize], limit)
+        });
     }
 
     /// The ray in the instance's object space (the same parameter t).

@@ -16,11 +16,12 @@ mod node;
 mod packet;
 mod pair;
 mod stack;
+mod top;
 mod walk;
 
-pub(crate) use binned::{binary_tree, BinaryNode};
 pub use bundle::BUNDLE;
 pub use pair::RayQuery;
+pub(crate) use top::{BoxTree, MAX_BOXES};
 
 use super::{box_reciprocal, Mesh, RayPrecomp, TriangleHit};
 use flat::Flat;
