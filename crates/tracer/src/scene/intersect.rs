@@ -147,6 +147,39 @@ impl Scene {
         self.intersect_instances(ray, t_max, alpha_u, found)
     }
 
+    /// [`Scene::intersect_in`] of two rays (alpha value 0, no limit), their world-space walks
+    /// traced together (`Bvh::closest_pair_in`): the same answers as the two calls.
+    #[inline(always)]
+    pub(crate) fn intersect_pair_in<const INLINED: bool>(
+        &self,
+        a: &Ray,
+        b: &Ray,
+    ) -> (Option<Hit>, Option<Hit>) {
+        let (pre_a, pre_b) = (RayPrecomp::new(a), RayPrecomp::new(b));
+        let query = |pre, d| RayQuery {
+            pre,
+            d,
+            t_max: f32::INFINITY,
+        };
+        let (qa, qb) = (query(&pre_a, a.d), query(&pre_b, b.d));
+        let (found_a, found_b) = if self.any_alpha {
+            let accept =
+                |id: u32, h: &TriangleHit| !self.passes_through(id as usize, h.b1, h.b2, 0.0);
+            self.bvh.closest_pair_in::<INLINED>(qa, accept, qb, accept)
+        } else {
+            self.bvh
+                .closest_pair_in::<INLINED>(qa, |_, _| true, qb, |_, _| true)
+        };
+        let (found_a, found_b) = (found_a.map(Hit::from_bvh), found_b.map(Hit::from_bvh));
+        if self.instances.is_empty() {
+            return (found_a, found_b);
+        }
+        (
+            self.intersect_instances(a, f32::INFINITY, 0.0, found_a),
+            self.intersect_instances(b, f32::INFINITY, 0.0, found_b),
+        )
+    }
+
     /// The closest instanced hit that beats `found` (the world-space mesh's), or `found`.
     #[inline(never)]
     pub(super) fn intersect_instances(

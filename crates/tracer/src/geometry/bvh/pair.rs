@@ -1,10 +1,12 @@
-//! A closest-hit ray and a shadow ray traced together.
+//! Two rays traced together: a closest-hit ray and a shadow ray, or two closest-hit rays.
 //!
 //! A single ray's traversal is a chain of dependent steps (test a node, pick the nearest child,
 //! load it, test it, …), and on the small trees of typical scenes the chain's latency, not the
 //! number of instructions, is most of its time. At a path vertex the continuation ray and the
 //! shadow ray towards the sampled light point are independent, so the two traversals are advanced
-//! in the same loop, one step of each per iteration: the processor overlaps the two chains.
+//! in the same loop, one step of each per iteration: the processor overlaps the two chains. The
+//! wavefront's lanes pair their closest-hit rays the same way where a lane has no shadow ray (a
+//! sky left to the BSDF, a specular bounce), two lanes' rays a walk.
 //!
 //! Each traversal is exactly [`Bvh::closest`] or [`Bvh::any`] (the same walks, `walk.rs`),
 //! so the answers are the same: by the BVH's contract the closest hit does not depend on the order
@@ -15,6 +17,9 @@ use super::walk::{AnyWalk, ClosestWalk};
 use super::{BoxRay, Bvh, Closest};
 use crate::geometry::{RayPrecomp, TriangleHit};
 use glam::Vec3;
+
+/// A hit as [`Bvh::closest`] reports it: the triangle and where the ray meets it.
+type BvhHit = (u32, TriangleHit);
 
 /// One query's ray: its precomputed constants, its direction, and its distance limit.
 #[derive(Clone, Copy, Debug)]
@@ -75,6 +80,42 @@ impl Bvh {
         }
         (best.found(), wb.hit)
     }
+
+    /// [`Bvh::closest_in`] of rays `a` and `b`, traced together (see the module documentation):
+    /// the same answers as the two calls.
+    #[inline(always)]
+    pub fn closest_pair_in<const INLINED: bool>(
+        &self,
+        a: RayQuery,
+        mut accept_a: impl FnMut(u32, &TriangleHit) -> bool,
+        b: RayQuery,
+        mut accept_b: impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> (Option<BvhHit>, Option<BvhHit>) {
+        if let Some(flat) = &self.flat {
+            return (
+                flat.closest::<INLINED>(a.pre, a.t_max, &mut accept_a),
+                flat.closest::<INLINED>(b.pre, b.t_max, &mut accept_b),
+            );
+        }
+        let Some(root) = self.root else {
+            return (None, None);
+        };
+        let (ray_a, boxes_a) = (PacketRay::new(a.pre), BoxRay::new(a.pre.o, a.d));
+        let (ray_b, boxes_b) = (PacketRay::new(b.pre), BoxRay::new(b.pre.o, b.d));
+        let (mut best_a, mut best_b) = (Closest::new(a.t_max), Closest::new(b.t_max));
+        let (mut wa, mut wb) = (ClosestWalk::new(root), ClosestWalk::new(root));
+        while wa.live && wb.live {
+            self.closest_step(&mut wa, &ray_a, &boxes_a, &mut best_a, &mut accept_a);
+            self.closest_step(&mut wb, &ray_b, &boxes_b, &mut best_b, &mut accept_b);
+        }
+        while wa.live {
+            self.closest_step(&mut wa, &ray_a, &boxes_a, &mut best_a, &mut accept_a);
+        }
+        while wb.live {
+            self.closest_step(&mut wb, &ray_b, &boxes_b, &mut best_b, &mut accept_b);
+        }
+        (best_a.found(), best_b.found())
+    }
 }
 
 #[cfg(test)]
@@ -82,10 +123,10 @@ mod tests {
     use super::*;
     use crate::geometry::{Mesh, Ray, RayPrecomp};
 
-    /// Traced together, a closest-hit ray and a shadow ray get the answers they get alone: on a
-    /// random soup (shared vertices, duplicate triangles, so ties) and on a chain deeper than the
-    /// traversal stack (the recursive fallbacks), with and without filters, with finite and
-    /// infinite limits, whichever walk ends first.
+    /// Traced together, a closest-hit ray and a shadow ray, or two closest-hit rays, get the
+    /// answers they get alone: on a random soup (shared vertices, duplicate triangles, so ties)
+    /// and on a chain deeper than the traversal stack (the recursive fallbacks), with and without
+    /// filters, with finite and infinite limits, whichever walk ends first.
     #[test]
     fn the_pair_answers_as_the_two_queries_do() {
         let mut rng = crate::testing::uniform_stream(0x9e37_79b9_7f4a_7c15u64);
@@ -164,6 +205,12 @@ mod tests {
                     bvh.closest_and_any(a, fa, b, fb),
                     alone,
                     "{name} case {case}"
+                );
+                let both = (alone.0, bvh.closest(&pb, db, tb, fb));
+                assert_eq!(
+                    bvh.closest_pair_in::<false>(a, fa, b, fb),
+                    both,
+                    "{name} case {case}: closest pair"
                 );
                 closest_hits += alone.0.is_some() as u32;
                 blocked += alone.1 as u32;

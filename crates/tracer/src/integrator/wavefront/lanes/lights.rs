@@ -44,7 +44,12 @@ impl Lanes<'_> {
     #[inline(always)]
     fn choose_area_lights<const ENV: bool>(&mut self, isa: Isa, u_area: &F, u_light: &[F; 2]) {
         let Some(table) = self.lights else {
-            self.sample_by_tree::<ENV>(u_area, u_light);
+            if self.scene.lights.area.is_empty() {
+                // Nothing to choose (a scene lit by lamps or the sky alone): no walk per lane.
+                self.light_ok = [false; LANES];
+            } else {
+                self.sample_by_tree::<ENV>(u_area, u_light);
+            }
             return;
         };
         let s = table.sample(u_area, u_light, Some(isa));

@@ -21,11 +21,21 @@ impl Lanes<'_> {
             trace[n] = i as u8;
             n += usize::from(self.alive[i] && self.untraced[i]);
         }
-        for &i in &trace[..n] {
+        // Two lanes' rays a walk, traced together (`Bvh::closest_pair_in`); inlined: this step is
+        // compiled for the test's instruction set (`builds.rs`).
+        let mut pairs = trace[..n].chunks_exact(2);
+        for pair in &mut pairs {
+            let (i, j) = (usize::from(pair[0]), usize::from(pair[1]));
+            self.rays[i] += 1;
+            self.rays[j] += 1;
+            let a = Ray::new(self.o.get(i), self.d.get(i));
+            let b = Ray::new(self.o.get(j), self.d.get(j));
+            (self.found[i], self.found[j]) = scene.intersect_pair_in::<true>(&a, &b);
+        }
+        for &i in pairs.remainder() {
             let i = usize::from(i);
             self.rays[i] += 1;
             let ray = Ray::new(self.o.get(i), self.d.get(i));
-            // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
             self.found[i] = scene.intersect_in::<true>(&ray, f32::INFINITY, 0.0);
         }
         // Every lane loads a triangle (`miss` where there is no hit), so nothing here branches
