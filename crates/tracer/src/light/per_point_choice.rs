@@ -40,47 +40,47 @@ pub fn choose_by_contribution(
     contribution: impl Fn(&PunctualSample) -> Vec3,
 ) -> Option<ChosenLamp> {
     debug_assert!(lights.len() <= MAX_POWER_CHOSEN);
-    let mut weights = [0.0f32; MAX_POWER_CHOSEN];
+    // One pass, each lamp's light and contribution made once (a second pass recomputed the
+    // drawn lamp's): lamp k replaces the lamp drawn so far with probability w_k / (the weights
+    // up to k), so each is drawn with probability w_k / total in the end. `u` decides every
+    // step, rescaled to [0, 1) after each (the part of it the step did not use).
     let mut total = 0.0f32;
-    for (w, light) in weights.iter_mut().zip(lights) {
-        if let Some(ls) = light.sample_li(p) {
-            let c = luminance(contribution(&ls));
-            // NaN or negative (a BSDF's rounding) lights nothing.
-            if c > 0.0 && c.is_finite() {
-                *w = c;
-                total += c;
-            }
+    let mut chosen: Option<(usize, PunctualSample, Vec3, f32)> = None;
+    let mut u = u;
+    for (index, light) in lights.iter().enumerate() {
+        let Some(sample) = light.sample_li(p) else {
+            continue;
+        };
+        let contribution = contribution(&sample);
+        let w = luminance(contribution);
+        // NaN or negative (a BSDF's rounding) lights nothing.
+        if !(w > 0.0 && w.is_finite()) {
+            continue;
         }
+        total += w;
+        let q = w / total;
+        if u < q {
+            chosen = Some((index, sample, contribution, w));
+            u /= q;
+        } else {
+            u = (u - q) / (1.0 - q);
+        }
+        u = u.min(ONE_BELOW);
     }
     if !(total > 0.0 && total.is_finite()) {
         return None;
     }
-    // The first lamp whose running sum passes u · total; the last lamp of non-zero weight if
-    // rounding leaves the sum short of it.
-    let target = u * total;
-    let mut running = 0.0f32;
-    let mut chosen = None;
-    for (i, &w) in weights[..lights.len()].iter().enumerate() {
-        if w > 0.0 {
-            chosen = Some(i);
-            running += w;
-            if target < running {
-                break;
-            }
-        }
-    }
-    let index = chosen?;
-    // Recomputed for the one lamp drawn rather than kept for all: the same pure functions, so the
-    // same values as the weights were made from.
-    let sample = lights[index].sample_li(p)?;
-    let contribution = contribution(&sample);
+    let (index, sample, contribution, w) = chosen?;
     Some(ChosenLamp {
         index,
         sample,
         contribution,
-        pmf: weights[index] / total,
+        pmf: w / total,
     })
 }
+
+/// The largest f32 below 1.
+const ONE_BELOW: f32 = 1.0 - f32::EPSILON / 2.0;
 
 #[cfg(test)]
 mod tests {
