@@ -3,7 +3,7 @@
 
 use crate::bsdf::Bsdf;
 use crate::geometry::Ray;
-use crate::light::choose_by_contribution;
+use crate::light::{choose_by_contribution, PunctualSample};
 use crate::math::{is_black, offset_ray_origin, Frame};
 use crate::sampler::{dims, PixelSampler};
 use crate::sampling::{
@@ -106,43 +106,63 @@ pub(crate) fn punctual_at<const INLINED: bool>(
     eval: impl Fn(Vec3) -> Vec3,
     transmittance: impl Fn(f32) -> Vec3,
 ) -> Vec3 {
+    let Some(q) = punctual_query(scene, at, eval, transmittance) else {
+        return Vec3::ZERO;
+    };
+    *rays += 1;
+    if !scene.visible_in::<INLINED>(&q.ray, q.t_max, q.alpha_u) {
+        return Vec3::ZERO;
+    }
+    q.value
+}
+
+/// [`punctual_at`]'s lamp sample, up to its shadow ray: the ray and what it adds if the lamp is
+/// visible, or None where no lamp lights the point (the lanes trace the rays two at a time).
+#[inline(always)]
+pub(crate) fn punctual_query(
+    scene: &Scene,
+    at: &PunctualAt,
+    eval: impl Fn(Vec3) -> Vec3,
+    transmittance: impl Fn(f32) -> Vec3,
+) -> Option<ShadowQuery> {
     let lights = &scene.lights;
     let (ls, unshadowed, pmf) = if lights.punctual_per_point {
         // What each lamp sends here, unshadowed: the value this sample returns when visible.
-        let Some(c) = choose_by_contribution(&lights.punctual, at.p, at.u_select, |ls| {
+        let c = choose_by_contribution(&lights.punctual, at.p, at.u_select, |ls| {
             eval(ls.wi) * ls.li * transmittance(ls.dist)
-        }) else {
-            return Vec3::ZERO;
-        };
+        })?;
         (c.sample, c.contribution, c.pmf)
     } else {
-        let Some((light, pmf)) = lights.choose_punctual(at.p, at.ng, at.u_select) else {
-            return Vec3::ZERO;
-        };
-        let Some(ls) = light.sample_li(at.p) else {
-            return Vec3::ZERO;
-        };
+        let (light, pmf) = lights.choose_punctual(at.p, at.ng, at.u_select)?;
+        let ls = light.sample_li(at.p)?;
         let f = eval(ls.wi);
         if is_black(f) {
-            return Vec3::ZERO;
+            return None;
         }
         (ls, f * ls.li * transmittance(ls.dist), pmf)
     };
-    let ray = spawn(at.p, at.ng, at.clearance, ls.wi);
-    *rays += 1;
+    Some(lamp_shadow(at, &ls, unshadowed / pmf))
+}
+
+/// The shadow ray of lamp sample `ls` at `at`, which adds `value` if the lamp is visible.
+#[inline(always)]
+pub(crate) fn lamp_shadow(at: &PunctualAt, ls: &PunctualSample, value: Vec3) -> ShadowQuery {
     let t_max = if ls.dist.is_finite() {
         ls.dist * (1.0 - SHADOW_EPSILON)
     } else {
         f32::INFINITY
     };
-    if !scene.visible_in::<INLINED>(&ray, t_max, at.alpha_u) {
-        return Vec3::ZERO;
+    ShadowQuery {
+        ray: spawn(at.p, at.ng, at.clearance, ls.wi),
+        t_max,
+        alpha_u: at.alpha_u,
+        value,
     }
-    unshadowed / pmf
 }
 
 /// A shadow ray whose answer is still to come, and what it adds to the path's radiance if the
 /// light is visible.
+#[derive(Clone, Copy, Debug)]
 pub(crate) struct ShadowQuery {
     pub ray: Ray,
     pub t_max: f32,

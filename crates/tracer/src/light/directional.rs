@@ -13,12 +13,19 @@ pub struct DirectionalLight {
 
 impl DirectionalLight {
     #[inline]
-    pub fn sample_li(&self, _p: Vec3) -> Option<PunctualSample> {
-        Some(PunctualSample {
+    pub fn sample_li(&self, p: Vec3) -> Option<PunctualSample> {
+        Some(self.sample_li_masked(p).0)
+    }
+
+    /// [`DirectionalLight::sample_li`] as `PointLight::sample_li_masked` gives it: always lit.
+    #[inline(always)]
+    pub fn sample_li_masked(&self, _p: Vec3) -> (PunctualSample, bool) {
+        let sample = PunctualSample {
             wi: -self.direction,
             dist: f32::INFINITY,
             li: self.illuminance,
-        })
+        };
+        (sample, true)
     }
 
     pub fn power(&self, scene_radius: f32) -> f32 {

@@ -28,22 +28,24 @@ impl SpotLight {
 
     #[inline]
     pub fn sample_li(&self, p: Vec3) -> Option<PunctualSample> {
+        let (sample, lit) = self.sample_li_masked(p);
+        lit.then_some(sample)
+    }
+
+    /// [`SpotLight::sample_li`] without a branch (see `PointLight::sample_li_masked`).
+    #[inline(always)]
+    pub fn sample_li_masked(&self, p: Vec3) -> (PunctualSample, bool) {
         let d = self.position - p;
         let r2 = d.length_squared();
-        if r2 <= 0.0 {
-            return None;
-        }
         let dist = r2.sqrt();
         let wi = d / dist;
         let f = self.falloff((-wi).dot(self.direction));
-        if f <= 0.0 {
-            return None;
-        }
-        Some(PunctualSample {
+        let sample = PunctualSample {
             wi,
             dist,
             li: self.intensity * (f / r2),
-        })
+        };
+        (sample, (r2 > 0.0 || r2.is_nan()) && (f > 0.0 || f.is_nan()))
     }
 
     /// Power of the cone up to the middle of the falloff band (an estimate; only its proportion to

@@ -239,6 +239,35 @@ impl Scene {
         !blocked && (self.instances.is_empty() || !self.instance_blocks(ray, t_max, alpha_u))
     }
 
+    /// [`Scene::visible_in`] of two segments (one alpha value), their world-space walks traced
+    /// together (`Bvh::any_pair_in`): the same answers as the two calls.
+    #[inline(always)]
+    pub(crate) fn visible_pair_in<const INLINED: bool>(
+        &self,
+        (a, a_max): (&Ray, f32),
+        (b, b_max): (&Ray, f32),
+        alpha_u: f32,
+    ) -> (bool, bool) {
+        let (pre_a, pre_b) = (RayPrecomp::new(a), RayPrecomp::new(b));
+        let query = |pre, d, t_max| RayQuery { pre, d, t_max };
+        let (qa, qb) = (query(&pre_a, a.d, a_max), query(&pre_b, b.d, b_max));
+        let (blocked_a, blocked_b) = if self.any_alpha {
+            let accept =
+                |id: u32, h: &TriangleHit| !self.passes_through(id as usize, h.b1, h.b2, alpha_u);
+            self.bvh.any_pair_in::<INLINED>(qa, accept, qb, accept)
+        } else {
+            self.bvh
+                .any_pair_in::<INLINED>(qa, |_, _| true, qb, |_, _| true)
+        };
+        if self.instances.is_empty() {
+            return (!blocked_a, !blocked_b);
+        }
+        (
+            !blocked_a && !self.instance_blocks(a, a_max, alpha_u),
+            !blocked_b && !self.instance_blocks(b, b_max, alpha_u),
+        )
+    }
+
     /// [`Scene::intersect`] of `ray` and [`Scene::visible`] of `shadow`, traced together (the two
     /// traversals interleaved, see `Bvh::closest_and_any`): the same answers as the two calls.
     #[inline(always)]

@@ -1,4 +1,4 @@
-//! Two rays traced together: a closest-hit ray and a shadow ray, or two closest-hit rays.
+//! Two rays traced together: a closest-hit ray and a shadow ray, or two of a kind.
 //!
 //! A single ray's traversal is a chain of dependent steps (test a node, pick the nearest child,
 //! load it, test it, …), and on the small trees of typical scenes the chain's latency, not the
@@ -6,7 +6,7 @@
 //! shadow ray towards the sampled light point are independent, so the two traversals are advanced
 //! in the same loop, one step of each per iteration: the processor overlaps the two chains. The
 //! wavefront's lanes pair their closest-hit rays the same way where a lane has no shadow ray (a
-//! sky left to the BSDF, a specular bounce), two lanes' rays a walk.
+//! sky left to the BSDF, a specular bounce), two lanes' rays a walk, and their lamps' shadow rays.
 //!
 //! Each traversal is exactly [`Bvh::closest`] or [`Bvh::any`] (the same walks, `walk.rs`),
 //! so the answers are the same: by the BVH's contract the closest hit does not depend on the order
@@ -81,6 +81,41 @@ impl Bvh {
         (best.found(), wb.hit)
     }
 
+    /// [`Bvh::any_in`] of rays `a` and `b`, traced together (see the module documentation): the
+    /// same answers as the two calls.
+    #[inline(always)]
+    pub fn any_pair_in<const INLINED: bool>(
+        &self,
+        a: RayQuery,
+        mut accept_a: impl FnMut(u32, &TriangleHit) -> bool,
+        b: RayQuery,
+        mut accept_b: impl FnMut(u32, &TriangleHit) -> bool,
+    ) -> (bool, bool) {
+        if let Some(flat) = &self.flat {
+            return (
+                flat.any::<INLINED>(a.pre, a.t_max, &mut accept_a),
+                flat.any::<INLINED>(b.pre, b.t_max, &mut accept_b),
+            );
+        }
+        let Some(root) = self.root else {
+            return (false, false);
+        };
+        let (ray_a, boxes_a) = (PacketRay::new(a.pre), BoxRay::new(a.pre.o, a.d));
+        let (ray_b, boxes_b) = (PacketRay::new(b.pre), BoxRay::new(b.pre.o, b.d));
+        let (mut wa, mut wb) = (AnyWalk::new(root), AnyWalk::new(root));
+        while wa.live && wb.live {
+            self.any_step(&mut wa, &ray_a, &boxes_a, a.t_max, &mut accept_a);
+            self.any_step(&mut wb, &ray_b, &boxes_b, b.t_max, &mut accept_b);
+        }
+        while wa.live {
+            self.any_step(&mut wa, &ray_a, &boxes_a, a.t_max, &mut accept_a);
+        }
+        while wb.live {
+            self.any_step(&mut wb, &ray_b, &boxes_b, b.t_max, &mut accept_b);
+        }
+        (wa.hit, wb.hit)
+    }
+
     /// [`Bvh::closest_in`] of rays `a` and `b`, traced together (see the module documentation):
     /// the same answers as the two calls.
     #[inline(always)]
@@ -123,10 +158,11 @@ mod tests {
     use super::*;
     use crate::geometry::{Mesh, Ray, RayPrecomp};
 
-    /// Traced together, a closest-hit ray and a shadow ray, or two closest-hit rays, get the
-    /// answers they get alone: on a random soup (shared vertices, duplicate triangles, so ties)
-    /// and on a chain deeper than the traversal stack (the recursive fallbacks), with and without
-    /// filters, with finite and infinite limits, whichever walk ends first.
+    /// Traced together, a closest-hit ray and a shadow ray, two closest-hit rays or two shadow
+    /// rays get the answers they get alone: on a random soup (shared vertices, duplicate
+    /// triangles, so ties) and on a chain deeper than the traversal stack (the recursive
+    /// fallbacks), with and without filters, with finite and infinite limits, whichever walk ends
+    /// first.
     #[test]
     fn the_pair_answers_as_the_two_queries_do() {
         let mut rng = crate::testing::uniform_stream(0x9e37_79b9_7f4a_7c15u64);
@@ -211,6 +247,12 @@ mod tests {
                     bvh.closest_pair_in::<false>(a, fa, b, fb),
                     both,
                     "{name} case {case}: closest pair"
+                );
+                let both = (bvh.any(&pa, da, ta, fa), alone.1);
+                assert_eq!(
+                    bvh.any_pair_in::<false>(a, fa, b, fb),
+                    both,
+                    "{name} case {case}: shadow pair"
                 );
                 closest_hits += alone.0.is_some() as u32;
                 blocked += alone.1 as u32;

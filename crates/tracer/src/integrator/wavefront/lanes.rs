@@ -32,6 +32,7 @@
 
 mod builds;
 mod glossy;
+mod lamps;
 mod lights;
 mod normals;
 mod refill;

@@ -1,12 +1,12 @@
 //! The lanes' light samples (`trace_path`'s `light_query` and `direct_punctual`, lane by lane or in
 //! the lanes): which light each lane samples at its vertex (`choose_lights`: the environment or
 //! an area light, from the light table or the light tree), the environment's sample
-//! (`sample_environment`) and its light along the rays that leave the scene (`add_escaped`), and
-//! the punctual lamps' samples (`light_punctual`).
+//! (`sample_environment`) and its light along the rays that leave the scene (`add_escaped`). The
+//! punctual lamps' samples are `lamps.rs`'s.
 
 use super::{GlossyLanes, Lanes, F, LANES, V3};
 use crate::bsdf::lambert_at;
-use crate::integrator::direct::{environment_value, punctual_at, PunctualAt};
+use crate::integrator::direct::environment_value;
 use crate::isa::Isa;
 use crate::light::Environment;
 use crate::math::{offset_unit_normal, spawn_clearance};
@@ -201,48 +201,6 @@ impl Lanes<'_> {
                 let l = self.l.get(i) + self.beta.get(i) * env.radiance(d) * w;
                 self.l.set(i, l);
             }
-        }
-    }
-
-    /// Each lane's punctual light sample, traced at once (`trace_path`'s `direct_punctual`, lane
-    /// by lane through its body `punctual_at`): added before the area light's sample, whose shadow
-    /// ray is traced later, as `trace_path` adds them.
-    #[inline(always)]
-    pub(super) fn light_punctual(&mut self) {
-        let scene = self.scene;
-        for i in 0..LANES {
-            if !(self.go[i] && self.diffuse_on[i]) {
-                continue;
-            }
-            let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
-            let albedo = self.albedo.get(i);
-            let corners = [
-                self.corner_a.get(i),
-                self.corner_b.get(i),
-                self.corner_c.get(i),
-            ];
-            let at = PunctualAt {
-                p: self.p.get(i),
-                ng,
-                clearance: spawn_clearance(corners),
-                u_select: self.u_punctual[i],
-                alpha_u: 0.0,
-            };
-            let rays = &mut self.rays[i];
-            // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
-            let value = match &self.materials[self.material[i] as usize].glossy {
-                // The glossy BSDF as `trace_path` evaluates it (`Bsdf::eval`, out of line).
-                Some(lobes) => {
-                    let bsdf = lobes.at(ns, ng);
-                    punctual_at::<true>(scene, &at, rays, |wi| bsdf.eval(wo, wi), |_| Vec3::ONE)
-                }
-                None => {
-                    let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
-                    punctual_at::<true>(scene, &at, rays, eval, |_| Vec3::ONE)
-                }
-            };
-            let l = self.l.get(i) + self.beta.get(i) * value;
-            self.l.set(i, l);
         }
     }
 }

@@ -1,0 +1,207 @@
+//! The lanes' punctual lamp samples (`trace_path`'s `direct_punctual`): each lane's lamp and
+//! shadow ray (`punctual_query`'s), the shadow rays traced two lanes a walk
+//! (`Scene::visible_pair_in`), and the light they let through added before the area light's
+//! sample (whose shadow ray is traced later), as `trace_path` adds them.
+//!
+//! Where a few lamps are chosen per point by what each sends there (`choose_by_contribution`), the
+//! Lambertian lanes make the choice in vector loops, lamp by lamp across the lanes, with each
+//! lane's operations those of the scalar choice (the same bits); glossy lanes, and the lamps
+//! chosen by power or a tree, take `punctual_query` lane by lane.
+
+use super::{Lanes, B, F, LANES, V3};
+use crate::bsdf::lambert_at;
+use crate::integrator::direct::{lamp_shadow, punctual_query, PunctualAt, ShadowQuery};
+use crate::light::{PunctualLight, PunctualSample};
+use crate::math::{luminance, spawn_clearance};
+use glam::Vec3;
+
+/// The largest f32 below 1 (as `choose_by_contribution` keeps its value).
+const ONE_BELOW: f32 = 1.0 - f32::EPSILON / 2.0;
+
+/// The running per-point choice of every lane (`choose_by_contribution`'s state, lane by lane).
+struct LampDraw {
+    u: F,
+    total: F,
+    chosen: B,
+    wi: V3,
+    dist: F,
+    li: V3,
+    contribution: V3,
+    weight: F,
+}
+
+impl Lanes<'_> {
+    /// Each lane's punctual light sample (see the module documentation).
+    #[inline(always)]
+    pub(super) fn light_punctual(&mut self) {
+        let scene = self.scene;
+        let mut on = [false; LANES];
+        for (i, on) in on.iter_mut().enumerate() {
+            *on = self.go[i] && self.diffuse_on[i];
+        }
+        let mut queries: [Option<ShadowQuery>; LANES] = [None; LANES];
+        let mut lambert = [false; LANES];
+        if scene.lights.punctual_per_point {
+            for i in 0..LANES {
+                lambert[i] = on[i] && self.materials[self.material[i] as usize].glossy.is_none();
+            }
+            self.lamps_per_point(&lambert, &mut queries);
+        }
+        for i in 0..LANES {
+            if !on[i] || lambert[i] {
+                continue;
+            }
+            let at = self.punctual_at(i);
+            let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
+            let albedo = self.albedo.get(i);
+            queries[i] = match &self.materials[self.material[i] as usize].glossy {
+                // The glossy BSDF as `trace_path` evaluates it (`Bsdf::eval`, out of line).
+                Some(lobes) => {
+                    let bsdf = lobes.at(ns, ng);
+                    punctual_query(scene, &at, |wi| bsdf.eval(wo, wi), |_| Vec3::ONE)
+                }
+                None => {
+                    let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
+                    punctual_query(scene, &at, eval, |_| Vec3::ONE)
+                }
+            };
+        }
+        // The shadow rays, two lanes a walk; inlined: this step is compiled for the test's
+        // instruction set (`builds.rs`).
+        let mut traced = [0u8; LANES];
+        let mut n = 0;
+        for (i, q) in queries.iter().enumerate() {
+            traced[n] = i as u8;
+            n += usize::from(q.is_some());
+        }
+        let mut visible = [false; LANES];
+        let mut pairs = traced[..n].chunks_exact(2);
+        for pair in &mut pairs {
+            let (i, j) = (usize::from(pair[0]), usize::from(pair[1]));
+            let (Some(a), Some(b)) = (&queries[i], &queries[j]) else {
+                continue;
+            };
+            (visible[i], visible[j]) =
+                scene.visible_pair_in::<true>((&a.ray, a.t_max), (&b.ray, b.t_max), a.alpha_u);
+        }
+        for &i in pairs.remainder() {
+            let i = usize::from(i);
+            if let Some(q) = &queries[i] {
+                visible[i] = scene.visible_in::<true>(&q.ray, q.t_max, q.alpha_u);
+            }
+        }
+        for i in 0..LANES {
+            if !on[i] {
+                continue;
+            }
+            self.rays[i] += u32::from(queries[i].is_some());
+            let value = match &queries[i] {
+                Some(q) if visible[i] => q.value,
+                _ => Vec3::ZERO,
+            };
+            let l = self.l.get(i) + self.beta.get(i) * value;
+            self.l.set(i, l);
+        }
+    }
+
+    /// Where lane `i` samples a lamp.
+    #[inline(always)]
+    fn punctual_at(&self, i: usize) -> PunctualAt {
+        PunctualAt {
+            p: self.p.get(i),
+            ng: self.ng.get(i),
+            clearance: spawn_clearance([
+                self.corner_a.get(i),
+                self.corner_b.get(i),
+                self.corner_c.get(i),
+            ]),
+            u_select: self.u_punctual[i],
+            alpha_u: 0.0,
+        }
+    }
+
+    /// `punctual_query` with lamps chosen per point, for the Lambertian lanes of `lambert`: the
+    /// choice of `choose_by_contribution`, lamp by lamp across the lanes.
+    #[inline(always)]
+    fn lamps_per_point(&self, lambert: &B, queries: &mut [Option<ShadowQuery>; LANES]) {
+        let mut draw = LampDraw {
+            u: self.u_punctual,
+            total: [0.0; LANES],
+            chosen: [false; LANES],
+            wi: V3::ZERO,
+            dist: [0.0; LANES],
+            li: V3::ZERO,
+            contribution: V3::ZERO,
+            weight: [0.0; LANES],
+        };
+        for lamp in &self.scene.lights.punctual {
+            // The lamp's kind decided once for all lanes.
+            match lamp {
+                PunctualLight::Point(l) => {
+                    self.offer_lamp(lambert, &mut draw, |p| l.sample_li_masked(p))
+                }
+                PunctualLight::Spot(l) => {
+                    self.offer_lamp(lambert, &mut draw, |p| l.sample_li_masked(p))
+                }
+                PunctualLight::Directional(l) => {
+                    self.offer_lamp(lambert, &mut draw, |p| l.sample_li_masked(p))
+                }
+            }
+        }
+        for i in 0..LANES {
+            let total = draw.total[i];
+            if !(lambert[i] && draw.chosen[i] && total > 0.0 && total.is_finite()) {
+                continue;
+            }
+            let ls = PunctualSample {
+                wi: draw.wi.get(i),
+                dist: draw.dist[i],
+                li: draw.li.get(i),
+            };
+            let pmf = draw.weight[i] / total;
+            let value = draw.contribution.get(i) / pmf;
+            queries[i] = Some(lamp_shadow(&self.punctual_at(i), &ls, value));
+        }
+    }
+
+    /// One lamp's step of the per-point choice in every lane (`choose_by_contribution`'s loop
+    /// body, with the Lambertian BSDF's f · |cos θi| as the contribution's).
+    #[inline(always)]
+    #[allow(clippy::needless_range_loop)] // one lane index over the lanes' and the draw's arrays
+    fn offer_lamp(
+        &self,
+        lambert: &B,
+        draw: &mut LampDraw,
+        sample_li: impl Fn(Vec3) -> (PunctualSample, bool),
+    ) {
+        for i in 0..LANES {
+            let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
+            let (ls, lit) = sample_li(self.p.get(i));
+            let contribution =
+                lambert_at::eval_pdf(ns, ng, self.albedo.get(i), wo, ls.wi).0 * ls.li * Vec3::ONE;
+            let w = luminance(contribution);
+            // NaN or negative (a BSDF's rounding) lights nothing.
+            let valid = lambert[i] && lit && w > 0.0 && w.is_finite();
+            let total = if valid {
+                draw.total[i] + w
+            } else {
+                draw.total[i]
+            };
+            draw.total[i] = total;
+            let q = w / total;
+            let u = draw.u[i];
+            let take = valid && u < q;
+            let next = if u < q { u / q } else { (u - q) / (1.0 - q) };
+            draw.u[i] = if valid { next.min(ONE_BELOW) } else { u };
+            // Selects rather than a branch, so that the loop can run in vector registers.
+            let pick = |new: Vec3, old: Vec3| if take { new } else { old };
+            draw.chosen[i] |= take;
+            draw.wi.set(i, pick(ls.wi, draw.wi.get(i)));
+            draw.li.set(i, pick(ls.li, draw.li.get(i)));
+            draw.contribution
+                .set(i, pick(contribution, draw.contribution.get(i)));
+            draw.dist[i] = if take { ls.dist } else { draw.dist[i] };
+            draw.weight[i] = if take { w } else { draw.weight[i] };
+        }
+    }
+}
