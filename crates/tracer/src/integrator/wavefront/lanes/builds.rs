@@ -67,7 +67,10 @@ impl Lanes<'_> {
         /// [`Lanes::light_punctual`] compiled for `isa`.
         fn light_punctual_for, light_punctual_avx512, light_punctual_avx2
             (&mut self, isa: Isa) {
-            self.light_punctual();
+            match self.any_glossy {
+                true => self.light_punctual::<true>(),
+                false => self.light_punctual::<false>(),
+            }
         }
 
         /// [`Lanes::shade_hit`] compiled for `isa`.

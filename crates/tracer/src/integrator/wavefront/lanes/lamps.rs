@@ -4,10 +4,12 @@
 //! sample (whose shadow ray is traced later), as `trace_path` adds them.
 //!
 //! Where a few lamps are chosen per point by what each sends there (`choose_by_contribution`), the
-//! Lambertian lanes make the choice in vector loops, lamp by lamp across the lanes, with each
-//! lane's operations those of the scalar choice (the same bits); glossy lanes, and the lamps
-//! chosen by power or a tree, take `punctual_query` lane by lane.
+//! lanes make the choice in vector loops, lamp by lamp across the lanes, with each lane's
+//! operations those of the scalar choice (the same bits): the Lambertian lanes' BSDF in the loop,
+//! the glossy lanes' in `GlossyLanes::eval_pdf`'s. The lamps chosen by power or a tree take
+//! `punctual_query` lane by lane.
 
+use super::glossy::GlossyLanes;
 use super::{Lanes, B, F, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::integrator::direct::{lamp_shadow, punctual_query, PunctualAt, ShadowQuery};
@@ -31,24 +33,26 @@ struct LampDraw {
 }
 
 impl Lanes<'_> {
-    /// Each lane's punctual light sample (see the module documentation).
+    /// Each lane's punctual light sample (see the module documentation). `GLOSSY`: some lanes
+    /// may hold a glossy material (as in `scatter`).
     #[inline(always)]
-    pub(super) fn light_punctual(&mut self) {
+    pub(super) fn light_punctual<const GLOSSY: bool>(&mut self) {
         let scene = self.scene;
         let mut on = [false; LANES];
         for (i, on) in on.iter_mut().enumerate() {
             *on = self.go[i] && self.diffuse_on[i];
         }
         let mut queries: [Option<ShadowQuery>; LANES] = [None; LANES];
-        let mut lambert = [false; LANES];
-        if scene.lights.punctual_per_point {
-            for i in 0..LANES {
-                lambert[i] = on[i] && self.materials[self.material[i] as usize].glossy.is_none();
-            }
-            self.lamps_per_point(&lambert, &mut queries);
+        let per_point = scene.lights.punctual_per_point;
+        if per_point {
+            let glossy = match GLOSSY {
+                true => self.glossy_lanes(),
+                false => GlossyLanes::none(),
+            };
+            self.lamps_per_point::<GLOSSY>(&on, &glossy, &mut queries);
         }
         for i in 0..LANES {
-            if !on[i] || lambert[i] {
+            if !on[i] || per_point {
                 continue;
             }
             let at = self.punctual_at(i);
@@ -120,10 +124,15 @@ impl Lanes<'_> {
         }
     }
 
-    /// `punctual_query` with lamps chosen per point, for the Lambertian lanes of `lambert`: the
-    /// choice of `choose_by_contribution`, lamp by lamp across the lanes.
+    /// `punctual_query` with lamps chosen per point, for the lanes of `on`: the choice of
+    /// `choose_by_contribution`, lamp by lamp across the lanes.
     #[inline(always)]
-    fn lamps_per_point(&self, lambert: &B, queries: &mut [Option<ShadowQuery>; LANES]) {
+    fn lamps_per_point<const GLOSSY: bool>(
+        &self,
+        on: &B,
+        glossy: &GlossyLanes,
+        queries: &mut [Option<ShadowQuery>; LANES],
+    ) {
         let mut draw = LampDraw {
             u: self.u_punctual,
             total: [0.0; LANES],
@@ -138,19 +147,19 @@ impl Lanes<'_> {
             // The lamp's kind decided once for all lanes.
             match lamp {
                 PunctualLight::Point(l) => {
-                    self.offer_lamp(lambert, &mut draw, |p| l.sample_li_masked(p))
+                    self.offer_lamp::<GLOSSY>(on, glossy, &mut draw, |p| l.sample_li_masked(p))
                 }
                 PunctualLight::Spot(l) => {
-                    self.offer_lamp(lambert, &mut draw, |p| l.sample_li_masked(p))
+                    self.offer_lamp::<GLOSSY>(on, glossy, &mut draw, |p| l.sample_li_masked(p))
                 }
                 PunctualLight::Directional(l) => {
-                    self.offer_lamp(lambert, &mut draw, |p| l.sample_li_masked(p))
+                    self.offer_lamp::<GLOSSY>(on, glossy, &mut draw, |p| l.sample_li_masked(p))
                 }
             }
         }
         for i in 0..LANES {
             let total = draw.total[i];
-            if !(lambert[i] && draw.chosen[i] && total > 0.0 && total.is_finite()) {
+            if !(on[i] && draw.chosen[i] && total > 0.0 && total.is_finite()) {
                 continue;
             }
             let ls = PunctualSample {
@@ -165,23 +174,43 @@ impl Lanes<'_> {
     }
 
     /// One lamp's step of the per-point choice in every lane (`choose_by_contribution`'s loop
-    /// body, with the Lambertian BSDF's f · |cos θi| as the contribution's).
+    /// body): the lamp's light at each lane's point, the BSDF's f · |cos θi| towards it (the
+    /// glossy lanes' in a loop of their own, `GlossyLanes::eval_pdf`), and the draw.
     #[inline(always)]
     #[allow(clippy::needless_range_loop)] // one lane index over the lanes' and the draw's arrays
-    fn offer_lamp(
+    fn offer_lamp<const GLOSSY: bool>(
         &self,
-        lambert: &B,
+        on: &B,
+        glossy: &GlossyLanes,
         draw: &mut LampDraw,
         sample_li: impl Fn(Vec3) -> (PunctualSample, bool),
     ) {
+        let (mut wi, mut dist, mut li, mut lit) =
+            (V3::ZERO, [0.0; LANES], V3::ZERO, [false; LANES]);
+        for i in 0..LANES {
+            let ls;
+            (ls, lit[i]) = sample_li(self.p.get(i));
+            wi.set(i, ls.wi);
+            dist[i] = ls.dist;
+            li.set(i, ls.li);
+        }
+        let f_glossy = match GLOSSY {
+            true => glossy.eval_pdf(&self.ns, &self.ng, &self.d, &wi).0,
+            false => V3::ZERO,
+        };
         for i in 0..LANES {
             let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
-            let (ls, lit) = sample_li(self.p.get(i));
-            let contribution =
-                lambert_at::eval_pdf(ns, ng, self.albedo.get(i), wo, ls.wi).0 * ls.li * Vec3::ONE;
+            let (wi_i, li_i) = (wi.get(i), li.get(i));
+            let lambert = lambert_at::eval_pdf(ns, ng, self.albedo.get(i), wo, wi_i).0;
+            let f = if GLOSSY && glossy.on[i] {
+                f_glossy.get(i)
+            } else {
+                lambert
+            };
+            let contribution = f * li_i * Vec3::ONE;
             let w = luminance(contribution);
             // NaN or negative (a BSDF's rounding) lights nothing.
-            let valid = lambert[i] && lit && w > 0.0 && w.is_finite();
+            let valid = on[i] && lit[i] && w > 0.0 && w.is_finite();
             let total = if valid {
                 draw.total[i] + w
             } else {
@@ -196,11 +225,11 @@ impl Lanes<'_> {
             // Selects rather than a branch, so that the loop can run in vector registers.
             let pick = |new: Vec3, old: Vec3| if take { new } else { old };
             draw.chosen[i] |= take;
-            draw.wi.set(i, pick(ls.wi, draw.wi.get(i)));
-            draw.li.set(i, pick(ls.li, draw.li.get(i)));
+            draw.wi.set(i, pick(wi_i, draw.wi.get(i)));
+            draw.li.set(i, pick(li_i, draw.li.get(i)));
             draw.contribution
                 .set(i, pick(contribution, draw.contribution.get(i)));
-            draw.dist[i] = if take { ls.dist } else { draw.dist[i] };
+            draw.dist[i] = if take { dist[i] } else { draw.dist[i] };
             draw.weight[i] = if take { w } else { draw.weight[i] };
         }
     }
