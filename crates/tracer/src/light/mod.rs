@@ -54,10 +54,12 @@ pub fn chooses_by_tree(lights: usize) -> bool {
 
 /// Whether a scene's punctual lamps (`lamps` of them, all kinds) are chosen at each shading point
 /// by what each sends there ([`choose_by_contribution`]) rather than by power or a tree: the one
-/// place that decides. From two lamps (one needs no choice) up to [`MAX_POWER_CHOSEN`], where
-/// evaluating every lamp at every vertex stays cheaper than the shadow ray.
+/// place that decides. Up to [`MAX_POWER_CHOSEN`], where evaluating every lamp at every vertex
+/// stays cheaper than the shadow ray. One lamp too: the choice is then certain, its cost the
+/// lamp's light and the BSDF that the sample needs anyway, and the wavefront's lanes make it in
+/// vector code (`lanes/lamps.rs`).
 pub fn chooses_per_point(lamps: usize) -> bool {
-    (2..=MAX_POWER_CHOSEN).contains(&lamps)
+    (1..=MAX_POWER_CHOSEN).contains(&lamps)
 }
 
 /// Incident light from a punctual light at a point.
