@@ -114,9 +114,11 @@ pub fn is_valid_sample(l: Vec3) -> bool {
 fn to_fixed(v: f64) -> u128 {
     let x = v * FIXED_SCALE;
     if x < 4_503_599_627_370_496.0 {
-        let floor = x as u64;
+        // Through i64, not u64: baseline x86-64 converts between f64 and i64 in one instruction
+        // each, and emulates the unsigned conversions (x < 2⁵² fits either way: the same values).
+        let floor = x as i64;
         // Half away from zero, as `f64::round`, for x ≥ 0.
-        (floor + u64::from(x - floor as f64 >= 0.5)) as u128
+        (floor + i64::from(x - floor as f64 >= 0.5)) as u128
     } else {
         x.round() as u128
     }
