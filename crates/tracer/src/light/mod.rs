@@ -36,6 +36,7 @@ pub(crate) use environment::map_for_tests;
 pub use environment::{
     Environment, EnvironmentError, EnvironmentSample, MAX_DISTRIBUTION_SIZE, MAX_ENVIRONMENT_TEXELS,
 };
+pub(crate) use per_point_choice::draw_step;
 pub use per_point_choice::{choose_by_contribution, ChosenLamp};
 pub use point::PointLight;
 pub use punctual_choice::PunctualTree;

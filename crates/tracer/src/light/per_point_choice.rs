@@ -57,15 +57,11 @@ pub fn choose_by_contribution(
         if !(w > 0.0 && w.is_finite()) {
             continue;
         }
-        total += w;
-        let q = w / total;
-        if u < q {
+        let take;
+        (take, total, u) = draw_step(u, total, w, true);
+        if take {
             chosen = Some((index, sample, contribution, w));
-            u /= q;
-        } else {
-            u = (u - q) / (1.0 - q);
         }
-        u = u.min(ONE_BELOW);
     }
     if !(total > 0.0 && total.is_finite()) {
         return None;
@@ -77,6 +73,20 @@ pub fn choose_by_contribution(
         contribution,
         pmf: w / total,
     })
+}
+
+/// One lamp's step of [`choose_by_contribution`]'s running draw: with the weights before it
+/// summing to `total` and the draw's value `u`, whether the lamp (of weight `w`; `valid`: one that
+/// may be drawn, w > 0 and finite) takes the draw, the new total, and `u` rescaled to what the
+/// step left of it. Written without a branch, and shared with the wavefront's lanes
+/// (`lanes/lamps.rs`), which make the draw in vector loops with the same bits.
+#[inline(always)]
+pub(crate) fn draw_step(u: f32, total: f32, w: f32, valid: bool) -> (bool, f32, f32) {
+    let total = if valid { total + w } else { total };
+    let q = w / total;
+    let take = valid && u < q;
+    let next = if u < q { u / q } else { (u - q) / (1.0 - q) };
+    (take, total, if valid { next.min(ONE_BELOW) } else { u })
 }
 
 /// The largest f32 below 1.

@@ -13,12 +13,9 @@ use super::glossy::GlossyLanes;
 use super::{Lanes, B, F, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::integrator::direct::{lamp_shadow, punctual_query, PunctualAt, ShadowQuery};
-use crate::light::{PunctualLight, PunctualSample};
+use crate::light::{draw_step, PunctualLight, PunctualSample};
 use crate::math::{luminance, spawn_clearance};
 use glam::Vec3;
-
-/// The largest f32 below 1 (as `choose_by_contribution` keeps its value).
-const ONE_BELOW: f32 = 1.0 - f32::EPSILON / 2.0;
 
 /// The running per-point choice of every lane (`choose_by_contribution`'s state, lane by lane).
 struct LampDraw {
@@ -211,17 +208,8 @@ impl Lanes<'_> {
             let w = luminance(contribution);
             // NaN or negative (a BSDF's rounding) lights nothing.
             let valid = on[i] && lit[i] && w > 0.0 && w.is_finite();
-            let total = if valid {
-                draw.total[i] + w
-            } else {
-                draw.total[i]
-            };
-            draw.total[i] = total;
-            let q = w / total;
-            let u = draw.u[i];
-            let take = valid && u < q;
-            let next = if u < q { u / q } else { (u - q) / (1.0 - q) };
-            draw.u[i] = if valid { next.min(ONE_BELOW) } else { u };
+            let take;
+            (take, draw.total[i], draw.u[i]) = draw_step(draw.u[i], draw.total[i], w, valid);
             // Selects rather than a branch, so that the loop can run in vector registers.
             let pick = |new: Vec3, old: Vec3| if take { new } else { old };
             draw.chosen[i] |= take;
