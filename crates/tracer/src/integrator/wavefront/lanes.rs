@@ -12,7 +12,8 @@
 //!    (`sample_environment`, lane by lane) or an area light, whose triangle and point come from
 //!    the scene's `LightTable` in the lanes, or for a scene of many lights from the light tree,
 //!    lane by lane (`sample_by_tree`, scalar); and in a scene with punctual lamps, each lane's
-//!    lamp sample with its shadow ray traced at once (`light_punctual`, scalar);
+//!    lamp sample (`lamps.rs`, `light_punctual`: a few lamps chosen per point in vector loops)
+//!    with its shadow ray traced at once, two lanes a walk;
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray (for a Lambertian, and for a glossy material where the scene has
 //!    one: its BSDF made again in the lanes, `glossy.rs`; a specular material's lanes take theirs
