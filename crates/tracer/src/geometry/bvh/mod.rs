@@ -342,29 +342,6 @@ impl Bvh {
     }
 }
 
-/// For a 4-bit mask, the lanes whose bits are set, then the others.
-const HIT_LANES_FIRST: [[u8; 4]; 16] = {
-    let mut t = [[0u8; 4]; 16];
-    let mut m = 0;
-    while m < 16 {
-        let mut n = 0;
-        let mut pass = 0;
-        while pass < 2 {
-            let mut k = 0;
-            while k < 4 {
-                if ((m >> k) & 1 == 1) == (pass == 0) {
-                    t[m][n] = k as u8;
-                    n += 1;
-                }
-                k += 1;
-            }
-            pass += 1;
-        }
-        m += 1;
-    }
-    t
-};
-
 /// Number of set bits of a 4-bit mask (baseline x86-64 has no `popcnt` instruction).
 const LANES_SET: [usize; 16] = [0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4];
 

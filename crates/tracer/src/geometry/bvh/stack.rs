@@ -39,6 +39,19 @@ impl<T: Copy, const N: usize> Stack<T, N> {
         self.len += keep.min(K);
     }
 
+    /// Pushes those of `values` whose bit is set in `mask`, in order (the last of them on top).
+    /// Branch-free: each value is written to the slot above the top, which its bit keeps or
+    /// leaves to be overwritten. Call only when [`Stack::has_room`]`(K)`; otherwise it panics (a
+    /// bounds check).
+    #[inline(always)]
+    pub fn push_masked<const K: usize>(&mut self, values: [T; K], mask: u32) {
+        assert!(self.has_room(K));
+        for (k, v) in values.into_iter().enumerate() {
+            self.slots[self.len].write(v);
+            self.len += (mask >> k & 1) as usize;
+        }
+    }
+
     #[inline(always)]
     pub fn pop(&mut self) -> Option<T> {
         if self.len == 0 {
@@ -66,5 +79,10 @@ mod tests {
         let all: Vec<u64> = std::iter::from_fn(|| s.pop()).collect();
         assert_eq!(all, vec![9, 8, 7, 2, 1]);
         assert!(s.has_room(8));
+        s.push_masked([1, 2, 3, 4], 0b1010);
+        s.push_masked([5, 6, 7, 8], 0);
+        s.push_masked([9, 10, 11, 12], 0b1101);
+        let all: Vec<u64> = std::iter::from_fn(|| s.pop()).collect();
+        assert_eq!(all, vec![12, 11, 9, 4, 2]);
     }
 }

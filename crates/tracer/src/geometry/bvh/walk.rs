@@ -8,8 +8,7 @@
 use super::packet::PacketRay;
 use super::stack::Stack;
 use super::{
-    key_child, key_near, sort_far_to_near, BoxRay, Bvh, Closest, NodeRef, HIT_LANES_FIRST,
-    LANES_SET, STACK,
+    key_child, key_near, sort_far_to_near, BoxRay, Bvh, Closest, NodeRef, LANES_SET, STACK,
 };
 use crate::geometry::TriangleHit;
 
@@ -120,9 +119,9 @@ impl Bvh {
             let n = &self.nodes[w.node.index()];
             let (mask, _) = boxes.test(n, t_max);
             if w.stack.has_room(4) {
-                let lanes = HIT_LANES_FIRST[mask as usize];
-                w.stack
-                    .push_first(lanes.map(|k| n.child[k as usize]), LANES_SET[mask as usize]);
+                // The children are stored one by one: taking them through a table of lane
+                // orders compiled to a gather for AVX-512 (docs/benchmarks.md).
+                w.stack.push_masked(n.child, mask);
             } else {
                 let mut m = mask;
                 while m != 0 {
