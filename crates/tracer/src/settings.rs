@@ -61,13 +61,14 @@ impl FromStr for DirectStrategy {
 pub enum RussianRoulette {
     /// Never terminate early (paths end by escaping, by absorption, or at `max_depth`).
     Off,
-    /// The textbook rule, `0.5@0.25` of [`RussianRoulette::Threshold`]: after the second path
-    /// vertex, a path whose throughput's luminance is below 0.25 ends with probability ½ (its
-    /// survivors doubled). A bright path never ends by roulette, and a survivor's weight stays
-    /// below 0.5 in luminance, so no rare path is amplified far above its neighbours. It was the
-    /// most efficient setting (error² × time) on six of the seven bench scenes, ahead of
-    /// [`RussianRoulette::Max`] (the default until November 26) by 7–73 %, and it traces 5.5 %
-    /// fewer rays per sample on the Cornell box (docs/benchmarks.md).
+    /// `0.5@0.1` of [`RussianRoulette::Threshold`]: after the second path vertex, a path whose
+    /// throughput's luminance is below 0.1 ends with probability ½ (its survivors doubled). A
+    /// bright path never ends by roulette, and a survivor's weight stays below 0.2 in luminance,
+    /// so no rare path is amplified far above its neighbours. The textbook `0.5@0.25` was the
+    /// default from November 26 (ahead of [`RussianRoulette::Max`] by 7–73 % then); once rays got
+    /// cheaper against a sample's fixed costs, `0.5@0.1` measured the lower error at equal time on
+    /// all eight peer scenes (by 1–14 %) and on five of six Blender suite scenes
+    /// (docs/benchmarks.md, December 6).
     #[default]
     Auto,
     /// After the fourth path vertex, survive with probability min(1, max component of the

@@ -36,7 +36,7 @@ pub struct SettingsArgs {
     /// Direct-lighting strategy: hemisphere, cosine, bsdf, light or mis.
     #[arg(long, default_value = "mis")]
     pub direct: DirectStrategy,
-    /// Russian roulette: off, auto (the default: 0.5@0.25), max (survive with the largest throughput component after the 4th vertex), a fixed survival probability in (0, 1], or TERMINATE@BELOW
+    /// Russian roulette: off, auto (the default: 0.5@0.1), max (survive with the largest throughput component after the 4th vertex), a fixed survival probability in (0, 1], or TERMINATE@BELOW
     /// (e.g. 0.5@0.25: terminate half of the paths whose throughput luminance is below 0.25).
     #[arg(long, default_value = "auto")]
     pub rr: RussianRoulette,

@@ -245,7 +245,7 @@ pub fn trace_path(
 pub(crate) fn survival(rr: RussianRoulette, depth: u32, beta: Vec3) -> f32 {
     match rr {
         RussianRoulette::Off => 1.0,
-        RussianRoulette::Auto => threshold_survival(0.5, 0.25, depth, beta),
+        RussianRoulette::Auto => threshold_survival(0.5, 0.1, depth, beta),
         RussianRoulette::Max if depth >= 3 => beta.max_element().min(1.0),
         RussianRoulette::Max => 1.0,
         RussianRoulette::Fixed(p) if depth >= 1 => p,
