@@ -59,7 +59,7 @@ impl<T: Copy, const N: usize> Stack<T, N> {
         }
         self.len -= 1;
         // SAFETY: `len` was above this slot, so the slot is initialised (the type's invariant:
-        // `push_first` writes every slot before `len` moves over it).
+        // `push_first` and `push_masked` write every slot before `len` moves over it).
         Some(unsafe { self.slots[self.len].assume_init() })
     }
 }
