@@ -10,9 +10,10 @@ mod common;
 use common::Pcg32;
 use glam::{Vec2, Vec3};
 use pathfarm_tracer::sampling::{
-    cosine_hemisphere_pdf, cubic_falloff_pdf, sample_concentric_disk, sample_cosine_hemisphere,
-    sample_cubic_falloff, sample_uniform_disk, sample_uniform_hemisphere, sample_uniform_sphere,
-    sample_uniform_triangle, uniform_hemisphere_pdf, uniform_sphere_pdf, Distribution1D,
+    barycentrics_along, cosine_hemisphere_pdf, cubic_falloff_pdf, sample_concentric_disk,
+    sample_cosine_hemisphere, sample_cubic_falloff, sample_uniform_disk, sample_uniform_hemisphere,
+    sample_uniform_sphere, sample_uniform_triangle, uniform_hemisphere_pdf, uniform_sphere_pdf,
+    Distribution1D, SphericalTriangle,
 };
 use pathfarm_tracer::stats::{chi_square_test, ChiSquare, SphereBins};
 use std::f32::consts::PI;
@@ -232,6 +233,125 @@ fn triangle_without_square_root_is_rejected() {
         Vec3::new(b0, b1, 1.0 - b0 - b1)
     };
     let p = report("wrong triangle (no √) must fail", triangle_chi2(wrong, 10));
+    assert!(p < REJECT_P);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Spherical triangle
+
+/// The solid angle of the triangle `c` seen from `p`, in double precision (Van Oosterom and
+/// Strackee), independent of the code under test.
+fn solid_angle_f64(c: [glam::DVec3; 3], p: glam::DVec3) -> f64 {
+    let [a, b, c] = c.map(|v| (v - p).normalize());
+    2.0 * a
+        .dot(b.cross(c))
+        .abs()
+        .atan2(1.0 + a.dot(b) + b.dot(c) + c.dot(a))
+}
+
+/// Bins the points that `sample` (barycentrics, from uniform numbers) puts on the triangle
+/// `corners` into its n² congruent sub-triangles (as [`triangle_chi2`]) and tests the counts against
+/// a density uniform in the solid angle seen from `p`: each sub-triangle expects N times its solid
+/// angle over the whole's.
+fn spherical_chi2(
+    corners: [Vec3; 3],
+    p: Vec3,
+    sample: impl Fn(Vec2) -> Vec3,
+    seed: u64,
+) -> ChiSquare {
+    let n = 16usize;
+    let index = |i: usize, j: usize, upper: bool| (i * n + j) * 2 + upper as usize;
+    let valid = |i: usize, j: usize, upper: bool| i + j + (upper as usize) < n;
+    let mut observed = vec![0.0f64; 2 * n * n];
+    let mut rng = Pcg32::seeded(seed);
+    for _ in 0..N {
+        let b = sample(rng.vec2());
+        assert!(
+            b.min_element() >= 0.0 && (b.element_sum() - 1.0).abs() < 1e-5,
+            "bad barycentrics {b}"
+        );
+        let (x, y) = (b.y as f64 * n as f64, b.z as f64 * n as f64);
+        let (i, j) = ((x as usize).min(n - 1), (y as usize).min(n - 1));
+        let mut upper = (x - i as f64) + (y - j as f64) >= 1.0;
+        if !valid(i, j, upper) {
+            upper = false;
+        }
+        observed[index(i, j, upper)] += 1.0;
+    }
+    let c = corners.map(|v| v.as_dvec3());
+    let at = |b1: f64, b2: f64| c[0] * (1.0 - b1 - b2) + c[1] * b1 + c[2] * b2;
+    let pd = p.as_dvec3();
+    let whole = solid_angle_f64(c, pd);
+    let mut expected = vec![0.0f64; 2 * n * n];
+    let h = 1.0 / n as f64;
+    for i in 0..n {
+        for j in 0..n {
+            let (b1, b2) = (i as f64 * h, j as f64 * h);
+            if valid(i, j, false) {
+                let lower = [at(b1, b2), at(b1 + h, b2), at(b1, b2 + h)];
+                expected[index(i, j, false)] = N as f64 * solid_angle_f64(lower, pd) / whole;
+            }
+            if valid(i, j, true) {
+                let upper = [at(b1 + h, b2), at(b1 + h, b2 + h), at(b1, b2 + h)];
+                expected[index(i, j, true)] = N as f64 * solid_angle_f64(upper, pd) / whole;
+            }
+        }
+    }
+    chi_square_test(&observed, &expected, 5.0)
+}
+
+/// The triangle of the spherical-triangle tests and the points it is seen from: close above its
+/// middle (a solid angle near 2π), close above a corner, beside it near its plane, far off, and
+/// behind it (the sampler does not care which side it is seen from).
+fn spherical_cases() -> ([Vec3; 3], [Vec3; 5]) {
+    let corners = [
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(0.2, 0.9, 0.0),
+    ];
+    let points = [
+        Vec3::new(0.4, 0.3, 0.01),
+        Vec3::new(0.95, 0.02, 0.05),
+        Vec3::new(1.4, 0.6, 0.1),
+        Vec3::new(-2.0, 3.0, 4.0),
+        Vec3::new(0.3, 0.2, -0.3),
+    ];
+    (corners, points)
+}
+
+#[test]
+fn spherical_triangle_sampling_is_uniform_in_solid_angle() {
+    let (corners, points) = spherical_cases();
+    let mut worst = 1.0f64;
+    for (k, p) in points.into_iter().enumerate() {
+        let s = SphericalTriangle::new(corners, p).expect("a triangle seen from off its corners");
+        let exact = solid_angle_f64(corners.map(|v| v.as_dvec3()), p.as_dvec3());
+        assert!(
+            (s.solid_angle() as f64 / exact - 1.0).abs() < 1e-4,
+            "solid angle {} against {exact}",
+            s.solid_angle()
+        );
+        let sample = |u: Vec2| {
+            let w = s.sample(u);
+            assert!((w.length() - 1.0).abs() < 1e-4, "not a unit direction: {w}");
+            barycentrics_along(corners, p, w).expect("the direction meets the plane")
+        };
+        let name = format!("spherical triangle from {p} (Ω = {exact:.4})");
+        worst = worst.min(report(
+            &name,
+            spherical_chi2(corners, p, sample, 20 + k as u64),
+        ));
+    }
+    assert!(worst > MIN_P, "some case failed (p = {worst:e})");
+}
+
+#[test]
+fn area_sampling_is_rejected_against_the_solid_angle_density() {
+    let (corners, points) = spherical_cases();
+    let p = report(
+        "area sampling seen close by must fail",
+        spherical_chi2(corners, points[0], sample_uniform_triangle, 30),
+    );
     assert!(p < REJECT_P);
 }
 

@@ -91,11 +91,15 @@ pub fn trace_path(
                         let cos_l = ray.d.dot(si.ng).abs();
                         // Emitters are never instanced (`Scene::build` refuses them).
                         debug_assert_eq!(hit.instance, Hit::WORLD);
-                        let light_pdf = scene.lights.area.pdf(from, n, hit.triangle, si.material)
-                            * scene.lights.area_choice
-                            * hit.t
-                            * hit.t
-                            / cos_l;
+                        let light_pdf =
+                            scene
+                                .lights
+                                .area
+                                .pdf(from, n, hit.triangle, si.material, hit.t, cos_l)
+                                * scene.lights.area_choice
+                                * hit.t
+                                * hit.t
+                                / cos_l;
                         power_heuristic(bsdf_pdf, light_pdf)
                     }
                 };

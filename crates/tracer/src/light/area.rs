@@ -1,14 +1,18 @@
-//! Area lights: the scene's emissive triangles, each sampled uniformly over its area (pdf 1/A,
-//! converted to solid angle with cos θ' / r²). Which triangle is chosen depends on how many there
-//! are ([`AreaLights::uses_tree`], the one place that decides): a few are chosen in proportion to
-//! their power alone, the same choice at every point (a table the wavefront integrator holds in
-//! its lanes); more are chosen by a [`LightTree`], in proportion to what each may send to the
-//! shading point.
+//! Area lights: the scene's emissive triangles. A point on the chosen triangle is sampled
+//! uniformly over its area (pdf 1/A, converted to solid angle with cos θ' / r²), or, where the
+//! shading point is close to the triangle against its size, uniformly over the solid angle it
+//! subtends ([`by_solid_angle`], the one place that decides). Which triangle is chosen depends on
+//! how many there are ([`AreaLights::uses_tree`], the one place that decides): a few are chosen in
+//! proportion to their power alone, the same choice at every point (a table the wavefront
+//! integrator holds in its lanes); more are chosen by a [`LightTree`], in proportion to what each
+//! may send to the shading point.
 
 use crate::geometry::Mesh;
 use crate::material::{Material, Texture};
 use crate::math::luminance;
-use crate::sampling::{sample_uniform_triangle, Distribution1D};
+use crate::sampling::{
+    barycentrics_along, sample_uniform_triangle, Distribution1D, SphericalTriangle,
+};
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
 
@@ -41,15 +45,84 @@ pub struct AreaLightSample {
     pub pdf_area: f32,
 }
 
-/// One emissive triangle as light sampling sees it: corners, unit normal and the area-measure pdf
-/// of its points, P(triangle) / area, all fixed by the scene.
-#[derive(Clone, Copy, Debug)]
-struct LightTriangle {
+/// The smallest and largest solid angle, in steradians, that a triangle is sampled by
+/// ([`by_solid_angle`]): pbrt-v4's bounds (`MinSphericalSampleArea`, `MaxSphericalSampleArea`),
+/// outside which the spherical map loses precision in single precision. Below the first, a light
+/// looks small enough that sampling it by area is as good.
+const SOLID_ANGLE_RANGE: std::ops::RangeInclusive<f32> = 3e-4..=6.22;
+
+/// A light triangle is sampled by solid angle from points closer to its plane than its longest
+/// edge over this ratio. Cycles uses 1; on the peer scenes whose lamp panel hangs 2 cm under the
+/// ceiling, 4 kept all of the variance gain at less cost (Cornell −15 % samples/s against −22 %;
+/// docs/benchmarks.md, December 6): the gain is where the distances across the triangle differ by
+/// a large factor (here at least 17 in r²), the cost wherever the test lets the spherical map in.
+const NEAR_RATIO: f32 = 4.0;
+
+/// Whether a light triangle is sampled by the solid angle it subtends from the shading point `p`,
+/// rather than by area: the one place that decides, from the triangle and the point alone, so that
+/// the light sample and a BSDF ray that hits the light weigh it with the same density. Returns the
+/// spherical triangle to sample when so.
+///
+/// Cycles' kind of test: `p` lies close to the triangle's plane against the triangle's size
+/// ([`NEAR_RATIO`]; farther off, the distances across the triangle differ little and sampling by
+/// area is as good and cheaper), and the solid angle lies in [`SOLID_ANGLE_RANGE`].
+#[inline(always)]
+pub(crate) fn by_solid_angle(
     corners: [Vec3; 3],
     normal: Vec3,
-    pdf_area: f32,
+    longest_edge2: f32,
+    p: Vec3,
+) -> Option<SphericalTriangle> {
+    let h = normal.dot(p - corners[0]);
+    if h * h * (NEAR_RATIO * NEAR_RATIO) >= longest_edge2 {
+        return None;
+    }
+    let s = SphericalTriangle::new(corners, p)?;
+    SOLID_ANGLE_RANGE.contains(&s.solid_angle()).then_some(s)
+}
+
+/// A point on the light triangle `corners` (unit normal `normal`, chosen with probability `pmf`)
+/// sampled uniformly in the solid angle `s` it subtends from `p`, drawn from `u`: the point, its
+/// barycentrics, and its density in area measure, pmf · cos θ' / (r² Ω) (which the integrator's
+/// conversion r² / cos θ' takes back to pmf / Ω). None where rounding leaves no valid point.
+#[inline]
+pub(crate) fn sample_by_solid_angle(
+    s: &SphericalTriangle,
+    corners: [Vec3; 3],
+    normal: Vec3,
+    pmf: f32,
+    p: Vec3,
+    u: Vec2,
+) -> Option<(Vec3, Vec3, f32)> {
+    let bary = barycentrics_along(corners, p, s.sample(u))?;
+    let point = point_on(corners, bary);
+    let d = point - p;
+    let dist2 = d.length_squared();
+    let pdf_area = solid_angle_area_density(s, pmf, d.dot(normal).abs() / dist2.sqrt(), dist2);
+    (pdf_area > 0.0 && pdf_area.is_finite()).then_some((point, bary, pdf_area))
+}
+
+/// The area density pmf · cos θ' / (r² Ω) of a point at squared distance `dist2` and cosine `cos_l`
+/// on a triangle sampled by solid angle (`s`) and chosen with probability `pmf`.
+#[inline(always)]
+fn solid_angle_area_density(s: &SphericalTriangle, pmf: f32, cos_l: f32, dist2: f32) -> f32 {
+    pmf * cos_l / (dist2 * s.solid_angle())
+}
+
+/// One emissive triangle as light sampling sees it, all fixed by the scene.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LightTriangle {
+    pub corners: [Vec3; 3],
+    /// The unit normal (front side = counter-clockwise).
+    pub normal: Vec3,
+    /// The area-measure pdf of its points when chosen by power: P(triangle) / area.
+    pub pdf_area: f32,
+    /// P(triangle) when chosen by power.
+    pub pmf: f32,
     /// 1 / area: the tree's choice probability times this is the area density.
-    inv_area: f32,
+    pub inv_area: f32,
+    /// The square of its longest edge's length (for [`by_solid_angle`]).
+    pub longest_edge2: f32,
 }
 
 /// Every emissive triangle of the scene.
@@ -119,7 +192,12 @@ impl AreaLights {
                     corners: [a, b, c],
                     normal: cross / len,
                     pdf_area: distribution.pmf(k) / (0.5 * len),
+                    pmf: distribution.pmf(k),
                     inv_area: 1.0 / (0.5 * len),
+                    longest_edge2: [b - a, c - b, a - c]
+                        .map(Vec3::length_squared)
+                        .into_iter()
+                        .fold(0.0, f32::max),
                 }
             })
             .collect();
@@ -185,28 +263,42 @@ impl AreaLights {
     }
 
     /// Chooses a triangle for a shading point `p` with unit normal `n` (`u_select`: by power, or
-    /// by the tree) and a uniform point on it (`u`). None when no light can reach `p`.
+    /// by the tree) and a point on it (`u`): uniform in area, or in the solid angle the triangle
+    /// subtends where [`by_solid_angle`] says so. None when no light can reach `p`.
     #[inline]
     pub fn sample(&self, p: Vec3, n: Vec3, u_select: f32, u: Vec2) -> Option<AreaLightSample> {
         if self.is_empty() {
             return None;
         }
-        let (k, pdf_area) = match &self.tree {
-            Some(tree) => {
-                let (k, pmf) = tree.sample(p, n, u_select)?;
-                (k, pmf * self.sampled[k].inv_area)
-            }
+        let (k, pmf) = match &self.tree {
+            Some(tree) => tree.sample(p, n, u_select)?,
             None => {
                 let (k, _) = self.distribution.sample_discrete(u_select);
-                (k, self.sampled[k].pdf_area)
+                (k, self.sampled[k].pmf)
             }
         };
         let t = &self.sampled[k];
+        let triangle = self.triangles[k];
+        if let Some(s) = by_solid_angle(t.corners, t.normal, t.longest_edge2, p) {
+            let (point, barycentrics, pdf_area) =
+                sample_by_solid_angle(&s, t.corners, t.normal, pmf, p, u)?;
+            return Some(AreaLightSample {
+                point,
+                normal: t.normal,
+                triangle,
+                barycentrics,
+                pdf_area,
+            });
+        }
+        let pdf_area = match &self.tree {
+            Some(_) => pmf * t.inv_area,
+            None => t.pdf_area,
+        };
         let bary = sample_uniform_triangle(u);
         Some(AreaLightSample {
             point: point_on(t.corners, bary),
             normal: t.normal,
-            triangle: self.triangles[k],
+            triangle,
             barycentrics: bary,
             pdf_area,
         })
@@ -214,31 +306,30 @@ impl AreaLights {
 
     /// The area-measure density with which [`AreaLights::sample`], at a point `p` with normal `n`,
     /// picks the point of mesh triangle `triangle` (of material `material`) that a ray from `p`
-    /// hit: what that ray's MIS weight needs.
+    /// hit at distance `t`, meeting it at cosine `cos_l`: what that ray's MIS weight needs.
     #[inline]
-    pub fn pdf(&self, p: Vec3, n: Vec3, triangle: u32, material: u32) -> f32 {
-        match &self.tree {
-            Some(tree) => match self
-                .by_triangle
-                .binary_search_by_key(&triangle, |&(tri, _)| tri)
-            {
-                Ok(i) => {
-                    let k = self.by_triangle[i].1 as usize;
-                    tree.pmf(p, n, k) * self.sampled[k].inv_area
-                }
-                Err(_) => 0.0,
-            },
-            None => self.power_density(material),
+    pub fn pdf(&self, p: Vec3, n: Vec3, triangle: u32, material: u32, t: f32, cos_l: f32) -> f32 {
+        let Ok(i) = self
+            .by_triangle
+            .binary_search_by_key(&triangle, |&(tri, _)| tri)
+        else {
+            return 0.0;
+        };
+        let k = self.by_triangle[i].1 as usize;
+        let light = &self.sampled[k];
+        let by_solid_angle = by_solid_angle(light.corners, light.normal, light.longest_edge2, p);
+        match (&self.tree, by_solid_angle) {
+            (Some(tree), Some(s)) => solid_angle_area_density(&s, tree.pmf(p, n, k), cos_l, t * t),
+            (Some(tree), None) => tree.pmf(p, n, k) * light.inv_area,
+            (None, Some(s)) => solid_angle_area_density(&s, light.pmf, cos_l, t * t),
+            (None, None) => self.power_density(material),
         }
     }
 
-    /// Every light triangle as [`AreaLights::sample`] sees it, in the order of its distribution:
-    /// (corners, unit normal, area density of the sample, triangle index in the mesh).
-    pub(crate) fn sampled(&self) -> impl Iterator<Item = ([Vec3; 3], Vec3, f32, u32)> + '_ {
-        self.sampled
-            .iter()
-            .zip(&self.triangles)
-            .map(|(t, &tri)| (t.corners, t.normal, t.pdf_area, tri))
+    /// Every light triangle as [`AreaLights::sample`] sees it, in the order of its distribution,
+    /// with its triangle index in the mesh.
+    pub(crate) fn sampled(&self) -> impl Iterator<Item = (&LightTriangle, u32)> + '_ {
+        self.sampled.iter().zip(self.triangles.iter().copied())
     }
 
     /// The distribution light triangles are chosen from (in proportion to power).

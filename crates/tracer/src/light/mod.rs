@@ -29,6 +29,7 @@ mod spot;
 mod tree;
 
 pub(crate) use area::point_on;
+pub(crate) use area::{by_solid_angle, sample_by_solid_angle};
 pub use area::{AreaLightSample, AreaLights, MAX_POWER_CHOSEN};
 pub use directional::DirectionalLight;
 #[cfg(test)]

@@ -3,7 +3,7 @@
 
 use super::{DiffuseMaterial, LANES, V3};
 use crate::isa::{Isa, Kind};
-use crate::light::{point_on, AreaLights};
+use crate::light::{by_solid_angle, point_on, sample_by_solid_angle, AreaLights};
 use crate::sampling::sample_uniform_triangle;
 use glam::{Vec2, Vec3};
 
@@ -27,6 +27,9 @@ pub(crate) struct LightTable {
     corners: [Xyz; 3],
     normal: Xyz,
     pdf_area: [f32; MAX_LIGHTS],
+    /// P(light), and the square of its longest edge (`light::by_solid_angle`).
+    pmf: [f32; MAX_LIGHTS],
+    longest_edge2: [f32; MAX_LIGHTS],
     /// The emission of the light's material towards its front and its back.
     front: Xyz,
     back: Xyz,
@@ -61,6 +64,8 @@ impl LightTable {
             corners: [[[0.0; MAX_LIGHTS]; 3]; 3],
             normal: [[0.0; MAX_LIGHTS]; 3],
             pdf_area: [0.0; MAX_LIGHTS],
+            pmf: [0.0; MAX_LIGHTS],
+            longest_edge2: [0.0; MAX_LIGHTS],
             front: [[0.0; MAX_LIGHTS]; 3],
             back: [[0.0; MAX_LIGHTS]; 3],
         });
@@ -70,12 +75,14 @@ impl LightTable {
                 xyz[axis][j] = value;
             }
         };
-        for (j, (corners, normal, pdf_area, tri)) in area.sampled().enumerate() {
-            for (c, corner) in corners.into_iter().enumerate() {
+        for (j, (light, tri)) in area.sampled().enumerate() {
+            for (c, &corner) in light.corners.iter().enumerate() {
                 set(&mut t.corners[c], j, corner);
             }
-            set(&mut t.normal, j, normal);
-            t.pdf_area[j] = pdf_area;
+            set(&mut t.normal, j, light.normal);
+            t.pdf_area[j] = light.pdf_area;
+            t.pmf[j] = light.pmf;
+            t.longest_edge2[j] = light.longest_edge2;
             let m = materials.get(*mesh_material.get(tri as usize)? as usize)?;
             set(&mut t.front, j, m.emission_front);
             set(&mut t.back, j, m.emission_back);
@@ -83,15 +90,19 @@ impl LightTable {
         Some(t)
     }
 
-    /// `AreaLights::sample(u_select[i], (u0[i], u1[i]))` for every lane i, the same bits: the
-    /// light whose CDF interval holds u, a uniform point on it, its normal and area density, and
-    /// its material's emission. `isa`: the build this is compiled into (a constant there), whose
-    /// instructions read the table (see [`LightTable::entries`]).
+    /// `AreaLights::sample(p[i], _, u_select[i], (u0[i], u1[i]))` for every lane i that `wants`
+    /// one, the same bits: the light whose CDF interval holds u, a point on it (uniform in area in
+    /// the lanes; uniform in solid angle, lane by lane, where `light::by_solid_angle` says so), its
+    /// normal and area density (zero where no point could be made), and its material's emission.
+    /// `isa`: the build this is compiled into (a constant there), whose instructions read the
+    /// table (see [`LightTable::entries`]).
     #[inline(always)]
     pub(crate) fn sample(
         &self,
         u_select: &[f32; LANES],
         u: &[[f32; LANES]; 2],
+        p: &V3,
+        wants: &[bool; LANES],
         isa: Option<Isa>,
     ) -> LightSamples {
         let mut k = [0u32; LANES];
@@ -110,6 +121,25 @@ impl LightTable {
             let bary = sample_uniform_triangle(Vec2::new(u0, u1));
             let at = [corners[0].get(i), corners[1].get(i), corners[2].get(i)];
             out.point.set(i, point_on(at, bary));
+        }
+        for i in 0..LANES {
+            if !wants[i] {
+                continue;
+            }
+            let j = j[i] as usize & (MAX_LIGHTS - 1);
+            let (at, normal) = ([0, 1, 2].map(|c| corners[c].get(i)), out.normal.get(i));
+            let (p, le2) = (p.get(i), self.longest_edge2[j]);
+            let Some(s) = by_solid_angle(at, normal, le2, p) else {
+                continue;
+            };
+            let u = Vec2::new(u[0][i], u[1][i]);
+            match sample_by_solid_angle(&s, at, normal, self.pmf[j], p, u) {
+                Some((point, _, pdf_area)) => {
+                    out.point.set(i, point);
+                    out.pdf_area[i] = pdf_area;
+                }
+                None => out.pdf_area[i] = 0.0,
+            }
         }
         out
     }

@@ -89,9 +89,6 @@ pub(crate) struct DiffuseMaterial {
     /// `Material::emission` towards the front side, and towards the back.
     pub emission_front: Vec3,
     pub emission_back: Vec3,
-    /// `AreaLights::power_density` of the material × `Lights::area_choice`, when the lights are
-    /// chosen by power (the same at every point); zero when they are chosen by the tree.
-    pub light_density: f32,
     /// Whether the material emits: a BSDF ray that hits it needs the light choice's density.
     pub emits: bool,
 }
@@ -134,7 +131,7 @@ impl DiffuseScene {
             return None;
         }
         let mut out = Vec::with_capacity(materials.len());
-        for (m, (material, template)) in materials.iter().zip(templates).enumerate() {
+        for (material, template) in materials.iter().zip(templates) {
             let bsdf = template.as_ref()?;
             let untextured = material.emissive_texture.is_none();
             // A volume that absorbs nothing changes no throughput's bits (× e⁻⁰ = × 1).
@@ -156,12 +153,6 @@ impl DiffuseScene {
                 diffuse_on: bsdf.has_non_delta(),
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),
-                // As `trace_path` weighs a hit emitter (× 1 exactly without an environment).
-                light_density: if area.has_tree() || area.is_empty() {
-                    0.0
-                } else {
-                    area.power_density(m as u32) * lights.area_choice
-                },
                 emits: material.is_emissive(),
             });
         }

@@ -435,16 +435,24 @@ fn glossy_materials_are_shaded_as_the_scalar_integrator_shades_them() {
 }
 
 /// The lanes' choice of light and point is `AreaLights::sample`'s, bit for bit, on a grid of
-/// samples and on each CDF value and its neighbours (where the choice changes).
+/// samples and on each CDF value and its neighbours (where the choice changes), seen from points
+/// far from the lights and close to them (where the point is sampled by solid angle).
 #[test]
 fn the_light_table_samples_what_area_lights_sample() {
     use super::lights::LightTable;
-    use super::LANES;
+    use super::{LANES, V3};
+    let mut by_solid_angle = 0;
     for name in ["cornell", "furnacebox", "smalllight"] {
         let scene = scene(parts(name));
         let diffuse = scene.diffuse.as_ref().expect("a diffuse scene");
         let table: &LightTable = diffuse.lights.as_deref().expect("chosen by power");
         let area = &scene.lights.area;
+        // The vertices: the origin, and points just in front of and behind each light's centre.
+        let mut points = vec![Vec3::ZERO];
+        for (light, _) in area.sampled() {
+            let centre = (light.corners[0] + light.corners[1] + light.corners[2]) / 3.0;
+            points.extend([centre + 0.02 * light.normal, centre - 0.05 * light.normal]);
+        }
         let mut selects: Vec<f32> = (0..4096).map(|k| k as f32 / 4096.0).collect();
         for &c in area.distribution().cdf() {
             selects.extend(
@@ -454,25 +462,43 @@ fn the_light_table_samples_what_area_lights_sample() {
             );
         }
         let mut checked = 0;
-        for chunk in selects.chunks(LANES) {
+        for (c, chunk) in selects.chunks(LANES).enumerate() {
             let mut u_select = [0.5; LANES];
             u_select[..chunk.len()].copy_from_slice(chunk);
             let mut u = [[0.0; LANES]; 2];
+            let mut p = V3::ZERO;
             for i in 0..LANES {
                 u[0][i] = (i as f32 * 0.37 + u_select[i]).fract();
                 u[1][i] = (i as f32 * 0.61 + 0.5 * u_select[i]).fract();
+                p.set(i, points[(i + c) % points.len()]);
             }
             let isas = crate::isa::Isa::detected().map(Some).chain([None]);
-            for got in isas.map(|isa| table.sample(&u_select, &u, isa)) {
+            let wants = [true; LANES];
+            for got in isas.map(|isa| table.sample(&u_select, &u, &p, &wants, isa)) {
                 for i in 0..chunk.len() {
-                    let ls = area
-                        .sample(
-                            Vec3::ZERO,
-                            Vec3::Z,
-                            u_select[i],
-                            glam::Vec2::new(u[0][i], u[1][i]),
+                    let Some(ls) = area.sample(
+                        p.get(i),
+                        Vec3::Z,
+                        u_select[i],
+                        glam::Vec2::new(u[0][i], u[1][i]),
+                    ) else {
+                        // No valid point: the lane's density says so.
+                        assert_eq!(got.pdf_area[i], 0.0, "{name}: u_select {}", u_select[i]);
+                        continue;
+                    };
+                    let (light, _) = area
+                        .sampled()
+                        .find(|&(_, tri)| tri == ls.triangle)
+                        .expect("a light");
+                    by_solid_angle += usize::from(
+                        crate::light::by_solid_angle(
+                            light.corners,
+                            light.normal,
+                            light.longest_edge2,
+                            p.get(i),
                         )
-                        .expect("lights");
+                        .is_some(),
+                    );
                     let m = &diffuse.materials[scene.mesh.material[ls.triangle as usize] as usize];
                     let bits = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
                     assert_eq!(
@@ -499,6 +525,10 @@ fn the_light_table_samples_what_area_lights_sample() {
         }
         assert!(checked > 4096);
     }
+    assert!(
+        by_solid_angle > 1000,
+        "{by_solid_angle} samples by solid angle"
+    );
 }
 
 /// An environment, one colour and an image, lights the lanes as it lights `trace_path`: each

@@ -52,12 +52,12 @@ impl Lanes<'_> {
             }
             return;
         };
-        let s = table.sample(u_area, u_light, Some(isa));
         let (go, diffuse_on, env_light) = (self.go, self.diffuse_on, self.env_light);
         let mut ok = [false; LANES];
         for i in 0..LANES {
             ok[i] = go[i] && diffuse_on[i] && !(ENV && env_light[i]);
         }
+        let s = table.sample(u_area, u_light, &self.p, &ok, Some(isa));
         (self.light_ok, self.light_point, self.light_normal) = (ok, s.point, s.normal);
         (self.light_pdf_area, self.light_front, self.light_back) = (s.pdf_area, s.front, s.back);
         if ENV {

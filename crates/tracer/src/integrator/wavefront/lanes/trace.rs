@@ -67,15 +67,23 @@ impl Lanes<'_> {
             self.emission_front.set(i, m.emission_front);
             self.emission_back.set(i, m.emission_back);
             self.diffuse_on[i] = m.diffuse_on;
-            self.light_density[i] = m.light_density;
-            // Chosen by the tree, the density depends on the vertex the ray left (`p` and `ng`
-            // still hold it): `trace_path`'s `EmissionWeight::Mis`. Emitters are never instanced.
-            if self.lights.is_none() && self.hit[i] && self.mis[i] && m.emits {
+            // The density depends on the vertex the ray left (`p` and `ng` still hold it) and on
+            // where the ray meets the light: `trace_path`'s `EmissionWeight::Mis`, the normal
+            // made as `shade_hit` makes it. Emitters are never instanced.
+            self.light_density[i] = 0.0;
+            if self.hit[i] && self.mis[i] && m.emits {
                 debug_assert_eq!(hit.instance, Hit::WORLD);
                 let (from, n) = (self.p.get(i), self.ng.get(i));
+                let (a, b, c) = (
+                    self.corner_a.get(i),
+                    self.corner_b.get(i),
+                    self.corner_c.get(i),
+                );
+                let cos_l = self.d.get(i).dot((b - a).cross(c - a).normalize()).abs();
                 let choice = scene.lights.area_choice;
+                let area = &scene.lights.area;
                 self.light_density[i] =
-                    scene.lights.area.pdf(from, n, hit.triangle, material) * choice;
+                    area.pdf(from, n, hit.triangle, material, hit.t, cos_l) * choice;
             }
         }
     }
