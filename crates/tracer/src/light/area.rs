@@ -338,7 +338,7 @@ impl AreaLights {
     }
 
     /// Without a tree: the area-measure pdf with which [`AreaLights::sample`] picks a point on a
-    /// triangle of material `material`, the same at every shading point.
+    /// triangle of material `material` where it samples by area, the same at every such point.
     #[inline]
     pub fn power_density(&self, material: u32) -> f32 {
         debug_assert!(self.tree.is_none());

@@ -135,6 +135,9 @@ pub(super) struct Lanes<'a> {
     emission_front: V3,
     emission_back: V3,
     diffuse_on: B,
+    /// Where the ray hit an emitter after a BSDF sample with MIS: the area density with which the
+    /// light sample at the vertex it left picks that point (`AreaLights::pdf`), × the area
+    /// lights' choice; zero elsewhere.
     light_density: F,
 
     // Set by `shade_hit`.
