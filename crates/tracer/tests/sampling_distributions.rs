@@ -168,36 +168,52 @@ fn cosine_samples_are_rejected_against_the_uniform_pdf() {
 // ---------------------------------------------------------------------------------------------
 // Triangle
 
-/// Bins the barycentric triangle {b1, b2 ≥ 0, b1 + b2 ≤ 1} into n² congruent sub-triangles (an n × n
-/// grid in (b1, b2), each cell split by its anti-diagonal; cells beyond the hypotenuse hold nothing).
-/// Every sub-triangle has area 1/n² of the whole, so a uniform sampler expects N / n² in each.
-fn triangle_chi2(sample: impl Fn(Vec2) -> Vec3, seed: u64) -> ChiSquare {
-    let n = 30usize;
-    let index = |i: usize, j: usize, upper: bool| (i * n + j) * 2 + upper as usize;
-    let valid = |i: usize, j: usize, upper: bool| i + j + (upper as usize) < n;
+/// The index of sub-triangle (i, j, upper) of the barycentric triangle cut into n² (see
+/// [`triangle_chi2`]), and whether it lies inside the triangle.
+fn sub_triangle(n: usize, i: usize, j: usize, upper: bool) -> (usize, bool) {
+    (
+        (i * n + j) * 2 + upper as usize,
+        i + j + (upper as usize) < n,
+    )
+}
+
+/// Counts, for each of the n² congruent sub-triangles of the barycentric triangle (an n × n grid in
+/// (b1, b2), each cell split by its anti-diagonal), the points among N that `sample` puts in it;
+/// every barycentric must be at least `min_bary` and their sum 1.
+fn bin_barycentrics(n: usize, sample: impl Fn(Vec2) -> Vec3, seed: u64, min_bary: f32) -> Vec<f64> {
     let mut observed = vec![0.0f64; 2 * n * n];
     let mut rng = Pcg32::seeded(seed);
     for _ in 0..N {
         let b = sample(rng.vec2());
         assert!(
-            b.min_element() >= -1e-6 && (b.element_sum() - 1.0).abs() < 1e-5,
+            b.min_element() >= min_bary && (b.element_sum() - 1.0).abs() < 1e-5,
             "bad barycentrics {b}"
         );
         let (x, y) = (b.y as f64 * n as f64, b.z as f64 * n as f64);
         let (i, j) = ((x as usize).min(n - 1), (y as usize).min(n - 1));
         let mut upper = (x - i as f64) + (y - j as f64) >= 1.0;
-        if !valid(i, j, upper) {
+        if !sub_triangle(n, i, j, upper).1 {
             // Only rounding can put a point past the hypotenuse.
             upper = false;
         }
-        observed[index(i, j, upper)] += 1.0;
+        observed[sub_triangle(n, i, j, upper).0] += 1.0;
     }
+    observed
+}
+
+/// Bins the barycentric triangle {b1, b2 ≥ 0, b1 + b2 ≤ 1} into n² congruent sub-triangles (an n × n
+/// grid in (b1, b2), each cell split by its anti-diagonal; cells beyond the hypotenuse hold nothing).
+/// Every sub-triangle has area 1/n² of the whole, so a uniform sampler expects N / n² in each.
+fn triangle_chi2(sample: impl Fn(Vec2) -> Vec3, seed: u64) -> ChiSquare {
+    let n = 30usize;
+    let observed = bin_barycentrics(n, sample, seed, -1e-6);
     let mut expected = vec![0.0f64; 2 * n * n];
     for i in 0..n {
         for j in 0..n {
             for upper in [false, true] {
-                if valid(i, j, upper) {
-                    expected[index(i, j, upper)] = N as f64 / (n * n) as f64;
+                let (index, valid) = sub_triangle(n, i, j, upper);
+                if valid {
+                    expected[index] = N as f64 / (n * n) as f64;
                 }
             }
         }
@@ -260,24 +276,7 @@ fn spherical_chi2(
     seed: u64,
 ) -> ChiSquare {
     let n = 16usize;
-    let index = |i: usize, j: usize, upper: bool| (i * n + j) * 2 + upper as usize;
-    let valid = |i: usize, j: usize, upper: bool| i + j + (upper as usize) < n;
-    let mut observed = vec![0.0f64; 2 * n * n];
-    let mut rng = Pcg32::seeded(seed);
-    for _ in 0..N {
-        let b = sample(rng.vec2());
-        assert!(
-            b.min_element() >= 0.0 && (b.element_sum() - 1.0).abs() < 1e-5,
-            "bad barycentrics {b}"
-        );
-        let (x, y) = (b.y as f64 * n as f64, b.z as f64 * n as f64);
-        let (i, j) = ((x as usize).min(n - 1), (y as usize).min(n - 1));
-        let mut upper = (x - i as f64) + (y - j as f64) >= 1.0;
-        if !valid(i, j, upper) {
-            upper = false;
-        }
-        observed[index(i, j, upper)] += 1.0;
-    }
+    let observed = bin_barycentrics(n, sample, seed, 0.0);
     let c = corners.map(|v| v.as_dvec3());
     let at = |b1: f64, b2: f64| c[0] * (1.0 - b1 - b2) + c[1] * b1 + c[2] * b2;
     let pd = p.as_dvec3();
@@ -287,13 +286,13 @@ fn spherical_chi2(
     for i in 0..n {
         for j in 0..n {
             let (b1, b2) = (i as f64 * h, j as f64 * h);
-            if valid(i, j, false) {
-                let lower = [at(b1, b2), at(b1 + h, b2), at(b1, b2 + h)];
-                expected[index(i, j, false)] = N as f64 * solid_angle_f64(lower, pd) / whole;
-            }
-            if valid(i, j, true) {
-                let upper = [at(b1 + h, b2), at(b1 + h, b2 + h), at(b1, b2 + h)];
-                expected[index(i, j, true)] = N as f64 * solid_angle_f64(upper, pd) / whole;
+            let lower = [at(b1, b2), at(b1 + h, b2), at(b1, b2 + h)];
+            let upper = [at(b1 + h, b2), at(b1 + h, b2 + h), at(b1, b2 + h)];
+            for (half, is_upper) in [(lower, false), (upper, true)] {
+                let (index, valid) = sub_triangle(n, i, j, is_upper);
+                if valid {
+                    expected[index] = N as f64 * solid_angle_f64(half, pd) / whole;
+                }
             }
         }
     }
