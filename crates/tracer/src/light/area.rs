@@ -11,7 +11,7 @@ use crate::geometry::Mesh;
 use crate::material::{Material, Texture};
 use crate::math::luminance;
 use crate::sampling::{
-    barycentrics_along, sample_uniform_triangle, Distribution1D, SphericalTriangle,
+    barycentrics_along_unchecked, sample_uniform_triangle, Distribution1D, SphericalTriangle,
 };
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
@@ -64,7 +64,7 @@ const NEAR_RATIO: f32 = 4.0;
 /// spherical triangle to sample when so.
 ///
 /// Cycles' kind of test: `p` lies close to the triangle's plane against the triangle's size
-/// ([`NEAR_RATIO`]; farther off, the distances across the triangle differ little and sampling by
+/// ([`near_plane`]; farther off, the distances across the triangle differ little and sampling by
 /// area is as good and cheaper), and the solid angle lies in [`SOLID_ANGLE_RANGE`].
 #[inline(always)]
 pub(crate) fn by_solid_angle(
@@ -73,12 +73,27 @@ pub(crate) fn by_solid_angle(
     longest_edge2: f32,
     p: Vec3,
 ) -> Option<SphericalTriangle> {
-    let h = normal.dot(p - corners[0]);
-    if h * h * (NEAR_RATIO * NEAR_RATIO) >= longest_edge2 {
+    if !near_plane(corners[0], normal, longest_edge2, p) {
         return None;
     }
-    let s = SphericalTriangle::new(corners, p)?;
-    SOLID_ANGLE_RANGE.contains(&s.solid_angle()).then_some(s)
+    let (s, valid) = SphericalTriangle::subtended(corners, p);
+    in_range(&s, valid).then_some(s)
+}
+
+/// The first half of [`by_solid_angle`]'s test, the cheap one: `p` lies closer to the plane of
+/// the triangle (through `corner`, unit normal `normal`) than its longest edge over
+/// [`NEAR_RATIO`]. Lanes code asks it first and skips the spherical map when no lane passes.
+#[inline(always)]
+pub(crate) fn near_plane(corner: Vec3, normal: Vec3, longest_edge2: f32, p: Vec3) -> bool {
+    let h = normal.dot(p - corner);
+    h * h * (NEAR_RATIO * NEAR_RATIO) < longest_edge2
+}
+
+/// The second half of [`by_solid_angle`]'s test: `s` is a spherical triangle (`valid`) and its
+/// solid angle lies in [`SOLID_ANGLE_RANGE`].
+#[inline(always)]
+fn in_range(s: &SphericalTriangle, valid: bool) -> bool {
+    valid & SOLID_ANGLE_RANGE.contains(&s.solid_angle())
 }
 
 /// A point on the light triangle `corners` (unit normal `normal`, chosen with probability `pmf`)
@@ -94,12 +109,47 @@ pub(crate) fn sample_by_solid_angle(
     p: Vec3,
     u: Vec2,
 ) -> Option<(Vec3, Vec3, f32)> {
-    let bary = barycentrics_along(corners, p, s.sample(u))?;
+    let (point, bary, pdf_area, valid) = sample_spherical(s, corners, normal, pmf, p, u);
+    valid.then_some((point, bary, pdf_area))
+}
+
+/// [`sample_by_solid_angle`] without a branch: its point, barycentrics and density, and whether
+/// they are valid.
+#[inline(always)]
+fn sample_spherical(
+    s: &SphericalTriangle,
+    corners: [Vec3; 3],
+    normal: Vec3,
+    pmf: f32,
+    p: Vec3,
+    u: Vec2,
+) -> (Vec3, Vec3, f32, bool) {
+    let (bary, hits) = barycentrics_along_unchecked(corners, p, s.sample(u));
     let point = point_on(corners, bary);
     let d = point - p;
     let dist2 = d.length_squared();
     let pdf_area = solid_angle_area_density(s, pmf, d.dot(normal).abs() / dist2.sqrt(), dist2);
-    (pdf_area > 0.0 && pdf_area.is_finite()).then_some((point, bary, pdf_area))
+    let valid = hits & (pdf_area > 0.0) & pdf_area.is_finite();
+    (point, bary, pdf_area, valid)
+}
+
+/// [`by_solid_angle`] and then [`sample_by_solid_angle`] without a branch, the same bits, for the
+/// lanes to run side by side: whether the triangle is sampled by solid angle from `p`, and if so
+/// the point and its area density (0 where the sampler would give none).
+#[inline(always)]
+pub(crate) fn solid_angle_sample_lane(
+    corners: [Vec3; 3],
+    normal: Vec3,
+    longest_edge2: f32,
+    pmf: f32,
+    p: Vec3,
+    u: Vec2,
+) -> (bool, Vec3, f32) {
+    let near = near_plane(corners[0], normal, longest_edge2, p);
+    let (s, valid) = SphericalTriangle::subtended(corners, p);
+    let (point, _, pdf_area, sampled) = sample_spherical(&s, corners, normal, pmf, p, u);
+    let pdf_area = if sampled { pdf_area } else { 0.0 };
+    (near & in_range(&s, valid), point, pdf_area)
 }
 
 /// The area density pmf · cos θ' / (r² Ω) of a point at squared distance `dist2` and cosine `cos_l`

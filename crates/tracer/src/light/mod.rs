@@ -28,8 +28,10 @@ mod punctual_choice;
 mod spot;
 mod tree;
 
+#[cfg(test)]
+pub(crate) use area::by_solid_angle;
 pub(crate) use area::point_on;
-pub(crate) use area::{by_solid_angle, sample_by_solid_angle};
+pub(crate) use area::{near_plane, solid_angle_sample_lane};
 pub use area::{AreaLightSample, AreaLights, MAX_POWER_CHOSEN};
 pub use directional::DirectionalLight;
 #[cfg(test)]

@@ -57,16 +57,30 @@ pub fn sin_cos(x: f32) -> (f32, f32) {
     if !x.is_finite() {
         return (f32::NAN, f32::NAN);
     }
-    // Reduce to r ∈ [−π/4, π/4] around the nearest multiple of π/2, in double precision (still plain
-    // IEEE operations, so still deterministic).
     let y = x * (2.0 / PI);
-    let k = if y.abs() < 1e6 {
-        round_to_int(y)
-    } else {
-        y.round() as i64
-    };
-    let r = (x as f64 - k as f64 * std::f64::consts::FRAC_PI_2) as f32;
-    quarter_turns(sin_cos_reduced(r), k)
+    if y.abs() >= 1e6 {
+        let k = y.round() as i64;
+        return quarter_turns(sin_cos_reduced(reduce(x, k)), k);
+    }
+    sin_cos_moderate(x)
+}
+
+/// [`sin_cos`] for |x| < 1.5 · 10⁶ (NaN for a NaN), its bits, without a branch: the form that
+/// vectorises across lanes (`light::area`'s solid-angle samples).
+#[inline(always)]
+pub fn sin_cos_moderate(x: f32) -> (f32, f32) {
+    // The quadrant as `round_to_int` gives it, in 32 bits (|k| < 10⁶: the same integer), which
+    // converts in vector registers on AVX2 as well.
+    let y = x * (2.0 / PI);
+    let k = (y + 0.5f32.copysign(y)) as i32;
+    quarter_turns(sin_cos_reduced(reduce(x, k as i64)), k as i64)
+}
+
+/// x − k · π/2, in double precision (still plain IEEE operations, so still deterministic): r ∈
+/// [−π/4, π/4] for k the nearest multiple.
+#[inline(always)]
+fn reduce(x: f32, k: i64) -> f32 {
+    (x as f64 - k as f64 * std::f64::consts::FRAC_PI_2) as f32
 }
 
 /// (sin 2πt, cos 2πt) for t ∈ [0, 1): the angle of a uniform random number, reduced exactly in
@@ -172,40 +186,46 @@ pub fn ln(x: f32) -> f32 {
 }
 
 /// atan x for x ≥ 0: Cephes' `atanf` (range reduced to [0, tan π/8], then its degree-9 odd
-/// polynomial; relative error about 2e-7).
-#[inline]
+/// polynomial; relative error about 2e-7). Without branches: one division whichever the range
+/// (x / 1 is x exactly), so that it vectorises.
+#[inline(always)]
 fn atan_nonnegative(x: f32) -> f32 {
     const TAN_3PI_8: f32 = 2.414_213_6;
     const TAN_PI_8: f32 = 0.414_213_57;
-    let (base, t) = if x > TAN_3PI_8 {
-        (std::f32::consts::FRAC_PI_2, -1.0 / x)
-    } else if x > TAN_PI_8 {
-        (std::f32::consts::FRAC_PI_4, (x - 1.0) / (x + 1.0))
-    } else {
-        (0.0, x)
-    };
+    let (big, mid) = (x > TAN_3PI_8, x > TAN_PI_8);
+    let select = |c: bool, a: f32, b: f32| if c { a } else { b };
+    let base = select(
+        big,
+        std::f32::consts::FRAC_PI_2,
+        select(mid, std::f32::consts::FRAC_PI_4, 0.0),
+    );
+    let num = select(big, -1.0, select(mid, x - 1.0, x));
+    let den = select(big, x, select(mid, x + 1.0, 1.0));
+    let t = num / den;
     let z = t * t;
     let p = (((8.053_744_5e-2 * z - 1.387_768_6e-1) * z + 1.997_771_1e-1) * z - 3.333_295e-1) * z;
     base + (p * t + t)
 }
 
 /// atan2(y, x): the angle of (x, y) in (−π, π], 0 for (0, 0). Used to map directions to
-/// environment-map texels, which must be the same texels on every machine.
-#[inline]
+/// environment-map texels, which must be the same texels on every machine, and for solid angles.
+/// Without branches, so that it vectorises across lanes.
+#[inline(always)]
 pub fn atan2(y: f32, x: f32) -> f32 {
     let (ax, ay) = (x.abs(), y.abs());
-    if ax == 0.0 && ay == 0.0 {
-        return 0.0;
-    }
     // The angle in the first quadrant, from the smaller ratio for accuracy.
-    let a = if ay <= ax {
-        atan_nonnegative(ay / ax)
+    let flat = ay <= ax; // false for a NaN, as the branch it replaces had it
+    let (num, den) = if flat { (ay, ax) } else { (ax, ay) };
+    let t = atan_nonnegative(num / den);
+    let a = if flat {
+        t
     } else {
-        std::f32::consts::FRAC_PI_2 - atan_nonnegative(ax / ay)
+        std::f32::consts::FRAC_PI_2 - t
     };
     let a = if x < 0.0 { PI - a } else { a };
-    if y < 0.0 {
-        -a
+    let a = if y < 0.0 { -a } else { a };
+    if ax == 0.0 && ay == 0.0 {
+        0.0
     } else {
         a
     }
@@ -280,6 +300,8 @@ fn acos_f64(x: f64) -> f64 {
 mod tests {
     use super::*;
 
+    const FRAC_PI_2_F32: f32 = std::f32::consts::FRAC_PI_2;
+
     #[test]
     fn atan2_is_accurate_in_every_quadrant() {
         let mut worst = 0.0f64;
@@ -302,6 +324,98 @@ mod tests {
         assert!((atan2(1.0, 0.0) - std::f32::consts::FRAC_PI_2).abs() < 1e-6);
         assert!((atan2(-1.0, 0.0) + std::f32::consts::FRAC_PI_2).abs() < 1e-6);
         assert!(atan2(f32::NAN, 1.0).is_nan());
+    }
+
+    /// The branch-free forms the lanes vectorise give the bits of the branching forms they
+    /// replaced (arctangent) or that callers outside the lanes take (sine and cosine).
+    #[test]
+    fn branch_free_forms_give_the_branching_bits() {
+        fn atan2_branching(y: f32, x: f32) -> f32 {
+            let (ax, ay) = (x.abs(), y.abs());
+            if ax == 0.0 && ay == 0.0 {
+                return 0.0;
+            }
+            let atan = |x: f32| {
+                let (base, t) = if x > 2.414_213_6 {
+                    (std::f32::consts::FRAC_PI_2, -1.0 / x)
+                } else if x > 0.414_213_57 {
+                    (std::f32::consts::FRAC_PI_4, (x - 1.0) / (x + 1.0))
+                } else {
+                    (0.0, x)
+                };
+                let z = t * t;
+                let p = (((8.053_744_5e-2 * z - 1.387_768_6e-1) * z + 1.997_771_1e-1) * z
+                    - 3.333_295e-1)
+                    * z;
+                base + (p * t + t)
+            };
+            let a = if ay <= ax {
+                atan(ay / ax)
+            } else {
+                std::f32::consts::FRAC_PI_2 - atan(ax / ay)
+            };
+            let a = if x < 0.0 { PI - a } else { a };
+            if y < 0.0 {
+                -a
+            } else {
+                a
+            }
+        }
+        let mut bits = 0x2545_f491_u32;
+        let mut next = || {
+            bits ^= bits << 13;
+            bits ^= bits >> 17;
+            bits ^= bits << 5;
+            bits
+        };
+        let specials = [
+            0.0f32,
+            -0.0,
+            1.0,
+            -1.0,
+            f32::INFINITY,
+            f32::NAN,
+            2.414_213_6,
+        ];
+        for i in 0..200_000 {
+            let (y, x) = if i < specials.len().pow(2) {
+                (specials[i / specials.len()], specials[i % specials.len()])
+            } else {
+                let scale =
+                    |b: u32| (b as f32 / u32::MAX as f32 - 0.5) * 10f32.powi((b % 9) as i32 - 4);
+                (scale(next()), scale(next()))
+            };
+            let (got, want) = (atan2(y, x), atan2_branching(y, x));
+            assert!(
+                got.to_bits() == want.to_bits() || got.is_nan() && want.is_nan(),
+                "atan2({y}, {x})"
+            );
+        }
+        for i in 0..200_000 {
+            // Across the whole range, and beside the half-way points between quadrants.
+            let x = match i % 2 {
+                0 => (next() as f32 / u32::MAX as f32 - 0.5) * 3.0e6,
+                _ => {
+                    let k = (next() % 2_000_001) as f32 - 1_000_000.0;
+                    f32::from_bits(
+                        ((k + 0.5) * FRAC_PI_2_F32)
+                            .to_bits()
+                            .wrapping_add(next() % 5)
+                            .wrapping_sub(2),
+                    )
+                }
+            };
+            if (x * (2.0 / PI)).abs() >= 1e6 {
+                continue;
+            }
+            let (got, want) = (sin_cos_moderate(x), sin_cos(x));
+            assert_eq!(
+                (got.0.to_bits(), got.1.to_bits()),
+                (want.0.to_bits(), want.1.to_bits()),
+                "{x}"
+            );
+        }
+        assert!(sin_cos_moderate(f32::NAN).0.is_nan());
     }
 
     #[test]

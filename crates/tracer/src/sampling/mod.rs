@@ -18,7 +18,7 @@ pub use sphere::{
     cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_hemisphere,
     sample_uniform_sphere, uniform_hemisphere_pdf, uniform_sphere_pdf,
 };
-pub use spherical_triangle::{barycentrics_along, SphericalTriangle};
+pub use spherical_triangle::{barycentrics_along, barycentrics_along_unchecked, SphericalTriangle};
 pub use triangle::sample_uniform_triangle;
 
 /// Multiple importance sampling: the power heuristic (β = 2) weight of a strategy with density `pa`

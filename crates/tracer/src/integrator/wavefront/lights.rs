@@ -3,7 +3,7 @@
 
 use super::{DiffuseMaterial, LANES, V3};
 use crate::isa::{Isa, Kind};
-use crate::light::{by_solid_angle, point_on, sample_by_solid_angle, AreaLights};
+use crate::light::{near_plane, point_on, solid_angle_sample_lane, AreaLights};
 use crate::sampling::sample_uniform_triangle;
 use glam::{Vec2, Vec3};
 
@@ -91,8 +91,8 @@ impl LightTable {
     }
 
     /// `AreaLights::sample(p[i], _, u_select[i], (u0[i], u1[i]))` for every lane i that `wants`
-    /// one, the same bits: the light whose CDF interval holds u, a point on it (uniform in area in
-    /// the lanes; uniform in solid angle, lane by lane, where `light::by_solid_angle` says so), its
+    /// one, the same bits: the light whose CDF interval holds u, a point on it (uniform in area, or
+    /// uniform in solid angle where `light::by_solid_angle` says so; both in the lanes), its
     /// normal and area density (zero where no point could be made), and its material's emission.
     /// `isa`: the build this is compiled into (a constant there), whose instructions read the
     /// table (see [`LightTable::entries`]).
@@ -116,30 +116,36 @@ impl LightTable {
         for (j, &k) in j.iter_mut().zip(&k) {
             *j = k.min(last) & (MAX_LIGHTS as u32 - 1);
         }
-        let (mut out, corners) = self.entries(&j, isa);
+        let (mut out, picked) = self.entries(&j, isa);
+        let corners = &picked.corners;
         for (i, (&u0, &u1)) in u[0].iter().zip(&u[1]).enumerate() {
             let bary = sample_uniform_triangle(Vec2::new(u0, u1));
             let at = [corners[0].get(i), corners[1].get(i), corners[2].get(i)];
             out.point.set(i, point_on(at, bary));
         }
+        // Solid-angle samples where `light::by_solid_angle` says so: in every lane at once, the
+        // spherical map run branch-free side by side (vectorised), when the cheap half of the test
+        // lets any lane in.
+        let mut near = [false; LANES];
         for i in 0..LANES {
-            if !wants[i] {
-                continue;
-            }
-            let j = j[i] as usize & (MAX_LIGHTS - 1);
-            let (at, normal) = ([0, 1, 2].map(|c| corners[c].get(i)), out.normal.get(i));
-            let (p, le2) = (p.get(i), self.longest_edge2[j]);
-            let Some(s) = by_solid_angle(at, normal, le2, p) else {
-                continue;
-            };
+            let at0 = corners[0].get(i);
+            near[i] =
+                wants[i] & near_plane(at0, out.normal.get(i), picked.longest_edge2[i], p.get(i));
+        }
+        if !near.contains(&true) {
+            return out;
+        }
+        for i in 0..LANES {
+            let at = [corners[0].get(i), corners[1].get(i), corners[2].get(i)];
             let u = Vec2::new(u[0][i], u[1][i]);
-            match sample_by_solid_angle(&s, at, normal, self.pmf[j], p, u) {
-                Some((point, _, pdf_area)) => {
-                    out.point.set(i, point);
-                    out.pdf_area[i] = pdf_area;
-                }
-                None => out.pdf_area[i] = 0.0,
-            }
+            let (normal, pmf, le2) = (out.normal.get(i), picked.pmf[i], picked.longest_edge2[i]);
+            let (chosen, point, pdf_area) =
+                solid_angle_sample_lane(at, normal, le2, pmf, p.get(i), u);
+            let take = chosen & near[i];
+            let keep_point = !take | (pdf_area == 0.0);
+            out.point
+                .set(i, if keep_point { out.point.get(i) } else { point });
+            out.pdf_area[i] = if take { pdf_area } else { out.pdf_area[i] };
         }
         out
     }
@@ -150,7 +156,7 @@ impl LightTable {
     /// fast gather, and the compiler would not vectorise a loop holding one; with AVX-512 it made
     /// 19 gathers, the most expensive instructions of `shade_hit` in `perf annotate` on a Zen 4).
     #[inline(always)]
-    fn entries(&self, j: &[u32; LANES], isa: Option<Isa>) -> (LightSamples, [V3; 3]) {
+    fn entries(&self, j: &[u32; LANES], isa: Option<Isa>) -> (LightSamples, Picked) {
         let mut out = LightSamples {
             point: V3::ZERO,
             normal: V3::ZERO,
@@ -158,7 +164,11 @@ impl LightTable {
             front: V3::ZERO,
             back: V3::ZERO,
         };
-        let mut corners = [V3::ZERO; 3];
+        let mut picked = Picked {
+            corners: [V3::ZERO; 3],
+            pmf: [0.0; LANES],
+            longest_edge2: [0.0; LANES],
+        };
         #[cfg(target_arch = "x86_64")]
         if let Some(Isa(Kind::Avx512)) = isa {
             // SAFETY: an `Isa` of AVX-512 exists only where the processor has AVX-512F.
@@ -168,27 +178,37 @@ impl LightTable {
                 y: pick(&xyz[1]),
                 z: pick(&xyz[2]),
             };
-            for (corner, table) in corners.iter_mut().zip(&self.corners) {
+            for (corner, table) in picked.corners.iter_mut().zip(&self.corners) {
                 *corner = pick3(table);
             }
             (out.normal, out.pdf_area) = (pick3(&self.normal), pick(&self.pdf_area));
             (out.front, out.back) = (pick3(&self.front), pick3(&self.back));
-            return (out, corners);
+            (picked.pmf, picked.longest_edge2) = (pick(&self.pmf), pick(&self.longest_edge2));
+            return (out, picked);
         }
         let _ = isa;
         let get = |xyz: &Xyz, j: usize| Vec3::new(xyz[0][j], xyz[1][j], xyz[2][j]);
         for (i, &j) in j.iter().enumerate() {
             let j = j as usize & (MAX_LIGHTS - 1);
-            for (c, corner) in corners.iter_mut().enumerate() {
+            for (c, corner) in picked.corners.iter_mut().enumerate() {
                 corner.set(i, get(&self.corners[c], j));
             }
             out.normal.set(i, get(&self.normal, j));
             out.pdf_area[i] = self.pdf_area[j];
             out.front.set(i, get(&self.front, j));
             out.back.set(i, get(&self.back, j));
+            (picked.pmf[i], picked.longest_edge2[i]) = (self.pmf[j], self.longest_edge2[j]);
         }
-        (out, corners)
+        (out, picked)
     }
+}
+
+/// Lane i's light's corners, P(light) and longest edge squared, which `LightTable::sample` reads
+/// besides what it returns.
+struct Picked {
+    corners: [V3; 3],
+    pmf: [f32; LANES],
+    longest_edge2: [f32; LANES],
 }
 
 /// Lane i: `table[j[i]]` (j[i] below 32), one `vpermt2ps` across the table's two halves.
