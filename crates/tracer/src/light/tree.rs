@@ -316,20 +316,21 @@ impl Node4 {
         // 1 / distance, 0 at the centre itself (where the direction is taken as none).
         let positive = dist2.cmpgt(Vec4::ZERO);
         let inv_dist = Vec4::select(positive, one / dist2.sqrt(), Vec4::ZERO);
-        let mut cos_w = (self.w[0] * t[0] + self.w[1] * t[1] + self.w[2] * t[2]) * inv_dist;
+        let dot_w = self.w[0] * t[0] + self.w[1] * t[1] + self.w[2] * t[2];
+        let mut cos_w = dot_w * inv_dist;
         cos_w = Vec4::select(self.two_sided.cmpgt(Vec4::ZERO), cos_w.abs(), cos_w);
-        let sin_w = safe_sqrt(one - cos_w * cos_w);
+        // sin² = 1 − (w · t)² / d², beside the cosine rather than after it.
+        let sin_w = Vec4::select(positive, safe_sqrt(one - dot_w * dot_w / dist2), one);
+        // The bounding sphere's half angle: sin² θb = r² / d², its sine and cosine both from that
+        // ratio, side by side (each step of a walk down the tree waits on this arithmetic).
         let inside = dist2.cmplt(self.r2);
-        let cos_b = Vec4::select(
-            inside,
-            Vec4::splat(-1.0),
-            safe_sqrt(one - self.r2 * inv_dist * inv_dist),
-        );
-        let sin_b = safe_sqrt(one - cos_b * cos_b);
+        let sin2_b = Vec4::select(positive, self.r2 / dist2, Vec4::ZERO);
+        let cos_b = Vec4::select(inside, Vec4::splat(-1.0), safe_sqrt(one - sin2_b));
+        let sin_b = Vec4::select(inside, Vec4::ZERO, safe_sqrt(sin2_b));
         let cos_x = cos_sub(sin_w, cos_w, self.sin_o, self.cos_o);
         let sin_x = sin_sub(sin_w, cos_w, self.sin_o, self.cos_o);
         let cos_p = cos_sub(sin_x, cos_x, sin_b, cos_b);
-        let mut importance = self.phi * cos_p / d2;
+        let mut importance = self.phi / d2 * cos_p;
         if n != Vec3::ZERO {
             let cos_i = ((t[0] * n.x + t[1] * n.y + t[2] * n.z) * inv_dist).abs();
             let sin_i = safe_sqrt(one - cos_i * cos_i);
