@@ -98,25 +98,11 @@ fn in_range(s: &SphericalTriangle, valid: bool) -> bool {
 
 /// A point on the light triangle `corners` (unit normal `normal`, chosen with probability `pmf`)
 /// sampled uniformly in the solid angle `s` it subtends from `p`, drawn from `u`: the point, its
-/// barycentrics, and its density in area measure, pmf · cos θ' / (r² Ω) (which the integrator's
-/// conversion r² / cos θ' takes back to pmf / Ω). None where rounding leaves no valid point.
-#[inline]
-pub(crate) fn sample_by_solid_angle(
-    s: &SphericalTriangle,
-    corners: [Vec3; 3],
-    normal: Vec3,
-    pmf: f32,
-    p: Vec3,
-    u: Vec2,
-) -> Option<(Vec3, Vec3, f32)> {
-    let (point, bary, pdf_area, valid) = sample_spherical(s, corners, normal, pmf, p, u);
-    valid.then_some((point, bary, pdf_area))
-}
-
-/// [`sample_by_solid_angle`] without a branch: its point, barycentrics and density, and whether
-/// they are valid.
+/// barycentrics, its density in area measure, pmf · cos θ' / (r² Ω) (which the integrator's
+/// conversion r² / cos θ' takes back to pmf / Ω), and whether they are valid (false where rounding
+/// leaves no valid point). Without a branch, so that the lanes run it side by side.
 #[inline(always)]
-fn sample_spherical(
+fn sample_by_solid_angle(
     s: &SphericalTriangle,
     corners: [Vec3; 3],
     normal: Vec3,
@@ -133,7 +119,7 @@ fn sample_spherical(
     (point, bary, pdf_area, valid)
 }
 
-/// [`by_solid_angle`] and then [`sample_by_solid_angle`] without a branch, the same bits, for the
+/// [`by_solid_angle`] and then [`sample_by_solid_angle`] with no branch, the same bits, for the
 /// lanes to run side by side: whether the triangle is sampled by solid angle from `p`, and if so
 /// the point and its area density (0 where the sampler would give none).
 #[inline(always)]
@@ -147,7 +133,7 @@ pub(crate) fn solid_angle_sample_lane(
 ) -> (bool, Vec3, f32) {
     let near = near_plane(corners[0], normal, longest_edge2, p);
     let (s, valid) = SphericalTriangle::subtended(corners, p);
-    let (point, _, pdf_area, sampled) = sample_spherical(&s, corners, normal, pmf, p, u);
+    let (point, _, pdf_area, sampled) = sample_by_solid_angle(&s, corners, normal, pmf, p, u);
     let pdf_area = if sampled { pdf_area } else { 0.0 };
     (near & in_range(&s, valid), point, pdf_area)
 }
@@ -330,9 +316,9 @@ impl AreaLights {
         let t = &self.sampled[k];
         let triangle = self.triangles[k];
         if let Some(s) = by_solid_angle(t.corners, t.normal, t.longest_edge2, p) {
-            let (point, barycentrics, pdf_area) =
-                sample_by_solid_angle(&s, t.corners, t.normal, pmf, p, u)?;
-            return Some(AreaLightSample {
+            let (point, barycentrics, pdf_area, valid) =
+                sample_by_solid_angle(&s, t.corners, t.normal, pmf, p, u);
+            return valid.then_some(AreaLightSample {
                 point,
                 normal: t.normal,
                 triangle,
