@@ -371,18 +371,6 @@ impl<L: Lanes> Sheared<L> {
     }
 }
 
-/// No hits yet: the scratch space a query's packet tests write into.
-#[inline(always)]
-fn no_hits() -> WideHits {
-    WideHits {
-        mask: 0,
-        t_scaled: [0.0; WIDE],
-        b1_scaled: [0.0; WIDE],
-        b2_scaled: [0.0; WIDE],
-        det: [0.0; WIDE],
-    }
-}
-
 /// Tests the ray against the sixteen triangles of `p`: [`intersect_watertight`] lane by lane,
 /// into `hits` (one scratch space for a query's packets, not a value returned per packet, which
 /// the compiler copied: 3 × 64 bytes per packet).
@@ -472,7 +460,7 @@ fn closest_with<L: Lanes>(
 ) -> Option<(u32, TriangleHit)> {
     let boxes = mesh.boxes.test(q);
     let mut best = Closest::new(q.1);
-    let mut hits = no_hits();
+    let mut hits = WideHits::NONE;
     for (k, p) in mesh.packets.iter().enumerate() {
         if worth_testing(boxes, k, &best) {
             closest_in_packet(l, p, q.0, &mut best, accept, &mut hits);
@@ -532,7 +520,7 @@ fn pair_with<L: Lanes>(
     let (boxes_a, boxes_b) = (mesh.boxes.test(a), mesh.boxes.test(b));
     let mut best = Closest::new(a.1);
     let mut blocked = false;
-    let (mut hits_a, mut hits_b) = (no_hits(), no_hits());
+    let (mut hits_a, mut hits_b) = (WideHits::NONE, WideHits::NONE);
     for (k, p) in mesh.packets.iter().enumerate() {
         if worth_testing(boxes_a, k, &best) {
             closest_in_packet(l, p, a.0, &mut best, accept_a, &mut hits_a);
@@ -556,7 +544,7 @@ fn any_with<L: Lanes>(
     // without AVX-512F, and every lane operation in it becomes a call (seen when this was
     // inlined into a larger AVX-512F function: 3.5× slower).
     let boxes = mesh.boxes.test(q);
-    let mut hits = no_hits();
+    let mut hits = WideHits::NONE;
     for (k, p) in mesh.packets.iter().enumerate() {
         if boxes.0 >> k & 1 == 0 {
             continue;

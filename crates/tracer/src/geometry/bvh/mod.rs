@@ -27,7 +27,7 @@ use super::{box_reciprocal, Mesh, RayPrecomp, TriangleHit};
 use flat::Flat;
 use glam::{Vec3, Vec4};
 use node::{Node4, NodeRef, TriPacket};
-use packet::{intersect_packet, PacketRay};
+use packet::{intersect_packet, PacketHits, PacketRay};
 use walk::{AnyWalk, ClosestWalk};
 
 /// Entries of the traversal stack kept on the machine stack (`stack.rs`). A million-triangle tree
@@ -270,9 +270,10 @@ impl Bvh {
         best: &mut Closest,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) {
+        let mut hits = PacketHits::NONE;
         for p in &self.packets[node.packets()] {
             // Accept ties (t equal to the best so far) so they can be broken by index.
-            let hits = intersect_packet(ray, p, best.tie_limit());
+            intersect_packet(ray, p, best.tie_limit(), &mut hits);
             hits.offer(hits.mask, |k| p.ids[k], best, accept);
         }
     }
@@ -286,8 +287,10 @@ impl Bvh {
         t_max: f32,
         accept: &mut impl FnMut(u32, &TriangleHit) -> bool,
     ) -> bool {
+        let mut hits = PacketHits::NONE;
         for p in &self.packets[node.packets()] {
-            if intersect_packet(ray, p, t_max).any_accepted(|k| p.ids[k], accept) {
+            intersect_packet(ray, p, t_max, &mut hits);
+            if hits.any_accepted(|k| p.ids[k], accept) {
                 return true;
             }
         }

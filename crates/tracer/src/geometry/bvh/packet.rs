@@ -69,6 +69,18 @@ pub(super) struct LaneHits<const N: usize> {
 pub(super) type PacketHits = LaneHits<4>;
 
 impl<const N: usize> LaneHits<N> {
+    /// No hits: the scratch space a query's packet tests write into, one per query rather than a
+    /// value returned per packet, which the compiler copied — 64 bytes per 4-lane packet, read
+    /// back in one load across the four 16-byte stores that had just written them, which the
+    /// processor cannot forward (a stall per packet test).
+    pub const NONE: LaneHits<N> = LaneHits {
+        mask: 0,
+        t_scaled: [0.0; N],
+        b1_scaled: [0.0; N],
+        b2_scaled: [0.0; N],
+        det: [0.0; N],
+    };
+
     /// Lane k's distance and barycentrics: the scalar test's `inv = 1 / det` and its three
     /// products, the same bits.
     #[inline(always)]
@@ -153,8 +165,9 @@ impl<const N: usize> LaneHits<N> {
     }
 }
 
+/// Tests the ray against the four triangles of `p`, into `out` (see [`LaneHits::NONE`]).
 #[inline(always)]
-pub(super) fn intersect_packet(r: &PacketRay<'_>, p: &TriPacket, t_max: f32) -> PacketHits {
+pub(super) fn intersect_packet(r: &PacketRay<'_>, p: &TriPacket, t_max: f32, out: &mut PacketHits) {
     let [ax, ay, az] = r.shear(&p.v[0]);
     let [bx, by, bz] = r.shear(&p.v[1]);
     let [cx, cy, cz] = r.shear(&p.v[2]);
@@ -172,17 +185,13 @@ pub(super) fn intersect_packet(r: &PacketRay<'_>, p: &TriPacket, t_max: f32) -> 
     let in_range_pos = det.cmpgt(zero) & t_scaled.cmpgt(zero) & t_scaled.cmplt(limit);
     let in_range_neg = det.cmplt(zero) & t_scaled.cmplt(zero) & t_scaled.cmpgt(limit);
     let hit = !outside & (in_range_pos | in_range_neg);
-    let mask = hit.bitmask() & valid & !on_edge;
-    let mut out = PacketHits {
-        mask,
-        t_scaled: t_scaled.to_array(),
-        b1_scaled: v.to_array(),
-        b2_scaled: w.to_array(),
-        det: det.to_array(),
-    };
+    out.mask = hit.bitmask() & valid & !on_edge;
+    t_scaled.write_to_slice(&mut out.t_scaled);
+    v.write_to_slice(&mut out.b1_scaled);
+    w.write_to_slice(&mut out.b2_scaled);
+    det.write_to_slice(&mut out.det);
     // Lanes with an edge function exactly zero: the scalar test decides them in double precision.
     out.decide_edges(on_edge, r.scalar, t_max, |k| p.triangle(k));
-    out
 }
 
 #[cfg(test)]
@@ -238,7 +247,8 @@ mod tests {
             };
             let pre = RayPrecomp::new(&Ray::new(o, d));
             let t_max = if case % 3 == 0 { 1.5 } else { f32::INFINITY };
-            let got = intersect_packet(&PacketRay::new(&pre), &packet, t_max);
+            let mut got = PacketHits::NONE;
+            intersect_packet(&PacketRay::new(&pre), &packet, t_max, &mut got);
             for (k, tri) in tris.iter().enumerate() {
                 let want = if k < n {
                     intersect_watertight(&pre, tri, t_max)

@@ -45,11 +45,16 @@ impl<T: Copy, const N: usize> Stack<T, N> {
     /// bounds check).
     #[inline(always)]
     pub fn push_masked<const K: usize>(&mut self, values: [T; K], mask: u32) {
-        assert!(self.has_room(K));
+        // The count kept in a local, and the writes into a window of K slots, so that the
+        // compiler need not store the length and load it back after every write (it could not
+        // tell the slot written from the length: a chain of store-to-load forwards per push).
+        let window = &mut self.slots[self.len..self.len + K];
+        let mut kept = 0;
         for (k, v) in values.into_iter().enumerate() {
-            self.slots[self.len].write(v);
-            self.len += (mask >> k & 1) as usize;
+            window[kept].write(v);
+            kept += (mask >> k & 1) as usize;
         }
+        self.len += kept;
     }
 
     #[inline(always)]
