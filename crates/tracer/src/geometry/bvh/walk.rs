@@ -120,8 +120,15 @@ impl Bvh {
             let (mask, _) = boxes.test(n, t_max);
             if w.stack.has_room(4) {
                 // The children are stored one by one: taking them through a table of lane
-                // orders compiled to a gather for AVX-512 (docs/benchmarks.md).
-                w.stack.push_masked(n.child, mask);
+                // orders compiled to a gather for AVX-512 (docs/benchmarks.md). The last of them
+                // is the next node at once rather than pushed and popped back (the same order,
+                // without a store and its reload on the walk's chain).
+                if mask != 0 {
+                    let last = 31 - mask.leading_zeros();
+                    w.stack.push_masked(n.child, mask & !(1 << last));
+                    w.node = n.child[last as usize];
+                    return;
+                }
             } else {
                 let mut m = mask;
                 while m != 0 {
