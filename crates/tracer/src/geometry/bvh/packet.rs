@@ -69,7 +69,7 @@ pub(super) struct LaneHits<const N: usize> {
 pub(super) type PacketHits = LaneHits<4>;
 
 impl<const N: usize> LaneHits<N> {
-    /// No hits: the scratch space a query's packet tests write into, one per query rather than a
+    /// No hits: the scratch space packet tests write into, one per leaf or query rather than a
     /// value returned per packet, which the compiler copied — 64 bytes per 4-lane packet, read
     /// back in one load across the four 16-byte stores that had just written them, which the
     /// processor cannot forward (a stall per packet test).
