@@ -435,22 +435,36 @@ impl LightTree {
     pub fn sample(&self, p: Vec3, n: Vec3, mut u: f32) -> Option<(usize, f32)> {
         let (mut node, mut pmf) = (self.nodes.first()?, 1.0f32);
         loop {
-            let probs = node.probabilities(p, n)?;
+            let i = node.importances(p, n).to_array();
+            // Summed in lane order, as `probabilities` sums them (the same probabilities).
+            let sum = i[0] + i[1] + i[2] + i[3];
+            if !(sum > 0.0 && sum.is_finite()) {
+                return None;
+            }
+            // The first child whose share of [0, sum) holds u · sum: the importances compared
+            // as they are, so that the next step waits on no division by the sum (the
+            // probability, which the choice does not wait for, divides). Rounding can leave
+            // u · sum past the last share, which then goes to the last child that can be chosen.
+            let target = u * sum;
             let count = node.count as usize;
-            // The first child whose share of [0, 1) holds u; rounding can leave u past the last
-            // share, which then goes to the last child that can be chosen.
             let (mut k, mut below) = (usize::MAX, 0.0f32);
-            for (j, &pj) in probs.iter().enumerate().take(count) {
-                if pj > 0.0 {
+            for (j, &ij) in i.iter().enumerate().take(count) {
+                if ij > 0.0 {
                     k = j;
-                    if u < below + pj {
+                    if target < below + ij {
                         break;
                     }
-                    below += pj;
+                    below += ij;
                 }
             }
-            let pk = probs[k];
-            u = ((u - below).max(0.0) / pk).min(ONE_BELOW);
+            let ik = i[k];
+            u = ((target - below).max(0.0) / ik).min(ONE_BELOW);
+            // `probabilities`' quotient, the same bits as `pmf` multiplies.
+            let pk = ik / sum;
+            if !(pk > 0.0) {
+                // A share below the smallest float, reached only by rounding past the others.
+                return None;
+            }
             pmf *= pk;
             match node.slots[k].light() {
                 Some(light) => return Some((light, pmf)),
