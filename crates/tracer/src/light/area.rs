@@ -313,6 +313,30 @@ impl AreaLights {
                 (k, self.sampled[k].pmf)
             }
         };
+        self.sample_chosen(k, pmf, p, u)
+    }
+
+    /// [`AreaLights::sample`] at `M` points, the same answers, their lights chosen by the tree's
+    /// walks side by side ([`LightTree::sample_many`]).
+    #[inline]
+    pub fn sample_many<const M: usize>(
+        &self,
+        queries: [(Vec3, Vec3, f32, Vec2); M],
+    ) -> [Option<AreaLightSample>; M] {
+        let Some(tree) = &self.tree else {
+            return queries.map(|(p, n, u_select, u)| self.sample(p, n, u_select, u));
+        };
+        let chosen = tree.sample_many(queries.map(|(p, n, u_select, _)| (p, n, u_select)));
+        std::array::from_fn(|w| {
+            let (p, _, _, u) = queries[w];
+            chosen[w].and_then(|(k, pmf)| self.sample_chosen(k, pmf, p, u))
+        })
+    }
+
+    /// A point on sampled light `k`, chosen with probability `pmf`, for the point `p` (see
+    /// [`AreaLights::sample`]).
+    #[inline(always)]
+    fn sample_chosen(&self, k: usize, pmf: f32, p: Vec3, u: Vec2) -> Option<AreaLightSample> {
         let t = &self.sampled[k];
         let triangle = self.triangles[k];
         if let Some(s) = by_solid_angle(t.corners, t.normal, t.longest_edge2, p) {

@@ -350,6 +350,13 @@ impl Node4 {
     }
 }
 
+/// Where a walk's step leads: down to a node, or to its end (the light and its probability, or
+/// None).
+enum Step<'t> {
+    Down(&'t Node4),
+    Done(Option<(usize, f32)>),
+}
+
 /// A light tree over a scene's emitters (see the module documentation).
 #[derive(Clone, Debug, Default)]
 pub struct LightTree {
@@ -435,42 +442,90 @@ impl LightTree {
     pub fn sample(&self, p: Vec3, n: Vec3, mut u: f32) -> Option<(usize, f32)> {
         let (mut node, mut pmf) = (self.nodes.first()?, 1.0f32);
         loop {
-            self.prefetch_children(node);
-            let i = node.importances(p, n).to_array();
-            // Summed in lane order, as `probabilities` sums them (the same probabilities).
-            let sum = i[0] + i[1] + i[2] + i[3];
-            if !(sum > 0.0 && sum.is_finite()) {
-                return None;
+            match self.step(node, p, n, &mut u, &mut pmf) {
+                Step::Down(next) => node = next,
+                Step::Done(chosen) => return chosen,
             }
-            // The first child whose share of [0, sum) holds u · sum: the importances compared
-            // as they are, so that the next step waits on no division by the sum (the
-            // probability, which the choice does not wait for, divides). Rounding can leave
-            // u · sum past the last share, which then goes to the last child that can be chosen.
-            let target = u * sum;
-            let count = node.count as usize;
-            let (mut k, mut below) = (usize::MAX, 0.0f32);
-            for (j, &ij) in i.iter().enumerate().take(count) {
-                if ij > 0.0 {
-                    k = j;
-                    if target < below + ij {
-                        break;
+        }
+    }
+
+    /// [`LightTree::sample`] for `M` points at once, the same answers: the walks step by turns,
+    /// so that the processor works on the others while one waits on its node's importances (each
+    /// step waits on the one before).
+    #[inline]
+    pub fn sample_many<const M: usize>(
+        &self,
+        queries: [(Vec3, Vec3, f32); M],
+    ) -> [Option<(usize, f32)>; M] {
+        let Some(root) = self.nodes.first() else {
+            return [None; M];
+        };
+        let mut nodes = [root; M];
+        let mut u = queries.map(|q| q.2);
+        let mut pmf = [1.0f32; M];
+        let (mut chosen, mut live) = ([None; M], [true; M]);
+        while live.iter().any(|&l| l) {
+            for w in 0..M {
+                if live[w] {
+                    let (p, n, _) = queries[w];
+                    match self.step(nodes[w], p, n, &mut u[w], &mut pmf[w]) {
+                        Step::Down(next) => nodes[w] = next,
+                        Step::Done(c) => (chosen[w], live[w]) = (c, false),
                     }
-                    below += ij;
                 }
             }
-            let ik = i[k];
-            u = ((target - below).max(0.0) / ik).min(ONE_BELOW);
-            // `probabilities`' quotient, the same bits as `pmf` multiplies.
-            let pk = ik / sum;
-            if pk == 0.0 {
-                // A share below the smallest float, reached only by rounding past the others.
-                return None;
-            }
-            pmf *= pk;
-            match node.slots[k].light() {
-                Some(light) => return Some((light, pmf)),
-                None => node = &self.nodes[node.slots[k].0 as usize],
-            }
+        }
+        chosen
+    }
+
+    /// One step of a walk at `node`: the child chosen by `u` (rescaled for the steps below) and its
+    /// probability multiplied into `pmf`.
+    #[inline(always)]
+    fn step<'t>(
+        &'t self,
+        node: &'t Node4,
+        p: Vec3,
+        n: Vec3,
+        u: &mut f32,
+        pmf: &mut f32,
+    ) -> Step<'t> {
+        self.prefetch_children(node);
+        let importances = node.importances(p, n);
+        let i = importances.to_array();
+        // The running sums in lane order; the last is the sum `probabilities` divides by (the
+        // same bits: adding a lane's zero changes no sum).
+        let below = [0.0, i[0], i[0] + i[1], i[0] + i[1] + i[2]];
+        let sum = below[3] + i[3];
+        if !(sum > 0.0 && sum.is_finite()) {
+            return Step::Done(None);
+        }
+        // The first child that can be chosen whose share of [0, sum) holds u · sum: the
+        // importances compared as they are, so that the next step waits on no division by the
+        // sum (the probability, which the choice does not wait for, divides). Lane masks rather
+        // than a branch a child. Rounding can leave u · sum past the last share, which then
+        // goes to the last child that can be chosen.
+        let target = *u * sum;
+        let running = Vec4::from_array(below) + importances;
+        let open = importances.cmpgt(Vec4::ZERO).bitmask() & ((1 << node.count) - 1);
+        let holds = Vec4::splat(target).cmplt(running).bitmask() & open;
+        let k = if holds != 0 {
+            holds.trailing_zeros()
+        } else {
+            31u32.saturating_sub(open.leading_zeros())
+        } as usize;
+        let below = below[k];
+        let ik = i[k];
+        *u = ((target - below).max(0.0) / ik).min(ONE_BELOW);
+        // `probabilities`' quotient, the same bits as `pmf` multiplies.
+        let pk = ik / sum;
+        if pk == 0.0 {
+            // A share below the smallest float, reached only by rounding past the others.
+            return Step::Done(None);
+        }
+        *pmf *= pk;
+        match node.slots[k].light() {
+            Some(light) => Step::Done(Some((light, *pmf))),
+            None => Step::Down(&self.nodes[node.slots[k].0 as usize]),
         }
     }
 
@@ -710,6 +765,35 @@ mod tests {
 
     /// Pearson's χ² of the lights chosen at a point against [`LightTree::pmf`], lights of small
     /// expected counts pooled.
+    /// Walks side by side choose what each alone chooses, with the same probabilities, bit for
+    /// bit, the walks of different lengths, ending at no light or at one.
+    #[test]
+    fn walks_side_by_side_choose_what_each_alone_chooses() {
+        let lights = random_lights(500, 3);
+        let tree = LightTree::new(&lights);
+        let mut u = uniform_stream(4);
+        let mut query = || {
+            let p = Vec3::new(u() * 14.0 - 2.0, u() * 14.0 - 2.0, u() * 14.0 - 2.0);
+            let n = Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize();
+            // Some points far off and facing away from everything, where walks end early.
+            let p = if u() < 0.1 { p * 1e3 } else { p };
+            (p, n, u())
+        };
+        let (mut found, mut none) = (0, 0);
+        for _ in 0..2000 {
+            let queries: [(Vec3, Vec3, f32); 3] = [query(), query(), query()];
+            let alone = queries.map(|(p, n, u)| tree.sample(p, n, u));
+            let bits = |c: Option<(usize, f32)>| c.map(|(k, pmf)| (k, pmf.to_bits()));
+            assert_eq!(tree.sample_many(queries).map(bits), alone.map(bits));
+            let pair = tree.sample_many([queries[0], queries[2]]);
+            assert_eq!(pair.map(bits), [bits(alone[0]), bits(alone[2])]);
+            found += alone.iter().filter(|c| c.is_some()).count();
+            none += alone.iter().filter(|c| c.is_none()).count();
+        }
+        assert!(found > 1000 && none > 0, "{found} found, {none} none");
+        assert_eq!(LightTree::new(&[]).sample_many([query(); 2]), [None, None]);
+    }
+
     #[test]
     fn chosen_lights_follow_the_pmf() {
         let lights = random_lights(64, 3);

@@ -8,10 +8,13 @@ use super::{GlossyLanes, Lanes, F, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::integrator::direct::environment_value;
 use crate::isa::Isa;
-use crate::light::Environment;
+use crate::light::{AreaLightSample, Environment};
 use crate::math::{offset_unit_normal, spawn_clearance};
 use crate::sampling::power_heuristic;
 use glam::{Vec2, Vec3};
+
+/// Light-tree walks made side by side (`AreaLights::sample_many`).
+const TREE_WALKS: usize = 2;
 
 impl Lanes<'_> {
     /// Chooses each lane's light sample from its values (`light_query`): with an environment,
@@ -69,32 +72,53 @@ impl Lanes<'_> {
     }
 
     /// Chooses each lane's light triangle and point by the light tree at the lane's vertex
-    /// (`AreaLights::sample`, one lane at a time: a walk per lane) and loads the light's emission.
+    /// (`AreaLights::sample`'s answers: [`TREE_WALKS`] lanes' walks at a time) and loads the light's emission.
     fn sample_by_tree<const ENV: bool>(&mut self, u_select: &F, u_light: &[F; 2]) {
         let scene = self.scene;
-        let area_choice = scene.lights.area_choice;
+        let mut waiting = [0usize; LANES];
+        let mut count = 0;
         for i in 0..LANES {
             self.light_ok[i] = false;
-            if !(self.go[i] && self.diffuse_on[i]) || (ENV && self.env_light[i]) {
-                continue;
+            if self.go[i] && self.diffuse_on[i] && !(ENV && self.env_light[i]) {
+                waiting[count] = i;
+                count += 1;
             }
-            let u = Vec2::new(u_light[0][i], u_light[1][i]);
-            let (p, ng) = (self.p.get(i), self.ng.get(i));
-            let Some(ls) = scene.lights.area.sample(p, ng, u_select[i], u) else {
-                continue;
-            };
-            let m = &self.materials[scene.mesh.material[ls.triangle as usize] as usize];
-            self.light_ok[i] = true;
-            self.light_point.set(i, ls.point);
-            self.light_normal.set(i, ls.normal);
-            self.light_pdf_area[i] = if ENV {
-                ls.pdf_area * area_choice
-            } else {
-                ls.pdf_area
-            };
-            self.light_front.set(i, m.emission_front);
-            self.light_back.set(i, m.emission_back);
         }
+        let query = |lanes: &Self, i: usize| {
+            let u = Vec2::new(u_light[0][i], u_light[1][i]);
+            (lanes.p.get(i), lanes.ng.get(i), u_select[i], u)
+        };
+        let mut groups = waiting[..count].chunks_exact(TREE_WALKS);
+        for group in &mut groups {
+            let lanes: [usize; TREE_WALKS] = std::array::from_fn(|w| group[w]);
+            let samples = scene.lights.area.sample_many(lanes.map(|i| query(self, i)));
+            for (i, ls) in lanes.into_iter().zip(samples) {
+                self.take_light::<ENV>(i, ls);
+            }
+        }
+        for &i in groups.remainder() {
+            let (p, n, u_select, u) = query(self, i);
+            let ls = scene.lights.area.sample(p, n, u_select, u);
+            self.take_light::<ENV>(i, ls);
+        }
+    }
+
+    /// Lane `i`'s light sample `ls`, its emission loaded from the light's material.
+    #[inline(always)]
+    fn take_light<const ENV: bool>(&mut self, i: usize, ls: Option<AreaLightSample>) {
+        let Some(ls) = ls else { return };
+        let scene = self.scene;
+        let m = &self.materials[scene.mesh.material[ls.triangle as usize] as usize];
+        self.light_ok[i] = true;
+        self.light_point.set(i, ls.point);
+        self.light_normal.set(i, ls.normal);
+        self.light_pdf_area[i] = if ENV {
+            ls.pdf_area * scene.lights.area_choice
+        } else {
+            ls.pdf_area
+        };
+        self.light_front.set(i, m.emission_front);
+        self.light_back.set(i, m.emission_back);
     }
 
     /// The environment's direction, radiance and density (× its choice `p_env`) for each lane
