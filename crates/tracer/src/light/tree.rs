@@ -442,7 +442,7 @@ impl LightTree {
     pub fn sample(&self, p: Vec3, n: Vec3, mut u: f32) -> Option<(usize, f32)> {
         let (mut node, mut pmf) = (self.nodes.first()?, 1.0f32);
         loop {
-            match self.step(node, p, n, &mut u, &mut pmf) {
+            match self.step::<true>(node, p, n, &mut u, &mut pmf) {
                 Step::Down(next) => node = next,
                 Step::Done(chosen) => return chosen,
             }
@@ -468,7 +468,7 @@ impl LightTree {
             for w in 0..M {
                 if live[w] {
                     let (p, n, _) = queries[w];
-                    match self.step(nodes[w], p, n, &mut u[w], &mut pmf[w]) {
+                    match self.step::<false>(nodes[w], p, n, &mut u[w], &mut pmf[w]) {
                         Step::Down(next) => nodes[w] = next,
                         Step::Done(c) => (chosen[w], live[w]) = (c, false),
                     }
@@ -480,8 +480,10 @@ impl LightTree {
 
     /// One step of a walk at `node`: the child chosen by `u` (rescaled for the steps below) and its
     /// probability multiplied into `pmf`.
+    /// `BRANCHY`: the child chosen by a branch a child (for a lone walk) or by lane masks (for
+    /// walks side by side); the same child either way.
     #[inline(always)]
-    fn step<'t>(
+    fn step<'t, const BRANCHY: bool>(
         &'t self,
         node: &'t Node4,
         p: Vec3,
@@ -501,18 +503,35 @@ impl LightTree {
         }
         // The first child that can be chosen whose share of [0, sum) holds u · sum: the
         // importances compared as they are, so that the next step waits on no division by the
-        // sum (the probability, which the choice does not wait for, divides). Lane masks rather
-        // than a branch a child. Rounding can leave u · sum past the last share, which then
-        // goes to the last child that can be chosen.
+        // sum (the probability, which the choice does not wait for, divides). Rounding can
+        // leave u · sum past the last share, which then goes to the last child that can be
+        // chosen.
         let target = *u * sum;
-        let running = Vec4::from_array(below) + importances;
-        let open = importances.cmpgt(Vec4::ZERO).bitmask() & ((1 << node.count) - 1);
-        let holds = Vec4::splat(target).cmplt(running).bitmask() & open;
-        let k = if holds != 0 {
-            holds.trailing_zeros()
+        let count = node.count as usize;
+        let k = if BRANCHY {
+            // A branch a child: the processor guesses past it (a lone walk gains).
+            let mut k = usize::MAX;
+            for (j, &ij) in i.iter().enumerate().take(count) {
+                if ij > 0.0 {
+                    k = j;
+                    if target < below[j] + ij {
+                        break;
+                    }
+                }
+            }
+            k
         } else {
-            31u32.saturating_sub(open.leading_zeros())
-        } as usize;
+            // Lane masks (a compare, a bit scan): nothing to mispredict, which would discard
+            // the walks beside this one too.
+            let running = Vec4::from_array(below) + importances;
+            let open = importances.cmpgt(Vec4::ZERO).bitmask() & ((1 << count) - 1);
+            let holds = Vec4::splat(target).cmplt(running).bitmask() & open;
+            (if holds != 0 {
+                holds.trailing_zeros()
+            } else {
+                31u32.saturating_sub(open.leading_zeros())
+            }) as usize
+        };
         let below = below[k];
         let ik = i[k];
         *u = ((target - below).max(0.0) / ik).min(ONE_BELOW);
