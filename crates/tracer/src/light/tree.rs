@@ -479,9 +479,8 @@ impl LightTree {
     }
 
     /// One step of a walk at `node`: the child chosen by `u` (rescaled for the steps below) and its
-    /// probability multiplied into `pmf`.
-    /// `BRANCHY`: the child chosen by a branch a child (for a lone walk) or by lane masks (for
-    /// walks side by side); the same child either way.
+    /// probability multiplied into `pmf`. `BRANCHY`: the child chosen by a branch a child (for a
+    /// lone walk) or by lane masks (for walks side by side); the same child either way.
     #[inline(always)]
     fn step<'t, const BRANCHY: bool>(
         &'t self,
@@ -782,8 +781,6 @@ mod tests {
         assert!(whole / 200.0 > 0.95, "mean Σ pmf {}", whole / 200.0);
     }
 
-    /// Pearson's χ² of the lights chosen at a point against [`LightTree::pmf`], lights of small
-    /// expected counts pooled.
     /// Walks side by side choose what each alone chooses, with the same probabilities, bit for
     /// bit, the walks of different lengths, ending at no light or at one.
     #[test]
@@ -813,6 +810,8 @@ mod tests {
         assert_eq!(LightTree::new(&[]).sample_many([query(); 2]), [None, None]);
     }
 
+    /// Pearson's χ² of the lights chosen at a point against [`LightTree::pmf`], lights of small
+    /// expected counts pooled.
     #[test]
     fn chosen_lights_follow_the_pmf() {
         let lights = random_lights(64, 3);
