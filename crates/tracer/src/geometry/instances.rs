@@ -22,10 +22,14 @@ use std::sync::Arc;
 pub struct Prototype {
     pub mesh: Mesh,
     pub bvh: Bvh,
-    /// The object-space bounds of its corners.
-    lo: Vec3,
-    hi: Vec3,
+    /// Object-space boxes that together hold every triangle (see [`Bvh::cover`]): what a
+    /// placement's world box is made of.
+    cover: Vec<(Vec3, Vec3)>,
 }
+
+/// The most boxes of a prototype's tree moved into world space to bound one placement: three
+/// levels of a 4-wide tree.
+const COVER_BOXES: usize = 64;
 
 /// Where a loader places a prototype: its index and the node's world transform (an affine matrix;
 /// the last row is ignored, as glTF requires it to be 0 0 0 1).
@@ -91,8 +95,10 @@ impl Prototype {
     /// [`crate::scene::Scene::build`] leaves them).
     pub fn new(mesh: Mesh) -> Prototype {
         let bvh = Bvh::build(&mesh);
-        let (lo, hi) = mesh.bounds();
-        Prototype { mesh, bvh, lo, hi }
+        let cover = bvh
+            .cover(COVER_BOXES)
+            .unwrap_or_else(|| vec![mesh.bounds()]);
+        Prototype { mesh, bvh, cover }
     }
 
     /// Approximate bytes held.
@@ -130,11 +136,11 @@ impl Instance {
         })
     }
 
-    /// The world box of the object box `lo`..`hi` under this instance, from the f64 transform,
+    /// The world box of the object boxes `cover` under this instance, from the f64 transform,
     /// padded for the rounding of the object-space ray: a small fraction of its size and position.
-    fn world_box(to_world: &DMat4, lo: Vec3, hi: Vec3) -> (Vec3A, Vec3A) {
+    fn world_box(to_world: &DMat4, cover: &[(Vec3, Vec3)]) -> (Vec3A, Vec3A) {
         let (mut wlo, mut whi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-        for k in 0..8 {
+        for (k, &(lo, hi)) in (0..8).flat_map(|k| cover.iter().map(move |b| (k, b))) {
             let pick = |bit: usize, a: f32, b: f32| if k & bit == 0 { a } else { b } as f64;
             let corner = DVec3::new(
                 pick(1, lo.x, hi.x),
@@ -249,7 +255,7 @@ impl Instances {
         let mut boxes = Vec::with_capacity(usable.len());
         for (p, inst) in usable {
             let proto = &prototypes[p.prototype as usize];
-            boxes.push(Instance::world_box(&p.to_world, proto.lo, proto.hi));
+            boxes.push(Instance::world_box(&p.to_world, &proto.cover));
             instances.push(inst);
         }
         if instances.is_empty() {
@@ -554,7 +560,57 @@ mod tests {
     /// two are not within that of each other), and `any` agrees with it.
     #[test]
     fn two_levels_find_what_flattening_finds() {
-        let proto = cube();
+        two_levels_match_flattening(cube(), 200);
+        two_levels_match_flattening(rod(), 40);
+    }
+
+    /// Small triangles along the diagonal of the cube [−0.5, 0.5]³, enough for a tree of a few
+    /// levels: its box is the cube, its cover ([`Bvh::cover`]) much less.
+    fn rod() -> Mesh {
+        let mut mesh = Mesh::default();
+        for i in 0..400 {
+            let c = Vec3::splat(i as f32 / 399.0 - 0.5) * 0.84;
+            let s = 0.08;
+            mesh.positions.push([
+                c + Vec3::new(-s, -s, 0.0),
+                c + Vec3::new(s, -s, s),
+                c + Vec3::new(0.0, s, -s),
+            ]);
+            mesh.material.push(0);
+        }
+        mesh
+    }
+
+    /// A placement's world box holds every corner of its triangles moved by the f64 transform,
+    /// is never larger than the prototype's box moved, and is much smaller for the rod turned.
+    #[test]
+    fn world_boxes_hold_the_triangles_and_little_else() {
+        let proto = Prototype::new(rod());
+        assert!(proto.cover.len() > 4 && proto.cover.len() <= COVER_BOXES);
+        let whole = [proto.mesh.bounds()];
+        let mut ratios = Vec::new();
+        for p in placements(24) {
+            let (lo, hi) = Instance::world_box(&p.to_world, &proto.cover);
+            for v in proto.mesh.positions.iter().flatten() {
+                let w = Vec3A::from(p.to_world.transform_point3(v.as_dvec3()).as_vec3());
+                assert!(
+                    w.cmpge(lo).all() && w.cmple(hi).all(),
+                    "{w} outside {lo}..{hi}"
+                );
+            }
+            let (wlo, whi) = Instance::world_box(&p.to_world, &whole);
+            // Within the rounding of the tree's boxes, which hold the mesh's box.
+            let slack = Vec3A::splat(1e-5);
+            assert!(lo.cmpge(wlo - slack).all() && hi.cmple(whi + slack).all());
+            let volume = |lo: Vec3A, hi: Vec3A| (hi - lo).x * (hi - lo).y * (hi - lo).z;
+            ratios.push(volume(lo, hi) / volume(wlo, whi));
+        }
+        let mean = ratios.iter().sum::<f32>() / ratios.len() as f32;
+        assert!(mean < 0.6, "cover boxes' volume {mean} of the whole box's");
+    }
+
+    /// Rays from a grid of origins in random directions against `proto` placed 40 times.
+    fn two_levels_match_flattening(proto: Mesh, enough: usize) {
         let places = placements(40);
         let (inst, dropped) = Instances::build(vec![proto.clone()], &places).unwrap();
         assert_eq!(dropped, Unplaced::default());
@@ -595,7 +651,10 @@ mod tests {
                 }
             }
         }
-        assert!(hits > 200 && misses > 200, "{hits} hits, {misses} misses");
+        assert!(
+            hits > enough && misses > enough,
+            "{hits} hits, {misses} misses"
+        );
     }
 
     /// Two instances in the same place: the tie goes to the smaller instance index, whichever of

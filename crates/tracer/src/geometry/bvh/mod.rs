@@ -147,6 +147,43 @@ impl Bvh {
         self.depth
     }
 
+    /// Boxes that together hold every triangle: the children of the tree's inner nodes, opened
+    /// breadth-first from the root while the count stays at most `max` (at least 4). `None` for an
+    /// empty tree or one that is a single leaf. A placed mesh's world box is the union of these
+    /// boxes moved, tighter than its one box moved when the placement rotates it.
+    pub fn cover(&self, max: usize) -> Option<Vec<(Vec3, Vec3)>> {
+        let root = self.root?;
+        if root.is_leaf() {
+            return None;
+        }
+        let children = |r: NodeRef| {
+            let n = &self.nodes[r.index()];
+            (0..4)
+                .filter(move |&k| n.valid & (1 << k) != 0)
+                .map(move |k| {
+                    let corner = |side: usize| {
+                        Vec3::new(
+                            n.bounds[side][0][k],
+                            n.bounds[side][1][k],
+                            n.bounds[side][2][k],
+                        )
+                    };
+                    (corner(0), corner(1), n.child[k])
+                })
+        };
+        let mut open: std::collections::VecDeque<_> = children(root).collect();
+        let mut cover = Vec::new();
+        while let Some((lo, hi, r)) = open.pop_front() {
+            let count = open.len() + cover.len();
+            if !r.is_leaf() && count + self.nodes[r.index()].valid.count_ones() as usize <= max {
+                open.extend(children(r));
+            } else {
+                cover.push((lo, hi));
+            }
+        }
+        Some(cover)
+    }
+
     /// Approximate memory in bytes.
     pub fn bytes(&self) -> usize {
         self.nodes.len() * std::mem::size_of::<Node4>()
