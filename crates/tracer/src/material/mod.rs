@@ -210,6 +210,22 @@ impl Material {
     /// The BSDF parameters when no texture varies them or the shading normal over the surface:
     /// what [`Material::shade`] returns everywhere (the emissive texture plays no part in them).
     pub fn constant_params(&self) -> Option<PbrParams> {
+        self.constant_params_in()
+    }
+
+    /// The parameters of a material whose one texture is its base colour's, with that texture
+    /// left out (its factor alone); `None` for any other material. Everything that decides which
+    /// lobes the BSDF has but the base colour's black or not is the same at every texel.
+    pub fn params_but_base_colour(&self) -> Option<PbrParams> {
+        self.base_color_texture.as_ref()?;
+        Material {
+            base_color_texture: None,
+            ..self.clone()
+        }
+        .constant_params_in()
+    }
+
+    fn constant_params_in(&self) -> Option<PbrParams> {
         let textured = self.base_color_texture.is_some()
             || self.metallic_roughness_texture.is_some()
             || self.specular_texture.is_some()

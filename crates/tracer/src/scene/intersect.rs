@@ -323,6 +323,18 @@ impl Scene {
         (found, !blocked)
     }
 
+    /// The texture coordinates at a hit, as [`Scene::surface`] reads them (an instanced hit's
+    /// from its prototype, at the barycentrics its walk found).
+    #[inline]
+    pub(crate) fn hit_uv(&self, hit: &Hit) -> [Vec2; 2] {
+        let mesh = if hit.instance == Hit::WORLD {
+            &self.mesh
+        } else {
+            &self.instances.get(hit.instance).1.mesh
+        };
+        uv_at(mesh, hit.triangle as usize, hit.b1, hit.b2)
+    }
+
     /// The surface at a hit of `ray`.
     #[inline(always)]
     pub fn surface(&self, ray: &Ray, hit: &Hit) -> SurfaceInteraction {

@@ -279,6 +279,15 @@ impl Scene {
         self.any_alpha
     }
 
+    /// The BSDF of textured material `material` at texture coordinates `uv`, in a frame of its
+    /// own (`Bsdf::at` moves it to a hit): the parameters [`Scene::bsdf_at`] reads there, for a
+    /// material whose textures leave its normal as it is (no normal map).
+    pub(crate) fn textured_template(&self, material: u32, uv: &[glam::Vec2; 2]) -> Bsdf {
+        let m = &self.materials[material as usize];
+        let params = m.shade(&self.textures, uv, Vec3::Z, None).params;
+        Bsdf::new(params, Vec3::Z, Vec3::Z, None)
+    }
+
     /// The BSDF at a surface point: the material's textures evaluated there, or, for a material
     /// without them, its BSDF made once at build time and moved to the point (the same value).
     #[inline]

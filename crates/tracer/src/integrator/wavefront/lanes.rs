@@ -132,6 +132,8 @@ pub(super) struct Lanes<'a> {
     /// others not: `normals::MIXED`).
     smooth: B,
     albedo: V3,
+    /// The glossy lobes at a textured material's hit (`Lanes::lobes`; stale elsewhere).
+    texel_lobes: [Option<crate::bsdf::GlossyLobes>; LANES],
     emission_front: V3,
     emission_back: V3,
     diffuse_on: B,
@@ -237,6 +239,7 @@ impl<'a> Lanes<'a> {
             normal_c: V3::ZERO,
             smooth: [false; LANES],
             albedo: V3::ZERO,
+            texel_lobes: [None; LANES],
             emission_front: V3::ZERO,
             emission_back: V3::ZERO,
             diffuse_on: [false; LANES],

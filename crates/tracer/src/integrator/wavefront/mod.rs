@@ -9,8 +9,8 @@
 //! vectorises them, and IEEE arithmetic lane by lane rounds as it does one value at a time (Rust
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
-//! It models only what the scenes it takes need (see [`DiffuseScene`]): untextured materials,
-//! pure Lambertian, glossy (a rough metal, a Lambertian base under a rough specular layer, or a
+//! It models only what the scenes it takes need (see [`DiffuseScene`]): materials untextured but
+//! for a base colour (each hit's texel read by `trace_closest`), pure Lambertian, glossy (a rough metal, a Lambertian base under a rough specular layer, or a
 //! mix: `bsdf::GlossyLobes`, evaluated and sampled in the lanes by the BSDF's own code) or purely
 //! specular (a perfect mirror, smooth glass: delta lobes only, sampled lane by lane through
 //! `Bsdf::sample`); emissive triangles, punctual lamps and the environment
@@ -91,6 +91,10 @@ pub(crate) struct DiffuseMaterial {
     pub emission_back: Vec3,
     /// Whether the material emits: a BSDF ray that hits it needs the light choice's density.
     pub emits: bool,
+    /// Its base colour is a texture's (its only texture): `trace_closest` makes each hit's BSDF
+    /// from the texel (`Scene::textured_template`), and `albedo`, `glossy` and `diffuse_on` above
+    /// are only its kind's (a Lambertian's or a glossy one's, which no texel changes).
+    pub textured: bool,
 }
 
 /// A scene the wavefront integrator can render, and the per-material facts its lanes read. Built
@@ -105,10 +109,11 @@ pub(crate) struct DiffuseScene {
 }
 
 impl DiffuseScene {
-    /// The lanes' view of a scene, if every material is untextured, without alpha or an
-    /// absorbing volume, and either a pure Lambertian (emissive or not), glossy
-    /// (`Bsdf::glossy_lobes`: rough, without transmission or layers) or made of delta lobes
-    /// only (a perfect mirror, smooth glass: no light sample at its vertices); no mesh
+    /// The lanes' view of a scene, if every material is without alpha or an absorbing volume,
+    /// and either a pure Lambertian (emissive or not), glossy (`Bsdf::glossy_lobes`: rough,
+    /// without transmission or layers) or made of delta lobes only (a perfect mirror, smooth
+    /// glass: no light sample at its vertices); untextured, but for a base colour texture on a
+    /// Lambertian or glossy material (it leaves the lobes' kind as it is); no mesh
     /// (world-space or instanced) has tangents (they may have vertex normals); and the scene has
     /// a light (emissive triangles, punctual lamps or an environment, one colour or an image).
     /// The one place that decides which scenes the lanes render.
@@ -132,7 +137,21 @@ impl DiffuseScene {
         }
         let mut out = Vec::with_capacity(materials.len());
         for (material, template) in materials.iter().zip(templates) {
-            let bsdf = template.as_ref()?;
+            // A base colour texture's texel changes the lobes' colours and whether the diffuse
+            // one is black, not which lobes there are, for a Lambertian and a glossy material
+            // without transmission (whose switch reads the base colour): their kind is the factor's.
+            let (bsdf, textured) = match template {
+                Some(bsdf) => (*bsdf, false),
+                None => {
+                    let p = material.params_but_base_colour()?;
+                    let bsdf = crate::bsdf::Bsdf::new(p, Vec3::Z, Vec3::Z, None);
+                    let kind_fixed = bsdf.single_lobe() || bsdf.glossy_lobes().is_some();
+                    if !kind_fixed || bsdf.params().transmission != 0.0 {
+                        return None;
+                    }
+                    (bsdf, true)
+                }
+            };
             let untextured = material.emissive_texture.is_none();
             // A volume that absorbs nothing changes no throughput's bits (× e⁻⁰ = × 1).
             let clear = material.volume.is_none_or(|v| v.sigma_a == Vec3::ZERO);
@@ -148,12 +167,13 @@ impl DiffuseScene {
                     true => bsdf.params().base_color,
                     false => Vec3::ZERO,
                 },
-                specular: specular.then_some(*bsdf),
+                specular: specular.then_some(bsdf),
                 glossy,
                 diffuse_on: bsdf.has_non_delta(),
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),
                 emits: material.is_emissive(),
+                textured,
             });
         }
         // Lights chosen by power are chosen in the lanes, from the table; by the tree, lane by lane.

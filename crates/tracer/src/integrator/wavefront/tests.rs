@@ -290,7 +290,7 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     }
     assert!(
         scene(parts("textured")).diffuse.is_none(),
-        "textures need more than the lanes model"
+        "a normal map (tangents) needs more than the lanes model"
     );
     // Rough glass, a clear coat, a sheen: the BSDF's lobes that the lanes do not model.
     for change in [
@@ -721,4 +721,99 @@ fn instanced_meshes_are_shaded_as_the_scalar_integrator_shades_them() {
     let alone = scene(p);
     assert!(alone.mesh.is_empty() && alone.diffuse.is_some());
     assert_same_bits(&alone, &settings(10, RussianRoulette::Auto, None), 0..8);
+}
+
+/// Base colour textures: on a Lambertian (the floor's tiles) and on glossy materials (the
+/// sphere as a metal and as a plastic), each hit's texel read as `Scene::bsdf_at` reads it, in
+/// the world-space mesh and in instances (one mirrored: its barycentrics swap, its texture
+/// coordinates must not). A normal map, any other texture, or transmission leaves the scene to
+/// the scalar integrator.
+#[test]
+fn base_colour_textures_are_read_as_the_scalar_integrator_reads_them() {
+    use crate::geometry::{Mesh, Placement};
+    use glam::{DMat4, DQuat, DVec3};
+    // As shipped, its sphere has a normal map (and tangents): see the test above.
+    let mut p = parts("textured");
+    p.mesh.tangents = None;
+    let sphere = p
+        .materials
+        .iter()
+        .position(|m| m.normal_texture.is_some())
+        .expect("the sphere's material");
+    p.materials[sphere].normal_texture = None;
+    let mut other = p.clone();
+    assert!(
+        scene(other.clone()).diffuse.is_none(),
+        "a metallic-roughness texture"
+    );
+    p.materials[sphere].metallic_roughness_texture = None;
+    p.materials[sphere].roughness = 0.35;
+    other.materials = p.materials.clone();
+    other.materials[sphere].transmission = 1.0;
+    assert!(scene(other).diffuse.is_none(), "a transmitting texture");
+    let untextured = {
+        let mut q = p.clone();
+        for m in &mut q.materials {
+            m.base_color_texture = None;
+        }
+        scene(q)
+    };
+    let s = settings(1, RussianRoulette::Auto, None);
+    for metallic in [1.0, 0.0] {
+        p.materials[sphere].metallic = metallic;
+        let textured = scene(p.clone());
+        let d = textured
+            .diffuse
+            .as_ref()
+            .expect("the lanes take base colours");
+        assert_eq!(d.materials.iter().filter(|m| m.textured).count(), 2);
+        assert!(pixels_that_differ(&textured, &untextured, &s) > 300);
+        for (seed, rr) in [
+            (51, RussianRoulette::Auto),
+            (52, RussianRoulette::Fixed(0.7)),
+        ] {
+            assert_same_bits(&textured, &settings(seed, rr, None), 0..6);
+        }
+    }
+    // The textured triangles as a prototype, placed three times inside the box.
+    let textured_material = |m: u32| p.materials[m as usize].base_color_texture.is_some();
+    let keep: Vec<usize> = (0..p.mesh.len())
+        .filter(|&t| textured_material(p.mesh.material[t]))
+        .collect();
+    let uv0 = p.mesh.uv0.as_ref().expect("texture coordinates");
+    let mut proto = Mesh {
+        positions: keep.iter().map(|&t| p.mesh.positions[t]).collect(),
+        material: keep.iter().map(|&t| p.mesh.material[t]).collect(),
+        uv0: Some(keep.iter().map(|&t| uv0[t]).collect()),
+        ..Mesh::default()
+    };
+    if let Some(n) = &p.mesh.normals {
+        proto.normals = Some(keep.iter().map(|&t| n[t]).collect());
+    }
+    let (lo, hi) = proto.bounds();
+    let (c, size) = (((lo + hi) * 0.5).as_dvec3(), (hi - lo).as_dvec3());
+    let place = |at: DVec3, scale: DVec3, turn: f64| Placement {
+        prototype: 0,
+        to_world: DMat4::from_scale_rotation_translation(
+            scale,
+            DQuat::from_euler(glam::EulerRot::YXZ, turn, 0.2 * turn, 0.0),
+            c + size * at,
+        ) * DMat4::from_translation(-c),
+    };
+    p.prototypes = vec![proto];
+    p.placements = vec![
+        place(DVec3::new(-0.2, 0.3, 0.1), DVec3::splat(0.3), 0.5),
+        place(
+            DVec3::new(0.25, 0.2, -0.1),
+            DVec3::new(-0.25, 0.25, 0.25),
+            -0.8,
+        ),
+        place(DVec3::new(0.0, 0.4, 0.2), DVec3::splat(0.2), 2.0),
+    ];
+    let placed = scene(p);
+    assert_eq!(placed.info.instances, 3);
+    assert!(placed.diffuse.is_some());
+    let plain = scene(parts("textured"));
+    assert!(pixels_that_differ(&placed, &plain, &s) > 300);
+    assert_same_bits(&placed, &settings(53, RussianRoulette::Auto, None), 0..6);
 }

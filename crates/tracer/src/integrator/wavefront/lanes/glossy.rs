@@ -4,9 +4,8 @@
 //! (`GlossyLobes::at`) and run its queries beside the Lambertian's, keeping the glossy lanes'
 //! results.
 
-use super::{Lanes, B, F, LANES, U, V3};
+use super::{Lanes, B, F, LANES, V3};
 use crate::bsdf::{Bsdf, GlossyLobes};
-use crate::integrator::wavefront::DiffuseMaterial;
 use crate::math::is_black;
 use glam::{Vec2, Vec3};
 
@@ -56,10 +55,10 @@ impl GlossyLanes {
     /// |wo · ns| (wo = −d), which the BSDF looks up with the same value (`to_local`'s z). Scalar
     /// loads and gathers, kept out of the vector loops.
     #[inline(always)]
-    pub(super) fn load(materials: &[DiffuseMaterial], material: &U, ns: &V3, d: &V3) -> Self {
+    pub(super) fn load(lobes: impl Fn(usize) -> Option<GlossyLobes>, ns: &V3, d: &V3) -> Self {
         let mut g = Self::none();
         for i in 0..LANES {
-            let Some(l) = materials[material[i] as usize].glossy else {
+            let Some(l) = lobes(i) else {
                 continue;
             };
             g.on[i] = true;
@@ -158,6 +157,17 @@ impl Lanes<'_> {
     /// that found the hit).
     #[inline(always)]
     pub(super) fn glossy_lanes(&self) -> GlossyLanes {
-        GlossyLanes::load(self.materials, &self.material, &self.ns, &self.d)
+        GlossyLanes::load(|i| self.lobes(i), &self.ns, &self.d)
+    }
+
+    /// Lane `i`'s glossy lobes: its material's, or, for a textured material, those of its hit's
+    /// texel (loaded by `trace_closest`).
+    #[inline(always)]
+    pub(super) fn lobes(&self, i: usize) -> Option<GlossyLobes> {
+        let m = &self.materials[self.material[i] as usize];
+        match m.textured {
+            false => m.glossy,
+            true => self.texel_lobes[i],
+        }
     }
 }

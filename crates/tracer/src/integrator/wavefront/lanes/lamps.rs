@@ -55,7 +55,7 @@ impl Lanes<'_> {
             let at = self.punctual_at(i);
             let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
             let albedo = self.albedo.get(i);
-            queries[i] = match &self.materials[self.material[i] as usize].glossy {
+            queries[i] = match &self.lobes(i) {
                 // The glossy BSDF as `trace_path` evaluates it (`Bsdf::eval`, out of line).
                 Some(lobes) => {
                     let bsdf = lobes.at(ns, ng);

@@ -62,11 +62,15 @@ impl Lanes<'_> {
                 self.load_world(i, &hit, mixed)
             };
             let m = &self.materials[material as usize];
-            self.albedo.set(i, m.albedo);
+            let (albedo, diffuse_on) = match m.textured && self.hit[i] {
+                false => (m.albedo, m.diffuse_on),
+                true => self.load_texel(i, &hit, material),
+            };
+            self.albedo.set(i, albedo);
             self.material[i] = material;
             self.emission_front.set(i, m.emission_front);
             self.emission_back.set(i, m.emission_back);
-            self.diffuse_on[i] = m.diffuse_on;
+            self.diffuse_on[i] = diffuse_on;
             // The density depends on the vertex the ray left (`p` and `ng` still hold it) and on
             // where the ray meets the light: `trace_path`'s `EmissionWeight::Mis`, the normal
             // made as `shade_hit` makes it. Emitters are never instanced.
@@ -86,6 +90,21 @@ impl Lanes<'_> {
                     area.pdf(from, n, hit.triangle, material, hit.t, cos_l) * choice;
             }
         }
+    }
+
+    /// Lane `i`'s BSDF at its hit of a textured material, made as `Scene::bsdf_at` makes it: its
+    /// glossy lobes kept for `Lanes::lobes`, its Lambertian albedo and `Bsdf::has_non_delta`
+    /// returned.
+    #[inline(never)]
+    fn load_texel(&mut self, i: usize, hit: &Hit, material: u32) -> (glam::Vec3, bool) {
+        let scene = self.scene;
+        let bsdf = scene.textured_template(material, &scene.hit_uv(hit));
+        self.texel_lobes[i] = bsdf.glossy_lobes();
+        let albedo = match bsdf.single_lobe() {
+            true => bsdf.params().base_color,
+            false => glam::Vec3::ZERO,
+        };
+        (albedo, bsdf.has_non_delta())
     }
 
     /// Loads lane `i`'s hit of the world-space mesh (its barycentrics, corners and vertex
