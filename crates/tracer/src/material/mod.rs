@@ -210,22 +210,6 @@ impl Material {
     /// The BSDF parameters when no texture varies them or the shading normal over the surface:
     /// what [`Material::shade`] returns everywhere (the emissive texture plays no part in them).
     pub fn constant_params(&self) -> Option<PbrParams> {
-        self.constant_params_in()
-    }
-
-    /// The parameters of a material whose one texture is its base colour's, with that texture
-    /// left out (its factor alone); `None` for any other material. Everything that decides which
-    /// lobes the BSDF has but the base colour's black or not is the same at every texel.
-    pub fn params_but_base_colour(&self) -> Option<PbrParams> {
-        self.base_color_texture.as_ref()?;
-        Material {
-            base_color_texture: None,
-            ..self.clone()
-        }
-        .constant_params_in()
-    }
-
-    fn constant_params_in(&self) -> Option<PbrParams> {
         let textured = self.base_color_texture.is_some()
             || self.metallic_roughness_texture.is_some()
             || self.specular_texture.is_some()
@@ -238,6 +222,37 @@ impl Material {
             || self.sheen_color_texture.is_some()
             || self.sheen_roughness_texture.is_some();
         (!textured).then(|| self.shade(&[], &[Vec2::ZERO; 2], Vec3::Z, None).params)
+    }
+
+    /// The parameters of the factors alone (the textures left out), for a textured material
+    /// whose textures change its lobes' colours and values but not which lobes there are, beyond
+    /// a black base colour turning the diffuse lobe off (and, with transmission, the transmitted
+    /// one: callers that need more check it): a base colour texture, and a metallic-roughness
+    /// texture where the metal's share cannot change a pure Lambertian into another kind
+    /// (metallic 0 with no specular layer, or a specular layer on) and the roughness stays above
+    /// zero (the factor times the texture's least green). `None` for any other material,
+    /// untextured ones included ([`Material::constant_params`]).
+    pub fn params_of_factors(&self, textures: &[Texture]) -> Option<PbrParams> {
+        if self.base_color_texture.is_none() && self.metallic_roughness_texture.is_none() {
+            return None;
+        }
+        if let Some(t) = &self.metallic_roughness_texture {
+            let lambert = self.metallic == 0.0 && self.specular == 0.0;
+            let least_green = textures.get(t.texture as usize).map_or(1.0, |tex| {
+                tex.texels.iter().map(|c| c[1]).min().unwrap_or(0) as f32 / 255.0
+            });
+            // Half the least product: a bilinear blend of texels rounds within an ulp of them.
+            let rough = self.roughness * least_green * 0.5 > 0.0;
+            if !(lambert || (self.specular > 0.0 && rough)) {
+                return None;
+            }
+        }
+        Material {
+            base_color_texture: None,
+            metallic_roughness_texture: None,
+            ..self.clone()
+        }
+        .constant_params()
     }
 
     /// Evaluates textures into BSDF parameters and the shading normal. `normal` is the interpolated

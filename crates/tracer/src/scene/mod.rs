@@ -252,7 +252,14 @@ impl Scene {
                     .map(|p| Bsdf::new(p, Vec3::Z, Vec3::Z, None))
             })
             .collect::<Vec<_>>();
-        let diffuse = DiffuseScene::new(&materials, &bsdf_templates, &mesh, &instances, &lights);
+        let diffuse = DiffuseScene::new(
+            &materials,
+            &bsdf_templates,
+            &textures,
+            &mesh,
+            &instances,
+            &lights,
+        );
         tracing::debug!(
             wavefront = diffuse.is_some(),
             "whether the scene's materials and lights let the wavefront lanes render it"
@@ -316,6 +323,7 @@ impl Scene {
         self.diffuse = DiffuseScene::new(
             &self.materials,
             &self.bsdf_templates,
+            &self.textures,
             &self.mesh,
             &self.instances,
             &self.lights,

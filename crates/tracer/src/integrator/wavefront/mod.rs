@@ -91,8 +91,8 @@ pub(crate) struct DiffuseMaterial {
     pub emission_back: Vec3,
     /// Whether the material emits: a BSDF ray that hits it needs the light choice's density.
     pub emits: bool,
-    /// Its base colour is a texture's (its only texture): `trace_closest` makes each hit's BSDF
-    /// from the texel (`Scene::textured_template`), and `albedo`, `glossy` and `diffuse_on` above
+    /// It is textured (`Material::params_of_factors`): `trace_closest` makes each hit's BSDF
+    /// from its texels (`Scene::textured_template`), and `albedo`, `glossy` and `diffuse_on` above
     /// are only its kind's (a Lambertian's or a glossy one's, which no texel changes).
     pub textured: bool,
 }
@@ -112,14 +112,16 @@ impl DiffuseScene {
     /// The lanes' view of a scene, if every material is without alpha or an absorbing volume,
     /// and either a pure Lambertian (emissive or not), glossy (`Bsdf::glossy_lobes`: rough,
     /// without transmission or layers) or made of delta lobes only (a perfect mirror, smooth
-    /// glass: no light sample at its vertices); untextured, but for a base colour texture on a
-    /// Lambertian or glossy material (it leaves the lobes' kind as it is); no mesh
+    /// glass: no light sample at its vertices); untextured, but for textures that leave a
+    /// Lambertian or glossy material's kind as it is (base colour, metallic-roughness with the
+    /// roughness above zero: `Material::params_of_factors`); no mesh
     /// (world-space or instanced) has tangents (they may have vertex normals); and the scene has
     /// a light (emissive triangles, punctual lamps or an environment, one colour or an image).
     /// The one place that decides which scenes the lanes render.
     pub(crate) fn new(
         materials: &[Material],
         templates: &[Option<crate::bsdf::Bsdf>],
+        textures: &[crate::material::Texture],
         mesh: &crate::geometry::Mesh,
         instances: &crate::geometry::Instances,
         lights: &Lights,
@@ -137,13 +139,13 @@ impl DiffuseScene {
         }
         let mut out = Vec::with_capacity(materials.len());
         for (material, template) in materials.iter().zip(templates) {
-            // A base colour texture's texel changes the lobes' colours and whether the diffuse
-            // one is black, not which lobes there are, for a Lambertian and a glossy material
-            // without transmission (whose switch reads the base colour): their kind is the factor's.
+            // A textured material whose textures change only its lobes' colours and values
+            // (`Material::params_of_factors`), Lambertian or glossy without transmission (whose
+            // switch reads the base colour): its kind at every texel is its factors'.
             let (bsdf, textured) = match template {
                 Some(bsdf) => (*bsdf, false),
                 None => {
-                    let p = material.params_but_base_colour()?;
+                    let p = material.params_of_factors(textures)?;
                     let bsdf = crate::bsdf::Bsdf::new(p, Vec3::Z, Vec3::Z, None);
                     let kind_fixed = bsdf.single_lobe() || bsdf.glossy_lobes().is_some();
                     if !kind_fixed || bsdf.params().transmission != 0.0 {

@@ -723,13 +723,14 @@ fn instanced_meshes_are_shaded_as_the_scalar_integrator_shades_them() {
     assert_same_bits(&alone, &settings(10, RussianRoulette::Auto, None), 0..8);
 }
 
-/// Base colour textures: on a Lambertian (the floor's tiles) and on glossy materials (the
-/// sphere as a metal and as a plastic), each hit's texel read as `Scene::bsdf_at` reads it, in
-/// the world-space mesh and in instances (one mirrored: its barycentrics swap, its texture
-/// coordinates must not). A normal map, any other texture, or transmission leaves the scene to
-/// the scalar integrator.
+/// Base colour and metallic-roughness textures: a base colour on a Lambertian (the floor's
+/// tiles) and on glossy materials (the sphere as a metal and as a plastic, then with its
+/// roughness and metal share from its texture too), each hit's texels read as `Scene::bsdf_at`
+/// reads them, in the world-space mesh and in instances (one mirrored: its barycentrics swap, its
+/// texture coordinates must not). A normal map, a roughness texture that reaches zero, or
+/// transmission leaves the scene to the scalar integrator.
 #[test]
-fn base_colour_textures_are_read_as_the_scalar_integrator_reads_them() {
+fn textures_are_read_as_the_scalar_integrator_reads_them() {
     use crate::geometry::{Mesh, Placement};
     use glam::{DMat4, DQuat, DVec3};
     // As shipped, its sphere has a normal map (and tangents): see the test above.
@@ -741,14 +742,33 @@ fn base_colour_textures_are_read_as_the_scalar_integrator_reads_them() {
         .position(|m| m.normal_texture.is_some())
         .expect("the sphere's material");
     p.materials[sphere].normal_texture = None;
-    let mut other = p.clone();
+    // Its roughness texture, once with a texel of roughness zero and once without.
+    let rough = p.materials[sphere]
+        .metallic_roughness_texture
+        .as_ref()
+        .expect("a metallic-roughness texture")
+        .texture as usize;
+    let mut smooth_somewhere = p.clone();
+    smooth_somewhere.textures[rough].texels[0][1] = 0;
     assert!(
-        scene(other.clone()).diffuse.is_none(),
-        "a metallic-roughness texture"
+        scene(smooth_somewhere).diffuse.is_none(),
+        "a roughness texture that reaches zero"
     );
+    let mut mapped = p.clone();
+    for texel in &mut mapped.textures[rough].texels {
+        texel[1] = texel[1].max(8);
+    }
+    let least_rough = scene(mapped);
+    assert!(least_rough.diffuse.is_some());
+    for (seed, rr) in [
+        (54, RussianRoulette::Auto),
+        (55, RussianRoulette::Fixed(0.7)),
+    ] {
+        assert_same_bits(&least_rough, &settings(seed, rr, None), 0..6);
+    }
     p.materials[sphere].metallic_roughness_texture = None;
     p.materials[sphere].roughness = 0.35;
-    other.materials = p.materials.clone();
+    let mut other = p.clone();
     other.materials[sphere].transmission = 1.0;
     assert!(scene(other).diffuse.is_none(), "a transmitting texture");
     let untextured = {
