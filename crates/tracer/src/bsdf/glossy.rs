@@ -92,12 +92,13 @@ impl Bsdf {
 }
 
 impl GlossyLobes {
-    /// The material's BSDF at a hit: what `Bsdf::at(ns, ng, None)` makes of the material's own,
-    /// with the lobes it does not have switched off by constants, so that their code folds away.
+    /// The material's BSDF at a hit: what `Bsdf::at(ns, ng, tangent)` makes of the material's
+    /// own, with the lobes it does not have switched off by constants, so that their code folds
+    /// away.
     #[inline(always)]
-    pub(crate) fn at(&self, ns: Vec3, ng: Vec3) -> Bsdf {
+    pub(crate) fn at(&self, ns: Vec3, ng: Vec3, tangent: Option<Vec3>) -> Bsdf {
         Bsdf {
-            frame: shading_frame(ns, None),
+            frame: shading_frame(ns, tangent),
             ng,
             params: PbrParams {
                 base_color: self.base_color,
@@ -195,7 +196,7 @@ mod tests {
                 let ng = (ns + 0.3 * v.unit()).try_normalize().unwrap_or(ns);
                 let (wo, wi) = (v.unit(), v.unit());
                 let bsdf = template.at(ns, ng, None);
-                let lanes = lobes.at(ns, ng);
+                let lanes = lobes.at(ns, ng, None);
                 let terms = lobes.albedo_terms(wo.dot(ns).abs());
                 let (f, pdf) = bsdf.eval_pdf(wo, wi);
                 let (lf, lpdf) = lanes.glossy_eval_pdf(wo, wi, terms);

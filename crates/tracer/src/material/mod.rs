@@ -225,15 +225,16 @@ impl Material {
     }
 
     /// The parameters of the factors alone (the textures left out), for a textured material
-    /// whose textures change its lobes' colours and values but not which lobes there are, beyond
-    /// a black base colour turning the diffuse lobe off (and, with transmission, the transmitted
-    /// one: callers that need more check it): a base colour texture, and a metallic-roughness
-    /// texture where the metal's share cannot change a pure Lambertian into another kind
-    /// (metallic 0 with no specular layer, or a specular layer on) and the roughness stays above
-    /// zero (the factor times the texture's least green). `None` for any other material,
-    /// untextured ones included ([`Material::constant_params`]).
+    /// whose textures change its lobes' colours and values and its shading normal but not which
+    /// lobes there are, beyond a black base colour turning the diffuse lobe off (and, with
+    /// transmission, the transmitted one: callers that need more check it): a base colour
+    /// texture, a normal map, and a metallic-roughness texture where the metal's share cannot
+    /// change a pure Lambertian into another kind (metallic 0 with no specular layer, or a
+    /// specular layer on) and the roughness stays above zero (the factor times the texture's
+    /// least green). `None` for any other material, untextured ones included
+    /// ([`Material::constant_params`]).
     pub fn params_of_factors(&self, textures: &[Texture]) -> Option<PbrParams> {
-        if self.base_color_texture.is_none() && self.metallic_roughness_texture.is_none() {
+        if self.constant_params().is_some() {
             return None;
         }
         if let Some(t) = &self.metallic_roughness_texture {
@@ -250,6 +251,7 @@ impl Material {
         Material {
             base_color_texture: None,
             metallic_roughness_texture: None,
+            normal_texture: None,
             ..self.clone()
         }
         .constant_params()

@@ -360,21 +360,10 @@ impl Scene {
     /// handedness flipped under a mirror, then shaded as a world-space triangle.
     #[inline(never)]
     fn instance_surface(&self, ray: &Ray, hit: &Hit) -> SurfaceInteraction {
-        let (inst, proto) = self.instances.get(hit.instance);
-        let mesh = &proto.mesh;
+        let mesh = &self.instances.get(hit.instance).1.mesh;
         let tri = hit.triangle as usize;
         let world = self.instance_triangle(hit);
-        let sign = if inst.flip { -1.0 } else { 1.0 };
-        let tangents = mesh.tangents.as_ref().map(|t| {
-            let t = t[tri];
-            corner_order(inst.flip).map(|i| {
-                let xyz = inst
-                    .to_world
-                    .transform_vector3(t[i].truncate())
-                    .normalize_or_zero();
-                xyz.extend(t[i].w * sign)
-            })
-        });
+        let tangents = self.instance_tangents(hit);
         interaction(
             ray,
             hit,
@@ -385,6 +374,41 @@ impl Scene {
             uv_at(mesh, tri, hit.b1, hit.b2),
             world.material,
         )
+    }
+
+    /// The tangents at the corners of an instanced hit's triangle in world space, in the order of
+    /// [`Scene::instance_triangle`]'s corners: by the transform's linear part, the handedness
+    /// flipped under a mirror. `None` for a prototype without tangents.
+    #[inline]
+    fn instance_tangents(&self, hit: &Hit) -> Option<[Vec4; 3]> {
+        let (inst, proto) = self.instances.get(hit.instance);
+        let sign = if inst.flip { -1.0 } else { 1.0 };
+        proto.mesh.tangents.as_ref().map(|t| {
+            let t = t[hit.triangle as usize];
+            corner_order(inst.flip).map(|i| {
+                let xyz = inst
+                    .to_world
+                    .transform_vector3(t[i].truncate())
+                    .normalize_or_zero();
+                xyz.extend(t[i].w * sign)
+            })
+        })
+    }
+
+    /// The interpolated tangent at a hit, as [`Scene::surface`] makes it (`None` for a mesh
+    /// without tangents).
+    #[inline(never)]
+    pub(crate) fn hit_tangent(&self, hit: &Hit) -> Option<Vec4> {
+        if hit.instance == Hit::WORLD {
+            let corners = self.mesh.tangents.as_ref()?[hit.triangle as usize];
+            Some(interpolated_tangent(corners, (hit.b1, hit.b2)))
+        } else {
+            let corners = self.instance_tangents(hit)?;
+            Some(interpolated_tangent(
+                corners,
+                self.instance_triangle(hit).bary,
+            ))
+        }
     }
 
     /// The triangle of an instanced hit in world space, moved as the flattening loader moves it:
@@ -478,6 +502,13 @@ pub(crate) fn shading_normal([n0, n1, n2]: [Vec3; 3], [b0, b1, b2]: [f32; 3], ng
     }
 }
 
+/// The tangent at barycentrics (b1, b2) of a triangle whose corners carry `corners`.
+#[inline(always)]
+fn interpolated_tangent([t0, t1, t2]: [Vec4; 3], (b1, b2): (f32, f32)) -> Vec4 {
+    let b0 = 1.0 - b1 - b2;
+    t0 * b0 + t1 * b1 + t2 * b2
+}
+
 /// The surface at barycentrics (b1, b2) of a world-space triangle with these corners (front-face
 /// order) and corner attributes.
 #[allow(clippy::too_many_arguments)]
@@ -500,7 +531,7 @@ fn interaction(
         Some(corners) => shading_normal(corners, [b0, b1, b2], ng),
         None => ng,
     };
-    let tangent = tangents.map(|[t0, t1, t2]| t0 * b0 + t1 * b1 + t2 * b2);
+    let tangent = tangents.map(|corners| interpolated_tangent(corners, (b1, b2)));
     SurfaceInteraction {
         p,
         clearance: crate::math::spawn_clearance([a, b, c]),

@@ -286,13 +286,21 @@ impl Scene {
         self.any_alpha
     }
 
-    /// The BSDF of textured material `material` at texture coordinates `uv`, in a frame of its
-    /// own (`Bsdf::at` moves it to a hit): the parameters [`Scene::bsdf_at`] reads there, for a
-    /// material whose textures leave its normal as it is (no normal map).
-    pub(crate) fn textured_template(&self, material: u32, uv: &[glam::Vec2; 2]) -> Bsdf {
+    /// The shading normal and the BSDF of textured material `material` at `hit`, whose
+    /// interpolated shading normal is `ns` and tangent `tangent`: what [`Scene::bsdf_at`] reads
+    /// there, the BSDF in a frame of its own (`Bsdf::at` moves it to the normal), for a material
+    /// without a clear coat (whose normal it leaves out).
+    pub(crate) fn textured_bsdf(
+        &self,
+        material: u32,
+        hit: &Hit,
+        ns: Vec3,
+        tangent: Option<glam::Vec4>,
+    ) -> (Vec3, Bsdf) {
         let m = &self.materials[material as usize];
-        let params = m.shade(&self.textures, uv, Vec3::Z, None).params;
-        Bsdf::new(params, Vec3::Z, Vec3::Z, None)
+        let shading = m.shade(&self.textures, &self.hit_uv(hit), ns, tangent);
+        let bsdf = Bsdf::new(shading.params, Vec3::Z, Vec3::Z, None);
+        (shading.normal, bsdf)
     }
 
     /// The BSDF at a surface point: the material's textures evaluated there, or, for a material

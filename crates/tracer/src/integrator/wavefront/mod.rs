@@ -10,11 +10,12 @@
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
 //! It models only what the scenes it takes need (see [`DiffuseScene`]): materials untextured but
-//! for a base colour (each hit's texel read by `trace_closest`), pure Lambertian, glossy (a rough metal, a Lambertian base under a rough specular layer, or a
+//! for a base colour, a metallic-roughness texture and a normal map (each hit's texels, tangent and
+//! mapped normal read by `Lanes::shade_texels`), pure Lambertian, glossy (a rough metal, a Lambertian base under a rough specular layer, or a
 //! mix: `bsdf::GlossyLobes`, evaluated and sampled in the lanes by the BSDF's own code) or purely
 //! specular (a perfect mirror, smooth glass: delta lobes only, sampled lane by lane through
 //! `Bsdf::sample`); emissive triangles, punctual lamps and the environment
-//! as the lights; no alpha, no tangents (vertex normals are interpolated as `Scene::surface`
+//! as the lights; no alpha (vertex normals are interpolated as `Scene::surface`
 //! does, and instanced meshes moved to world space as it moves them:
 //! `Scene::instance_triangle`); MIS
 //! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
@@ -106,6 +107,9 @@ pub(crate) struct DiffuseScene {
     /// one that chooses by the light tree, which each lane walks on its own (and for one without
     /// emissive triangles, where the walk finds none).
     pub lights: Option<Box<LightTable>>,
+    /// Some mesh has tangents: each hit's BSDF frame is oriented by its tangent, as
+    /// `Scene::bsdf_at` orients it (`Lanes::shade_texels`).
+    pub tangents: bool,
 }
 
 impl DiffuseScene {
@@ -113,10 +117,9 @@ impl DiffuseScene {
     /// and either a pure Lambertian (emissive or not), glossy (`Bsdf::glossy_lobes`: rough,
     /// without transmission or layers) or made of delta lobes only (a perfect mirror, smooth
     /// glass: no light sample at its vertices); untextured, but for textures that leave a
-    /// Lambertian or glossy material's kind as it is (base colour, metallic-roughness with the
-    /// roughness above zero: `Material::params_of_factors`); no mesh
-    /// (world-space or instanced) has tangents (they may have vertex normals); and the scene has
-    /// a light (emissive triangles, punctual lamps or an environment, one colour or an image).
+    /// Lambertian or glossy material's kind as it is (base colour, normal map, metallic-roughness
+    /// with the roughness above zero: `Material::params_of_factors`); and the scene has a light
+    /// (emissive triangles, punctual lamps or an environment, one colour or an image).
     /// The one place that decides which scenes the lanes render.
     pub(crate) fn new(
         materials: &[Material],
@@ -130,9 +133,6 @@ impl DiffuseScene {
         let tangents = std::iter::once(mesh)
             .chain(instances.prototypes.iter().map(|p| &p.mesh))
             .any(|m| m.tangents.is_some());
-        if tangents {
-            return None;
-        }
         // Without a light there is nothing for the lanes to speed up.
         if area.is_empty() && lights.punctual.is_empty() && lights.environment.is_none() {
             return None;
@@ -188,6 +188,7 @@ impl DiffuseScene {
         Some(DiffuseScene {
             materials: out,
             lights,
+            tangents,
         })
     }
 }

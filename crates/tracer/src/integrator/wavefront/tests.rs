@@ -288,10 +288,6 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     ] {
         assert!(Wavefront::new(&cornell, &other).is_none());
     }
-    assert!(
-        scene(parts("textured")).diffuse.is_none(),
-        "a normal map (tangents) needs more than the lanes model"
-    );
     // Rough glass, a clear coat, a sheen: the BSDF's lobes that the lanes do not model.
     for change in [
         |m: &mut crate::material::Material| (m.transmission, m.roughness) = (1.0, 0.3),
@@ -723,26 +719,66 @@ fn instanced_meshes_are_shaded_as_the_scalar_integrator_shades_them() {
     assert_same_bits(&alone, &settings(10, RussianRoulette::Auto, None), 0..8);
 }
 
-/// Base colour and metallic-roughness textures: a base colour on a Lambertian (the floor's
-/// tiles) and on glossy materials (the sphere as a metal and as a plastic, then with its
-/// roughness and metal share from its texture too), each hit's texels read as `Scene::bsdf_at`
-/// reads them, in the world-space mesh and in instances (one mirrored: its barycentrics swap, its
-/// texture coordinates must not). A normal map, a roughness texture that reaches zero, or
-/// transmission leaves the scene to the scalar integrator.
+/// Textures: the shipped textured scene (a Lambertian floor with a base colour texture; a
+/// sphere with base colour, metallic-roughness and normal textures, and tangents), then with its
+/// roughness texture reaching zero somewhere (not the lanes'), without tangents, and with base
+/// colours alone on a metal and a plastic sphere; each hit's texels read and its frame oriented
+/// as `Scene::bsdf_at` does, in the world-space mesh and in instances (one mirrored: its
+/// barycentrics swap, its texture coordinates must not, its tangents' handedness flips).
 #[test]
 fn textures_are_read_as_the_scalar_integrator_reads_them() {
     use crate::geometry::{Mesh, Placement};
     use glam::{DMat4, DQuat, DVec3};
-    // As shipped, its sphere has a normal map (and tangents): see the test above.
+    let shipped = scene(parts("textured"));
+    assert!(shipped.diffuse.as_ref().is_some_and(|d| d.tangents));
+    for (seed, rr) in [
+        (54, RussianRoulette::Auto),
+        (55, RussianRoulette::Fixed(0.7)),
+    ] {
+        assert_same_bits(&shipped, &settings(seed, rr, None), 0..6);
+    }
     let mut p = parts("textured");
-    p.mesh.tangents = None;
     let sphere = p
         .materials
         .iter()
         .position(|m| m.normal_texture.is_some())
         .expect("the sphere's material");
-    p.materials[sphere].normal_texture = None;
-    // Its roughness texture, once with a texel of roughness zero and once without.
+    // The sphere a normal-mapped Lambertian: the cosine lobe's frame oriented by the tangent.
+    let mut matte = p.clone();
+    (
+        matte.materials[sphere].metallic,
+        matte.materials[sphere].specular,
+    ) = (0.0, 0.0);
+    let matte = scene(matte);
+    assert!(matte.diffuse.as_ref().is_some_and(|d| d.tangents));
+    assert_same_bits(&matte, &settings(57, RussianRoulette::Auto, None), 0..6);
+    // Lit by a lamp as well (`light_punctual`'s glossy evaluation), and the sphere an
+    // untextured mirror on its tangents (`scatter_specular`'s frame).
+    let mut lamp = p.clone();
+    let (lo, hi) = lamp.mesh.bounds();
+    lamp.punctual_lights = vec![crate::light::PunctualLight::Point(
+        crate::light::PointLight {
+            position: (lo + hi) * 0.5 + Vec3::new(0.2, 0.3, 0.1) * (hi - lo),
+            intensity: Vec3::splat((hi - lo).length_squared()),
+        },
+    )];
+    let mut mirror = lamp.clone();
+    let mut lamp = scene(lamp);
+    assert!(lamp.diffuse.as_ref().is_some_and(|d| d.tangents));
+    assert_same_bits(&lamp, &settings(58, RussianRoulette::Auto, None), 0..6);
+    // The lamp chosen lane by lane (`light_punctual`'s other path).
+    lamp.lights.choose_punctual_by_power();
+    assert_same_bits(&lamp, &settings(60, RussianRoulette::Auto, None), 0..6);
+    let m = &mut mirror.materials[sphere];
+    (
+        m.base_color_texture,
+        m.metallic_roughness_texture,
+        m.normal_texture,
+    ) = (None, None, None);
+    (m.metallic, m.roughness) = (1.0, 0.0);
+    let mirror = scene(mirror);
+    assert!(mirror.diffuse.as_ref().is_some_and(|d| d.tangents));
+    assert_same_bits(&mirror, &settings(59, RussianRoulette::Auto, None), 0..6);
     let rough = p.materials[sphere]
         .metallic_roughness_texture
         .as_ref()
@@ -754,18 +790,19 @@ fn textures_are_read_as_the_scalar_integrator_reads_them() {
         scene(smooth_somewhere).diffuse.is_none(),
         "a roughness texture that reaches zero"
     );
-    let mut mapped = p.clone();
-    for texel in &mut mapped.textures[rough].texels {
-        texel[1] = texel[1].max(8);
-    }
-    let least_rough = scene(mapped);
-    assert!(least_rough.diffuse.is_some());
-    for (seed, rr) in [
-        (54, RussianRoulette::Auto),
-        (55, RussianRoulette::Fixed(0.7)),
-    ] {
-        assert_same_bits(&least_rough, &settings(seed, rr, None), 0..6);
-    }
+    // Without tangents, the normal map changes nothing (as in `Material::shade`).
+    p.mesh.tangents = None;
+    let untangled = scene(p.clone());
+    assert!(untangled.diffuse.as_ref().is_some_and(|d| !d.tangents));
+    assert!(
+        pixels_that_differ(
+            &shipped,
+            &untangled,
+            &settings(1, RussianRoulette::Auto, None)
+        ) > 100
+    );
+    assert_same_bits(&untangled, &settings(56, RussianRoulette::Auto, None), 0..6);
+    p.materials[sphere].normal_texture = None;
     p.materials[sphere].metallic_roughness_texture = None;
     p.materials[sphere].roughness = 0.35;
     let mut other = p.clone();
@@ -795,21 +832,26 @@ fn textures_are_read_as_the_scalar_integrator_reads_them() {
             assert_same_bits(&textured, &settings(seed, rr, None), 0..6);
         }
     }
-    // The textured triangles as a prototype, placed three times inside the box.
+    // The shipped scene's textured triangles, with their tangents and the materials as shipped,
+    // as a prototype placed three times inside the box (whose world-space mesh has no tangents
+    // now: its hits' frames are oriented as without).
+    let shipped = parts("textured");
+    p.materials = shipped.materials.clone();
     let textured_material = |m: u32| p.materials[m as usize].base_color_texture.is_some();
-    let keep: Vec<usize> = (0..p.mesh.len())
-        .filter(|&t| textured_material(p.mesh.material[t]))
-        .collect();
-    let uv0 = p.mesh.uv0.as_ref().expect("texture coordinates");
-    let mut proto = Mesh {
-        positions: keep.iter().map(|&t| p.mesh.positions[t]).collect(),
-        material: keep.iter().map(|&t| p.mesh.material[t]).collect(),
-        uv0: Some(keep.iter().map(|&t| uv0[t]).collect()),
+    let pick = |t: usize| textured_material(shipped.mesh.material[t]);
+    let keep: Vec<usize> = (0..shipped.mesh.len()).filter(|&t| pick(t)).collect();
+    fn attribute<T: Copy>(a: &Option<Vec<T>>, keep: &[usize]) -> Option<Vec<T>> {
+        a.as_ref().map(|a| keep.iter().map(|&t| a[t]).collect())
+    }
+    let proto = Mesh {
+        positions: keep.iter().map(|&t| shipped.mesh.positions[t]).collect(),
+        material: keep.iter().map(|&t| shipped.mesh.material[t]).collect(),
+        uv0: attribute(&shipped.mesh.uv0, &keep),
+        normals: attribute(&shipped.mesh.normals, &keep),
+        tangents: attribute(&shipped.mesh.tangents, &keep),
         ..Mesh::default()
     };
-    if let Some(n) = &p.mesh.normals {
-        proto.normals = Some(keep.iter().map(|&t| n[t]).collect());
-    }
+    assert!(proto.uv0.is_some() && proto.tangents.is_some());
     let (lo, hi) = proto.bounds();
     let (c, size) = (((lo + hi) * 0.5).as_dvec3(), (hi - lo).as_dvec3());
     let place = |at: DVec3, scale: DVec3, turn: f64| Placement {
@@ -832,7 +874,7 @@ fn textures_are_read_as_the_scalar_integrator_reads_them() {
     ];
     let placed = scene(p);
     assert_eq!(placed.info.instances, 3);
-    assert!(placed.diffuse.is_some());
+    assert!(placed.diffuse.as_ref().is_some_and(|d| d.tangents));
     let plain = scene(parts("textured"));
     assert!(pixels_that_differ(&placed, &plain, &s) > 300);
     assert_same_bits(&placed, &settings(53, RussianRoulette::Auto, None), 0..6);

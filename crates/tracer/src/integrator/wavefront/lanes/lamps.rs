@@ -58,7 +58,7 @@ impl Lanes<'_> {
             queries[i] = match &self.lobes(i) {
                 // The glossy BSDF as `trace_path` evaluates it (`Bsdf::eval`, out of line).
                 Some(lobes) => {
-                    let bsdf = lobes.at(ns, ng);
+                    let bsdf = lobes.at(ns, ng, self.frame_tangent(i));
                     punctual_query(scene, &at, |wi| bsdf.eval(wo, wi), |_| Vec3::ONE)
                 }
                 None => {

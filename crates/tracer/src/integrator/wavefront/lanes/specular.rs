@@ -40,7 +40,7 @@ impl Lanes<'_> {
             ];
             let [u0, u1, u_lobe, u_rr] =
                 owen_sobol_group_lanewise(self.key[i], self.index_rev[i], group, offsets);
-            let bsdf = template.at(ns, ng, None);
+            let bsdf = template.at(ns, ng, self.frame_tangent(i));
             let Some(bs) = bsdf
                 .sample(wo, u_lobe, Vec2::new(u0, u1))
                 .filter(|bs| !is_black(bs.weight))

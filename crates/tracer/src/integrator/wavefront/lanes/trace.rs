@@ -62,15 +62,12 @@ impl Lanes<'_> {
                 self.load_world(i, &hit, mixed)
             };
             let m = &self.materials[material as usize];
-            let (albedo, diffuse_on) = match m.textured && self.hit[i] {
-                false => (m.albedo, m.diffuse_on),
-                true => self.load_texel(i, &hit, material),
-            };
-            self.albedo.set(i, albedo);
+            // A textured material's are its hit's (`shade_texels`).
+            self.albedo.set(i, m.albedo);
             self.material[i] = material;
             self.emission_front.set(i, m.emission_front);
             self.emission_back.set(i, m.emission_back);
-            self.diffuse_on[i] = diffuse_on;
+            self.diffuse_on[i] = m.diffuse_on;
             // The density depends on the vertex the ray left (`p` and `ng` still hold it) and on
             // where the ray meets the light: `trace_path`'s `EmissionWeight::Mis`, the normal
             // made as `shade_hit` makes it. Emitters are never instanced.
@@ -92,19 +89,37 @@ impl Lanes<'_> {
         }
     }
 
-    /// Lane `i`'s BSDF at its hit of a textured material, made as `Scene::bsdf_at` makes it: its
-    /// glossy lobes kept for `Lanes::lobes`, its Lambertian albedo and `Bsdf::has_non_delta`
-    /// returned.
+    /// Each hit's tangent, and each textured material's BSDF at its hit, as `Scene::bsdf_at`
+    /// makes them (after `shade_hit` has interpolated the shading normal): the tangent orients
+    /// the frames, a normal map replaces the shading normal, and the texels' parameters give the
+    /// lane's Lambertian albedo and `Bsdf::has_non_delta`, or its glossy lobes (`Lanes::lobes`).
     #[inline(never)]
-    fn load_texel(&mut self, i: usize, hit: &Hit, material: u32) -> (glam::Vec3, bool) {
+    pub(super) fn shade_texels(&mut self) {
         let scene = self.scene;
-        let bsdf = scene.textured_template(material, &scene.hit_uv(hit));
-        self.texel_lobes[i] = bsdf.glossy_lobes();
-        let albedo = match bsdf.single_lobe() {
-            true => bsdf.params().base_color,
-            false => glam::Vec3::ZERO,
-        };
-        (albedo, bsdf.has_non_delta())
+        for i in 0..LANES {
+            let Some(hit) = self.found[i].filter(|_| self.hit[i]) else {
+                continue;
+            };
+            let tangent = match self.tangents {
+                true => scene.hit_tangent(&hit),
+                false => None,
+            };
+            self.tangent
+                .set(i, tangent.map_or(glam::Vec3::ZERO, |t| t.truncate()));
+            let material = self.material[i];
+            if !self.materials[material as usize].textured {
+                continue;
+            }
+            let (ns, bsdf) = scene.textured_bsdf(material, &hit, self.ns.get(i), tangent);
+            self.ns.set(i, ns);
+            self.texel_lobes[i] = bsdf.glossy_lobes();
+            let albedo = match bsdf.single_lobe() {
+                true => bsdf.params().base_color,
+                false => glam::Vec3::ZERO,
+            };
+            self.albedo.set(i, albedo);
+            self.diffuse_on[i] = bsdf.has_non_delta();
+        }
     }
 
     /// Loads lane `i`'s hit of the world-space mesh (its barycentrics, corners and vertex
