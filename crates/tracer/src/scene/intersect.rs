@@ -404,10 +404,8 @@ impl Scene {
             Some(interpolated_tangent(corners, (hit.b1, hit.b2)))
         } else {
             let corners = self.instance_tangents(hit)?;
-            Some(interpolated_tangent(
-                corners,
-                self.instance_triangle(hit).bary,
-            ))
+            let flip = self.instances.get(hit.instance).0.flip;
+            Some(interpolated_tangent(corners, corner_bary(flip, hit)))
         }
     }
 
@@ -422,12 +420,7 @@ impl Scene {
         let mesh = &proto.mesh;
         let tri = hit.triangle as usize;
         let order = corner_order(inst.flip);
-        // Corners (a, c, b) under a mirror: their weights are (b0, b2, b1).
-        let bary = if inst.flip {
-            (hit.b2, hit.b1)
-        } else {
-            (hit.b1, hit.b2)
-        };
+        let bary = corner_bary(inst.flip, hit);
         let corners = mesh.positions[tri];
         let positions = order.map(|i| inst.to_world.transform_point3(corners[i]));
         let (a, b, c) = (positions[0], positions[1], positions[2]);
@@ -472,6 +465,17 @@ fn corner_order(flip: bool) -> [usize; 3] {
         [0, 2, 1]
     } else {
         [0, 1, 2]
+    }
+}
+
+/// A hit's barycentrics (b1, b2) for its corners read in [`corner_order`]: under a mirror the
+/// corners are (a, c, b), whose weights are (b0, b2, b1).
+#[inline(always)]
+fn corner_bary(flip: bool, hit: &Hit) -> (f32, f32) {
+    if flip {
+        (hit.b2, hit.b1)
+    } else {
+        (hit.b1, hit.b2)
     }
 }
 

@@ -92,8 +92,8 @@ pub(crate) struct DiffuseMaterial {
     pub emission_back: Vec3,
     /// Whether the material emits: a BSDF ray that hits it needs the light choice's density.
     pub emits: bool,
-    /// It is textured (`Material::params_of_factors`): `trace_closest` makes each hit's BSDF
-    /// from its texels (`Scene::textured_template`), and `albedo`, `glossy` and `diffuse_on` above
+    /// It is textured (`Material::params_of_factors`): `Lanes::shade_texels` makes each hit's BSDF
+    /// from its texels (`Scene::textured_bsdf`), and `albedo`, `glossy` and `diffuse_on` above
     /// are only its kind's (a Lambertian's or a glossy one's, which no texel changes).
     pub textured: bool,
 }
