@@ -51,8 +51,15 @@ def build(desc, base):
             "sampler": {"type": "independent", "sample_count": 1},
         },
     }
+    def resolve(d):  # bitmap filenames are relative to the scene file's folder
+        if isinstance(d, dict):
+            d = {k: resolve(v) for k, v in d.items()}
+            if d.get("type") == "bitmap":
+                d["filename"] = os.path.join(base, d["filename"])
+        return d
+
     for name, bsdf in desc["bsdfs"].items():
-        scene[f"bsdf_{name}"] = dict(bsdf, id=f"bsdf_{name}")
+        scene[f"bsdf_{name}"] = dict(resolve(bsdf), id=f"bsdf_{name}")
 
     def ref(name):
         return {"type": "ref", "id": f"bsdf_{name}"}

@@ -11,7 +11,10 @@ or a renderer's bias, not a model difference:
   with KHR_materials_volume (thickness > 0) so that the tracer treats it as a solid;
 - emitters: Principled with a black base, Specular IOR Level 0 (a black Lambertian) and emission;
 - lamps of radius 0 (point, spot with spot_blend 0) and angle 0 (sun): delta lights;
-- a uniform world colour (strength 1).
+- a uniform world colour (strength 1);
+- image textures: an sRGB base colour on a Lambertian, and a tangent-space normal map on flat
+  faces whose UVs are not mirrored (there every renderer's tangent frame is the same: Mitsuba
+  builds its frame from dP/du, Cycles and the tracer from MikkTSpace).
 
 Each scene function builds the Blender scene (after make_suite.reset()) and returns a dict with
 "covers" (text) and "environment" (linear RGB radiance of the uniform world, or None).
@@ -46,6 +49,27 @@ def mirror(name):
 def glass(name, thickness):
     m = suite.material(name, (1.0, 1.0, 1.0), roughness=0.0, transmission=1.0, ior=1.5)
     suite.gltf_output_node(m, thickness)  # the exporter then writes KHR_materials_volume
+    return m
+
+
+def textured_lambert(name, base_image, normal_image=None):
+    """A Lambertian whose albedo is an sRGB image texture (bilinear, repeat, the mesh's UVs),
+    optionally with a tangent-space normal map (Non-Color image, strength 1): glTF
+    baseColorTexture and normalTexture; Mitsuba `bitmap` and `normalmap`."""
+    m = lambert(name, (1.0, 1.0, 1.0))
+    nt = m.node_tree
+    p = nt.nodes["Principled BSDF"]
+    tb = nt.nodes.new("ShaderNodeTexImage")
+    tb.image = base_image
+    tb.interpolation = "Linear"
+    nt.links.new(tb.outputs["Color"], p.inputs["Base Color"])
+    if normal_image is not None:
+        tn = nt.nodes.new("ShaderNodeTexImage")
+        tn.image = normal_image
+        tn.interpolation = "Linear"
+        nm = nt.nodes.new("ShaderNodeNormalMap")
+        nt.links.new(tn.outputs["Color"], nm.inputs["Color"])
+        nt.links.new(nm.outputs["Normal"], p.inputs["Normal"])
     return m
 
 
@@ -303,6 +327,32 @@ def scene_instancing():
             "environment": None}
 
 
+def scene_textured():
+    base, normal, _ = suite.tile_textures()
+    base_img = suite.image_from_array("peers_tiles_basecolor", base)
+    normal_img = suite.image_from_array("peers_tiles_normal", normal, non_color=True)
+    tiles = textured_lambert("Tiles", base_img, normal_img)
+    painted = textured_lambert("Painted", base_img)
+    wall = lambert("Wall", (0.65, 0.65, 0.62))
+    suite.plane(tiles, (0, 0.5, 0), 6, name="TiledFloor")
+    suite.plane(wall, (0, 2.5, 2.0), 1.0, rotation=(math.radians(90), 0, 0), scale=(8, 4, 1),
+                name="BackWall")
+    suite.mesh_obj(bpy.ops.mesh.primitive_uv_sphere_add, painted, location=(0.8, 0.0, 0.6),
+                   radius=0.6, segments=64, ring_count=32, smooth=True, name="PaintedSphere")
+    rotated_box(painted, (-0.8, 0.6, 0.5), (1.0, 1.0, 1.0), 30, "PaintedCube")
+    light = emitter("Light", (1.0, 0.93, 0.82), 25.0)
+    panel(light, (-1.2, -1.4, 2.4), (0.8, 0.5), (0, 0.3, 0), "AreaLight")
+    sun = suite.lamp("SUN", "Sun", (0, 0, 10), energy=2.0, color=(1.0, 0.95, 0.88))
+    sun.rotation_euler = Vector((0.5, -0.7, 0.6)).normalized().to_track_quat("Z", "Y").to_euler()
+    suite.camera((0.3, -4.6, 2.5), (0.0, 0.3, 0.3), lens=40.0)
+    return {"covers": "Textured Lambertians: a floor tiled by a 512 x 512 sRGB base colour "
+                      "texture and tangent-space normal map (grooves between the tiles), a "
+                      "UV sphere (smooth) and a cube painted with the base colour only, before "
+                      "a wall, under an area light and a sun: texture lookups and normal "
+                      "mapping on every hit.",
+            "environment": None}
+
+
 # Letter -> (name, builder), in the order of the brief.
 SCENES = {
     "a": ("cornell", scene_cornell),
@@ -313,4 +363,5 @@ SCENES = {
     "f": ("environment", scene_environment),
     "g": ("emissive_mesh", scene_emissive_mesh),
     "h": ("instancing", scene_instancing),
+    "i": ("textured", scene_textured),
 }

@@ -14,6 +14,12 @@ Runs inside bpy. Only what has an exact counterpart is accepted (anything else r
   Mitsuba's diffuse and conductor are black from behind); smooth glass -> `dielectric` with
   int_ior = the IOR, ext_ior 1; an emissive black Lambertian -> an `area` emitter with radiance
   colour x strength on a black `diffuse`;
+- textures (Lambertians only): an sRGB Image Texture node (Linear, Repeat, Flat, the default
+  UV map) on Base Color -> a `bitmap` reflectance (bilinear, repeat); a Non-Color one through a
+  tangent-space Normal Map node of strength 1 on Normal -> the `diffuse` wrapped in `normalmap`
+  (its frame follows dP/du, which equals the MikkTSpace tangent of Cycles and the tracer on flat
+  faces with unmirrored UVs: scenes.py puts normal maps only there). Textured meshes carry their
+  UVs (v flipped: 1 - v) in the PLY;
 - emitters are two-sided in Cycles (and exported doubleSided for the tracer) but one-sided in
   Mitsuba: an open emissive mesh gets a face-flipped copy of its triangles, displaced by
   FLIP_OFFSET behind the original, in the same shape (so one emitter, as in Blender). A closed
@@ -33,6 +39,8 @@ Coordinates stay Blender's (Z-up): Mitsuba has no preferred up axis.
 import json
 import math
 import os
+import shutil
+import tempfile
 
 import bpy
 import numpy as np
@@ -63,16 +71,81 @@ def principled(mat):
         if o.inputs["Volume"].is_linked or o.inputs["Displacement"].is_linked:
             raise Unsupported(f"material {mat.name}: volume or displacement")
     for name, inp in p.inputs.items():
-        if inp.is_linked:
+        if inp.is_linked and name not in ("Base Color", "Normal"):
             raise Unsupported(f"material {mat.name}: input {name} is linked")
     return p
+
+
+def image_node(mat, socket, colorspace):
+    """The Image Texture node feeding `socket` directly, checked to have the exact counterpart
+    of a glTF texture and a Mitsuba `bitmap` (bilinear, repeat, the default UV map), and its
+    image's file (a PNG on disk)."""
+    links = socket.links
+    node = links[0].from_node if links else None
+    if node is None or node.type != "TEX_IMAGE" or links[0].from_socket.name != "Color":
+        raise Unsupported(f"material {mat.name}: {socket.name} is not an image's colour")
+    if node.interpolation != "Linear" or node.extension != "REPEAT" or \
+            node.projection != "FLAT" or node.inputs["Vector"].is_linked:
+        raise Unsupported(f"material {mat.name}: image {node.image.name} is not sampled "
+                          "bilinearly with repeat at the mesh's UVs")
+    img = node.image
+    if img.colorspace_settings.name != colorspace:
+        raise Unsupported(f"material {mat.name}: image {img.name} is not {colorspace}")
+    if img.packed_file is not None:  # the PNG's bytes, written out for Mitsuba
+        data = bytes(img.packed_file.data)
+        if not data.startswith(b"\x89PNG"):
+            raise Unsupported(f"material {mat.name}: image {img.name} is not a PNG")
+        safe = "".join(ch if ch.isalnum() else "_" for ch in img.name)
+        path = os.path.join(tempfile.gettempdir(), f"pathfarm_peers_{safe}.png")
+        with open(path, "wb") as f:
+            f.write(data)
+        return path
+    path = bpy.path.abspath(img.filepath)
+    if not path.lower().endswith(".png") or not os.path.isfile(path):
+        raise Unsupported(f"material {mat.name}: image {img.name} is not a PNG file")
+    return path
+
+
+def textured(mat):
+    """Whether an image feeds the material's Principled BSDF (its mesh then needs its UVs)."""
+    p = principled(mat)
+    return p.inputs["Base Color"].is_linked or p.inputs["Normal"].is_linked
+
+
+def bitmap(path, raw):
+    """A Mitsuba `bitmap` of the PNG at `path` (copied beside the scene by `export`), filtered as
+    Cycles' Linear and glTF's LINEAR: bilinear, repeat; sRGB decoded unless raw."""
+    return {"type": "bitmap", "filename": path, "filter_type": "bilinear",
+            "wrap_mode": "repeat", "raw": raw}
+
+
+def base_color(mat, p):
+    """The Mitsuba reflectance of the Base Color input: a uniform RGB or an sRGB image."""
+    inp = p.inputs["Base Color"]
+    if inp.is_linked:
+        return bitmap(image_node(mat, inp, "sRGB"), raw=False)
+    return {"type": "rgb", "value": [float(x) for x in inp.default_value[:3]]}
+
+
+def normal_map(mat, p):
+    """The PNG of the tangent-space normal map feeding the Normal input through a Normal Map
+    node of strength 1, or None."""
+    inp = p.inputs["Normal"]
+    if not inp.is_linked:
+        return None
+    node = inp.links[0].from_node
+    if node.type != "NORMAL_MAP" or node.space != "TANGENT" or node.uv_map != "" or \
+            node.inputs["Strength"].is_linked or node.inputs["Strength"].default_value != 1.0:
+        raise Unsupported(f"material {mat.name}: Normal is not a tangent-space Normal Map "
+                          "node of strength 1")
+    return image_node(mat, node.inputs["Color"], "Non-Color")
 
 
 def classify(mat):
     """The Mitsuba BSDF dict of a Blender material and its emitted radiance (or None)."""
     p = principled(mat)
     v = lambda k: p.inputs[k].default_value  # noqa: E731
-    base = [float(x) for x in v("Base Color")[:3]]
+    base = [float(x) for x in v("Base Color")[:3]]  # unused where an image feeds it
     metallic, rough = float(v("Metallic")), float(v("Roughness"))
     spec, trans = float(v("Specular IOR Level")), float(v("Transmission Weight"))
     strength = float(v("Emission Strength"))
@@ -83,6 +156,9 @@ def classify(mat):
     if float(v("Alpha")) != 1.0:
         raise Unsupported(f"material {mat.name}: alpha")
     emits = strength > 0 and max(emission) > 0
+    textured = p.inputs["Base Color"].is_linked or p.inputs["Normal"].is_linked
+    if textured and not (metallic == 0.0 and spec == 0.0 and trans == 0.0 and not emits):
+        raise Unsupported(f"material {mat.name}: textures only on a Lambertian")
     if emits:
         if max(base) != 0 or spec != 0 or metallic != 0 or trans != 0:
             raise Unsupported(f"material {mat.name}: emitter must be a black Lambertian")
@@ -99,19 +175,25 @@ def classify(mat):
             raise Unsupported(f"material {mat.name}: metal must be a perfect mirror")
         return {"type": "twosided", "bsdf": {"type": "conductor", "material": "none"}}, None
     if metallic == 0.0 and spec == 0.0:
-        return {"type": "twosided",
-                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": base}}}, None
+        bsdf = {"type": "diffuse", "reflectance": base_color(mat, p)}
+        nmap = normal_map(mat, p)
+        if nmap is not None:
+            bsdf = {"type": "normalmap", "normalmap": bitmap(nmap, raw=True), "bsdf": bsdf}
+        return {"type": "twosided", "bsdf": bsdf}, None
     raise Unsupported(f"material {mat.name}: neither Lambertian, mirror, glass nor emitter")
 
 
-def write_ply(path, positions, normals, faces):
-    """Binary little-endian PLY: float32 x y z [nx ny nz], uint8 count + int32 indices."""
+def write_ply(path, positions, normals, faces, uvs=None):
+    """Binary little-endian PLY: float32 x y z [nx ny nz] [u v], uint8 count + int32 indices."""
     n, m = len(positions), len(faces)
     props = "property float x\nproperty float y\nproperty float z\n"
     cols = [positions.astype(np.float32)]
     if normals is not None:
         props += "property float nx\nproperty float ny\nproperty float nz\n"
         cols.append(normals.astype(np.float32))
+    if uvs is not None:
+        props += "property float u\nproperty float v\n"
+        cols.append(uvs.astype(np.float32))
     header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\n{props}"
               f"element face {m}\nproperty list uchar int vertex_indices\nend_header\n")
     verts = np.ascontiguousarray(np.hstack(cols), dtype="<f4")
@@ -125,9 +207,11 @@ def write_ply(path, positions, normals, faces):
         fh.write(f.tobytes())
 
 
-def mesh_arrays(obj, depsgraph):
+def mesh_arrays(obj, depsgraph, with_uv=False):
     """Triangles of the evaluated mesh in object space: (positions, normals or None, faces,
-    material index per triangle, closed?)."""
+    material index per triangle, closed?, UVs or None). With `with_uv`, the active UV map, v
+    flipped (1 - v: Mitsuba's bitmaps, like glTF, put the image's top row at v = 0, Blender its
+    bottom row)."""
     ev = obj.evaluated_get(depsgraph)
     me = ev.to_mesh()
     try:
@@ -146,21 +230,38 @@ def mesh_arrays(obj, depsgraph):
         co = co.reshape(-1, 3)
         tri_v = vidx[loops].reshape(-1, 3)
         closed = edges_closed(tri_v)
-        if smooth.any():
-            cn = np.empty(len(me.loops) * 3, dtype=np.float64)
-            me.corner_normals.foreach_get("vector", cn)
-            cn = cn.reshape(-1, 3)[loops]
-            key = np.hstack([vidx[loops][:, None].astype(np.float64), np.round(cn, 6)])
-            uniq, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        uv = None
+        if with_uv:
+            if me.uv_layers.active is None:
+                raise Unsupported(f"object {obj.name}: a texture but no UV map")
+            uv = np.empty(len(me.loops) * 2, dtype=np.float64)
+            me.uv_layers.active.data.foreach_get("uv", uv)
+            uv = uv.reshape(-1, 2)[loops]
+            uv[:, 1] = 1.0 - uv[:, 1]
+        if smooth.any() or uv is not None:
+            # One vertex per distinct (vertex, corner normal, UV).
+            cols = [vidx[loops][:, None].astype(np.float64)]
+            cn = None
+            if smooth.any():
+                cn = np.empty(len(me.loops) * 3, dtype=np.float64)
+                me.corner_normals.foreach_get("vector", cn)
+                cn = cn.reshape(-1, 3)[loops]
+                cols.append(np.round(cn, 6))
+            if uv is not None:
+                cols.append(uv)
+            uniq, first, inv = np.unique(np.hstack(cols), axis=0, return_index=True,
+                                         return_inverse=True)
             positions = co[vidx[loops][first]]
-            normals = cn[first]
+            normals = None if cn is None else cn[first]
+            uvs = None if uv is None else uv[first]
             faces = inv.reshape(-1, 3)
         else:
             used, inv = np.unique(tri_v.ravel(), return_inverse=True)
             positions = co[used]
             normals = None
+            uvs = None
             faces = inv.reshape(-1, 3)
-        return positions, normals, faces, mat_idx, closed
+        return positions, normals, faces, mat_idx, closed, uvs
     finally:
         ev.to_mesh_clear()
 
@@ -200,6 +301,19 @@ def flipped_copy(positions, normals, faces):
     return pos, nrm, np.vstack([faces, fl])
 
 
+def copy_images(bsdf, mesh_dir, out_dir):
+    """The BSDF dict with every bitmap's PNG copied beside the meshes and named relative to
+    out_dir (mitsuba_render.py resolves it against the scene file's folder)."""
+    if isinstance(bsdf, dict):
+        out = {k: copy_images(v, mesh_dir, out_dir) for k, v in bsdf.items()}
+        if out.get("type") == "bitmap":
+            dst = os.path.join(mesh_dir, os.path.basename(out["filename"]))
+            shutil.copyfile(out["filename"], dst)
+            out["filename"] = os.path.relpath(dst, out_dir)
+        return out
+    return bsdf
+
+
 def matrix_list(m):
     return [[float(m[i][j]) for j in range(4)] for i in range(4)]
 
@@ -231,17 +345,18 @@ def export(out_dir, name, width, height):
         obj0 = objs[0]
         mat = bsdf_of(obj0)
         bsdf, emission = classify(mat)
-        desc["bsdfs"].setdefault(mat.name, bsdf)
+        desc["bsdfs"].setdefault(mat.name, copy_images(bsdf, mesh_dir, out_dir))
         if obj0.modifiers:
             raise Unsupported(f"object {obj0.name}: modifiers (apply them before exporting)")
-        pos, nrm, faces, _, closed = mesh_arrays(obj0, depsgraph)
+        uses_uv = textured(mat)
+        pos, nrm, faces, _, closed, uvs = mesh_arrays(obj0, depsgraph, with_uv=uses_uv)
         safe = "".join(ch if ch.isalnum() else "_" for ch in mesh_name)
         if len(objs) > 1:
             if emission is not None:
                 raise Unsupported(f"{mesh_name}: instanced emitter (Mitsuba shapegroups cannot "
                                   "hold emitters)")
             ply = os.path.join(mesh_dir, f"group_{safe}.ply")
-            write_ply(ply, pos, nrm, faces)
+            write_ply(ply, pos, nrm, faces, uvs)
             groups[mesh_name] = f"group_{safe}"
             desc["shapegroups"].append({"id": f"group_{safe}", "ply": os.path.relpath(ply, out_dir),
                                         "bsdf": mat.name, "normals": nrm is not None})
@@ -264,7 +379,7 @@ def export(out_dir, name, width, height):
                 pos, nrm, faces = flipped_copy(pos, nrm, faces)
                 summary["flipped_emitters"].append(obj0.name)
         ply = os.path.join(mesh_dir, f"{safe}.ply")
-        write_ply(ply, pos, nrm, faces)
+        write_ply(ply, pos, nrm, faces, uvs)
         entry["ply"] = os.path.relpath(ply, out_dir)
         entry["normals"] = nrm is not None
         entry["name"] = obj0.name
