@@ -39,6 +39,7 @@ mod normals;
 mod refill;
 mod specular;
 mod trace;
+mod volumes;
 
 use glossy::GlossyLanes;
 use refill::CameraRays;
@@ -197,6 +198,15 @@ pub(super) struct Lanes<'a> {
     tangent: V3,
     /// Some material is textured or some mesh has tangents: `shade_texels` runs.
     texels: bool,
+    /// Some material's volume absorbs (`Volume::sigma_a` not zero): each lane tracks the
+    /// absorption of the medium its path is in (`volumes.rs`).
+    any_absorbing: bool,
+    /// The absorption coefficient of the medium each lane's path is in (zero outside every
+    /// volume, and inside a clear one: its transmittance is exactly 1 either way).
+    medium: V3,
+    /// For each lane inside an absorbing medium, its light sample's value with the medium's
+    /// transmittance (`absorb_light_samples`), which `scatter`'s loop leaves out.
+    absorbed_value: V3,
 }
 
 impl<'a> Lanes<'a> {
@@ -274,6 +284,9 @@ impl<'a> Lanes<'a> {
             tangents: diffuse.tangents,
             tangent: V3::ZERO,
             texels: diffuse.tangents || diffuse.materials.iter().any(|m| m.textured),
+            any_absorbing: diffuse.absorbing,
+            medium: V3::ZERO,
+            absorbed_value: V3::ZERO,
             shadow: [false; LANES],
             shadow_o: V3::ZERO,
             shadow_d: V3::ZERO,
@@ -300,6 +313,9 @@ impl<'a> Lanes<'a> {
             if let Some(env) = self.environment {
                 self.add_escaped(env);
             }
+            if self.any_absorbing {
+                self.absorb_along_rays();
+            }
             self.shade_hit_for(isa);
             if self.punctual {
                 self.light_punctual_for(isa);
@@ -307,7 +323,13 @@ impl<'a> Lanes<'a> {
             if self.sampled_environment {
                 self.light_environment_for(isa);
             }
+            if self.any_absorbing {
+                self.absorb_light_samples();
+            }
             self.scatter_for(isa);
+            if self.any_absorbing {
+                self.take_absorbed_light_samples();
+            }
             if self.sampled_environment {
                 self.take_environment_shadows_for(isa);
             }

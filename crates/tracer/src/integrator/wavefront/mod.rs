@@ -110,11 +110,13 @@ pub(crate) struct DiffuseScene {
     /// Some mesh has tangents: each hit's BSDF frame is oriented by its tangent, as
     /// `Scene::bsdf_at` orients it (`Lanes::shade_texels`).
     pub tangents: bool,
+    /// Some material's volume absorbs: the lanes track the medium each path is in
+    /// (`lanes/volumes.rs`).
+    pub absorbing: bool,
 }
 
 impl DiffuseScene {
-    /// The lanes' view of a scene, if every material is without alpha or an absorbing volume,
-    /// and either a pure Lambertian (emissive or not), glossy (`Bsdf::glossy_lobes`: rough,
+    /// The lanes' view of a scene, if every material is without alpha, and either a pure Lambertian (emissive or not), glossy (`Bsdf::glossy_lobes`: rough,
     /// without transmission or layers) or made of delta lobes only (a perfect mirror, smooth
     /// glass: no light sample at its vertices); untextured, but for textures that leave a
     /// Lambertian or glossy material's kind as it is (base colour, normal map, metallic-roughness
@@ -155,9 +157,7 @@ impl DiffuseScene {
                 }
             };
             let untextured = material.emissive_texture.is_none();
-            // A volume that absorbs nothing changes no throughput's bits (× e⁻⁰ = × 1).
-            let clear = material.volume.is_none_or(|v| v.sigma_a == Vec3::ZERO);
-            let plain = !material.has_alpha() && clear;
+            let plain = !material.has_alpha();
             let specular = !bsdf.single_lobe() && !bsdf.has_non_delta();
             let glossy = bsdf.glossy_lobes();
             if !(bsdf.single_lobe() || specular || glossy.is_some()) || !untextured || !plain {
@@ -185,10 +185,16 @@ impl DiffuseScene {
             false => Some(LightTable::new(area, &out, &mesh.material)?),
             true => None,
         };
+        // A volume that absorbs nothing changes no throughput's bits (× e⁻⁰ = × 1): only
+        // absorbing ones are tracked.
+        let absorbing = materials
+            .iter()
+            .any(|m| m.volume.is_some_and(|v| v.sigma_a != Vec3::ZERO));
         Some(DiffuseScene {
             materials: out,
             lights,
             tangents,
+            absorbing,
         })
     }
 }

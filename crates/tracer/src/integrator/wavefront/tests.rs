@@ -298,14 +298,131 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
         change(&mut p.materials[0]);
         assert!(scene(p).diffuse.is_none());
     }
-    // Glass that absorbs (a volume with an attenuation) tracks its medium: the scalar path's.
-    let mut absorbing = parts("caustics");
-    for m in &mut absorbing.materials {
+}
+
+/// Glass that absorbs (a volume with an attenuation): each lane tracks the medium its path is
+/// in as `trace_path` does (`lanes/volumes.rs`). The caustics scene's glass sphere, coloured;
+/// and the box whose green wall is an open sheet of absorbing glass, so that paths entering it
+/// go on to shade a copy of the wall behind it (Lambertian and glossy) from inside the medium, lit by the
+/// box's light (through the glass), a small emitter and a lamp in the medium, a sun and a sky.
+#[test]
+fn absorbing_volumes_attenuate_the_lanes_as_they_attenuate_the_scalar_integrator() {
+    use crate::light::{DirectionalLight, Environment, PointLight, PunctualLight};
+    use crate::material::Volume;
+    let sigma = Vec3::new(0.9, 0.35, 0.1);
+    let mut coloured = parts("caustics");
+    let mut glasses = 0;
+    for m in &mut coloured.materials {
         if let Some(v) = &mut m.volume {
-            v.sigma_a = Vec3::new(0.5, 0.2, 0.1);
+            v.sigma_a = sigma;
+            glasses += 1;
         }
     }
-    assert!(scene(absorbing).diffuse.is_none());
+    assert!(glasses > 0, "the caustics scene has a solid glass");
+    let coloured = scene(coloured);
+    assert!(coloured.diffuse.as_ref().is_some_and(|d| d.absorbing));
+    let s = settings(51, RussianRoulette::Auto, None);
+    assert!(pixels_that_differ(&coloured, &scene(parts("caustics")), &s) > 20);
+    for (seed, rr) in [(51, RussianRoulette::Auto), (52, RussianRoulette::Max)] {
+        assert_same_bits(&coloured, &settings(seed, rr, None), 0..8);
+    }
+
+    let mut p = parts("cornell");
+    let wall = |p: &SceneParts, name: &str| {
+        p.materials
+            .iter()
+            .position(|m| m.name.as_deref() == Some(name))
+            .unwrap_or_else(|| panic!("the box has a {name} wall"))
+    };
+    let (green, red, white) = (wall(&p, "green"), wall(&p, "red"), wall(&p, "white"));
+    // Behind the glass wall, outside the box, a copy of it: what paths inside the medium shade
+    // and light.
+    let (lo, hi) = p
+        .mesh
+        .positions
+        .iter()
+        .flatten()
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
+            (lo.min(*c), hi.max(*c))
+        });
+    let glass_wall: Vec<[Vec3; 3]> = (0..p.mesh.len())
+        .filter(|&t| p.mesh.material[t] as usize == green)
+        .map(|t| p.mesh.positions[t])
+        .collect();
+    assert!(!glass_wall.is_empty());
+    let mut lamp_outside = Vec3::ZERO;
+    for (k, tri) in glass_wall.into_iter().enumerate() {
+        let [a, b, c] = tri;
+        let inward = (b - a).cross(c - a).normalize();
+        let outward = if inward.dot((lo + hi) * 0.5 - a) > 0.0 {
+            -inward
+        } else {
+            inward
+        };
+        let gap = 0.3 * (hi - lo).max_element();
+        lamp_outside = (a + b + c) / 3.0 + outward * 0.5 * gap;
+        p.mesh.positions.push(tri.map(|v| v + outward * gap));
+        // Half white, half the glossy metal.
+        p.mesh
+            .material
+            .push(if k % 2 == 0 { white } else { red } as u32);
+    }
+    // And in the gap a small double-sided emitter (the box's light's material): area light
+    // samples from the copy, inside the medium, are attenuated too.
+    let light = p
+        .materials
+        .iter()
+        .position(|m| m.is_emissive())
+        .expect("the box has a light");
+    p.materials[light].double_sided = true;
+    let r = 0.05 * (hi - lo).max_element();
+    let e = Vec3::new(0.0, r, 0.0);
+    let f = Vec3::new(0.0, 0.0, r);
+    p.mesh
+        .positions
+        .push([lamp_outside - e, lamp_outside + e, lamp_outside + f]);
+    p.mesh.material.push(light as u32);
+    let glass = &mut p.materials[green];
+    (glass.transmission, glass.roughness, glass.metallic) = (1.0, 0.0, 0.0);
+    glass.volume = Some(Volume { sigma_a: sigma });
+    // A glossy wall (in the box, and half the copy).
+    let metal = &mut p.materials[red];
+    (metal.metallic, metal.roughness) = (1.0, 0.4);
+    let inside = scene(p.clone());
+    assert!(inside.diffuse.as_ref().is_some_and(|d| d.absorbing));
+    let mut clear = p.clone();
+    clear.materials[green].volume = Some(Volume {
+        sigma_a: Vec3::ZERO,
+    });
+    for (seed, rr) in [(53, RussianRoulette::Auto), (54, RussianRoulette::Off)] {
+        let max_depth = (rr == RussianRoulette::Off).then_some(6);
+        assert_same_bits(&inside, &settings(seed, rr, max_depth), 0..8);
+    }
+    // A lamp between the glass wall and its copy, inside the medium: the copy's lamp samples
+    // are attenuated (the box's light reaches it only through the glass).
+    let point = PunctualLight::Point(PointLight {
+        position: lamp_outside,
+        intensity: Vec3::splat((hi - lo).length_squared()),
+    });
+    let sun = PunctualLight::Directional(DirectionalLight {
+        direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
+        illuminance: Vec3::new(1.0, 0.9, 0.8),
+    });
+    let sky = Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
+    let s = settings(55, RussianRoulette::Auto, Some(6));
+    for lamps in [vec![point, sun], vec![point]] {
+        let lit = |p: &SceneParts| {
+            let mut p = p.clone();
+            p.punctual_lights = lamps.clone();
+            scene(p).with_environment(Some(sky.clone()))
+        };
+        let (absorbing, clear) = (lit(&p), lit(&clear));
+        assert!(absorbing.diffuse.is_some());
+        let differ = pixels_that_differ(&absorbing, &clear, &s);
+        eprintln!("differ {differ}");
+        assert!(differ > 100, "{differ}");
+        assert_same_bits(&absorbing, &s, 0..6);
+    }
 }
 
 /// Specular materials (delta lobes only: a perfect mirror, smooth glass with a clear volume)

@@ -10,6 +10,7 @@
 //! `punctual_query` lane by lane.
 
 use super::glossy::GlossyLanes;
+use super::volumes::transmittance;
 use super::{Lanes, B, F, LANES, V3};
 use crate::bsdf::lambert_at;
 use crate::integrator::direct::{lamp_shadow, punctual_query, PunctualAt, ShadowQuery};
@@ -52,20 +53,17 @@ impl Lanes<'_> {
             if !on[i] || per_point {
                 continue;
             }
-            let at = self.punctual_at(i);
-            let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
-            let albedo = self.albedo.get(i);
-            queries[i] = match &self.lobes(i) {
-                // The glossy BSDF as `trace_path` evaluates it (`Bsdf::eval`, out of line).
-                Some(lobes) => {
-                    let bsdf = lobes.at(ns, ng, self.frame_tangent(i));
-                    punctual_query(scene, &at, |wi| bsdf.eval(wo, wi), |_| Vec3::ONE)
+            queries[i] = self.lamp_query(i, |_| Vec3::ONE);
+        }
+        if self.any_absorbing {
+            // Lanes inside an absorbing medium, again with its transmittance (which also weighs
+            // a per-point choice of lamp).
+            for i in 0..LANES {
+                let sigma = self.medium.get(i);
+                if on[i] && sigma != Vec3::ZERO {
+                    queries[i] = self.lamp_query(i, |dist| transmittance(sigma, dist));
                 }
-                None => {
-                    let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
-                    punctual_query(scene, &at, eval, |_| Vec3::ONE)
-                }
-            };
+            }
         }
         // The shadow rays, two lanes a walk; inlined: this step is compiled for the test's
         // instruction set (`builds.rs`).
@@ -102,6 +100,27 @@ impl Lanes<'_> {
             };
             let l = self.l.get(i) + self.beta.get(i) * value;
             self.l.set(i, l);
+        }
+    }
+
+    /// Lane `i`'s lamp sample, lane by lane: `punctual_query` with its BSDF (`trace_path`'s
+    /// `direct_punctual`) and the medium's `transmittance` over a distance.
+    #[inline(always)]
+    fn lamp_query(&self, i: usize, transmittance: impl Fn(f32) -> Vec3) -> Option<ShadowQuery> {
+        let scene = self.scene;
+        let at = self.punctual_at(i);
+        let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
+        let albedo = self.albedo.get(i);
+        match &self.lobes(i) {
+            // The glossy BSDF as `trace_path` evaluates it (`Bsdf::eval`, out of line).
+            Some(lobes) => {
+                let bsdf = lobes.at(ns, ng, self.frame_tangent(i));
+                punctual_query(scene, &at, |wi| bsdf.eval(wo, wi), transmittance)
+            }
+            None => {
+                let eval = |wi| lambert_at::eval_pdf(ns, ng, albedo, wo, wi).0;
+                punctual_query(scene, &at, eval, transmittance)
+            }
         }
     }
 

@@ -187,6 +187,9 @@ impl Lanes<'_> {
                 self.o.set(i, rays.o.get(k));
                 self.d.set(i, d);
                 self.beta.set(i, Vec3::ONE);
+                if self.any_absorbing {
+                    self.medium.set(i, Vec3::ZERO);
+                }
                 self.l.set(i, Vec3::ZERO);
                 self.mis[i] = false;
                 self.bsdf_pdf[i] = 0.0;

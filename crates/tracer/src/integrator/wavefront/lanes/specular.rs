@@ -12,8 +12,8 @@ impl Lanes<'_> {
     /// whose path goes on from a specular material, after `scatter`, which gave these lanes no
     /// continuation (their albedo is zero) and no light sample (they have no non-delta lobe). The
     /// next ray's emission is counted in full after a delta sample (`mis` false), as
-    /// `EmissionWeight::Full`. (A clear volume, the only kind the lanes take, changes no bits, so
-    /// the medium a transmission enters is not tracked.)
+    /// `EmissionWeight::Full`. A transmission through a solid's boundary enters or leaves its
+    /// volume (`volumes.rs`).
     pub(super) fn scatter_specular(&mut self) {
         let rr = self.settings.rr;
         for i in 0..LANES {
@@ -63,6 +63,7 @@ impl Lanes<'_> {
                 self.corner_b.get(i),
                 self.corner_c.get(i),
             ];
+            self.cross_boundary(i, &bsdf, &bs, wo);
             let side = if bs.wi.dot(ng) > 0.0 { ng } else { -ng };
             self.cont[i] = true;
             self.beta.set(i, beta);
