@@ -355,8 +355,10 @@ impl LightGeometry {
     }
 }
 
+/// The texture coordinates of a light sample on triangle `tri` of the world-space mesh at
+/// barycentrics `b` (for an emissive texture; shared with the wavefront's lanes).
 #[inline]
-fn light_uv(scene: &Scene, tri: usize, b: Vec3) -> [Vec2; 2] {
+pub(crate) fn light_uv(scene: &Scene, tri: usize, b: Vec3) -> [Vec2; 2] {
     let interp = |t: &[Vec2; 3]| t[0] * b.x + t[1] * b.y + t[2] * b.z;
     [
         scene

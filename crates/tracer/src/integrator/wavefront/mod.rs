@@ -96,6 +96,10 @@ pub(crate) struct DiffuseMaterial {
     /// from its texels (`Scene::textured_bsdf`), and `albedo`, `glossy` and `diffuse_on` above
     /// are only its kind's (a Lambertian's or a glossy one's, which no texel changes).
     pub textured: bool,
+    /// It emits through an emissive texture: `emission_front` and `emission_back` are only its
+    /// factor's, and the lanes read the texel where a ray meets it (`Lanes::trace_closest`) and
+    /// where a light sample lands on it (`Lanes::take_light`).
+    pub emissive_textured: bool,
 }
 
 /// A scene the wavefront integrator can render, and the per-material facts its lanes read. Built
@@ -104,8 +108,10 @@ pub(crate) struct DiffuseMaterial {
 pub(crate) struct DiffuseScene {
     pub materials: Vec<DiffuseMaterial>,
     /// The lights in the lanes' layout, for a scene that chooses its lights by power; None for
-    /// one that chooses by the light tree, which each lane walks on its own (and for one without
-    /// emissive triangles, where the walk finds none).
+    /// one that chooses by the light tree, which each lane walks on its own, for one with an
+    /// emissive texture, whose lanes sample on their own too (the texel depends on the point's
+    /// barycentrics, which the table does not give), and for one without emissive triangles,
+    /// where the walk finds none.
     pub lights: Option<Box<LightTable>>,
     /// Some mesh has tangents: each hit's BSDF frame is oriented by its tangent, as
     /// `Scene::bsdf_at` orients it (`Lanes::shade_texels`).
@@ -116,11 +122,13 @@ pub(crate) struct DiffuseScene {
 }
 
 impl DiffuseScene {
-    /// The lanes' view of a scene, if every material is without alpha, and either a pure Lambertian (emissive or not), glossy (`Bsdf::glossy_lobes`: rough,
-    /// without transmission or layers) or made of delta lobes only (a perfect mirror, smooth
-    /// glass: no light sample at its vertices); untextured, but for textures that leave a
+    /// The lanes' view of a scene, if every material is without alpha, and either a pure
+    /// Lambertian (emissive or not), glossy (`Bsdf::glossy_lobes`: rough, without transmission or
+    /// layers) or made of delta lobes only (a perfect mirror, smooth glass, clear or absorbing: no
+    /// light sample at its vertices); untextured, but for textures that leave a
     /// Lambertian or glossy material's kind as it is (base colour, normal map, metallic-roughness
-    /// with the roughness above zero: `Material::params_of_factors`); and the scene has a light
+    /// with the roughness above zero: `Material::params_of_factors`), and emissive textures
+    /// (read where rays meet them and light samples land); and the scene has a light
     /// (emissive triangles, punctual lamps or an environment, one colour or an image).
     /// The one place that decides which scenes the lanes render.
     pub(crate) fn new(
@@ -156,11 +164,10 @@ impl DiffuseScene {
                     (bsdf, true)
                 }
             };
-            let untextured = material.emissive_texture.is_none();
             let plain = !material.has_alpha();
             let specular = !bsdf.single_lobe() && !bsdf.has_non_delta();
             let glossy = bsdf.glossy_lobes();
-            if !(bsdf.single_lobe() || specular || glossy.is_some()) || !untextured || !plain {
+            if !(bsdf.single_lobe() || specular || glossy.is_some()) || !plain {
                 return None;
             }
             let no_uv = [glam::Vec2::ZERO; 2];
@@ -176,12 +183,14 @@ impl DiffuseScene {
                 emission_back: material.emission(&[], &no_uv, false),
                 emits: material.is_emissive(),
                 textured,
+                emissive_textured: material.is_emissive() && material.emissive_texture.is_some(),
             });
         }
         // Lights chosen by power are chosen in the lanes, from the table; by the tree, lane by lane.
         // Without area lights, the tree's path finds none (`AreaLights::sample`), as `trace_path`
         // samples none.
-        let lights = match area.has_tree() || area.is_empty() {
+        let emissive_textures = out.iter().any(|m| m.emissive_textured);
+        let lights = match area.has_tree() || area.is_empty() || emissive_textures {
             false => Some(LightTable::new(area, &out, &mesh.material)?),
             true => None,
         };

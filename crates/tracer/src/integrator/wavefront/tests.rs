@@ -996,3 +996,36 @@ fn textures_are_read_as_the_scalar_integrator_reads_them() {
     assert!(pixels_that_differ(&placed, &plain, &s) > 300);
     assert_same_bits(&placed, &settings(53, RussianRoulette::Auto, None), 0..6);
 }
+
+/// Emissive textures: the textured scene's tiled floor made to glow through its base colour
+/// texture, the texel read where a ray meets it (`trace_closest`) and where a light sample lands
+/// on it (`take_light`, the lanes sampling lights lane by lane), by the light tree and by power.
+#[test]
+fn emissive_textures_light_the_lanes_as_they_light_the_scalar_integrator() {
+    let mut p = parts("textured");
+    let floor = p
+        .materials
+        .iter()
+        .position(|m| m.name.as_deref() == Some("floor_tiles"))
+        .expect("the textured scene's floor");
+    let m = &mut p.materials[floor];
+    m.emissive = Vec3::new(0.5, 0.4, 0.3);
+    m.emissive_texture = m.base_color_texture.clone();
+    assert!(m.emissive_texture.is_some());
+    let mut plain = p.clone();
+    plain.materials[floor].emissive_texture = None;
+    let mut glowing = scene(p);
+    let lanes = glowing
+        .diffuse
+        .as_ref()
+        .expect("the lanes take emissive textures");
+    assert!(lanes.materials[floor].emissive_textured && lanes.lights.is_none());
+    let s = settings(61, RussianRoulette::Auto, None);
+    assert!(pixels_that_differ(&glowing, &scene(plain), &s) > 300);
+    assert_same_bits(&glowing, &s, 0..6);
+    assert_same_bits(&glowing, &settings(62, RussianRoulette::Max, None), 0..6);
+    // The lights chosen by power, whatever the scene's own choice.
+    glowing.lights.area.choose_by_power();
+    assert!(!glowing.lights.area.has_tree());
+    assert_same_bits(&glowing, &settings(63, RussianRoulette::Auto, None), 0..6);
+}

@@ -6,7 +6,7 @@
 
 use super::{GlossyLanes, Lanes, F, LANES, V3};
 use crate::bsdf::lambert_at;
-use crate::integrator::direct::environment_value;
+use crate::integrator::direct::{environment_value, light_uv};
 use crate::isa::Isa;
 use crate::light::{AreaLightSample, Environment};
 use crate::math::{offset_unit_normal, spawn_clearance};
@@ -71,8 +71,9 @@ impl Lanes<'_> {
         }
     }
 
-    /// Chooses each lane's light triangle and point by the light tree at the lane's vertex
-    /// (`AreaLights::sample`'s answers: [`TREE_WALKS`] lanes' walks at a time) and loads the light's emission.
+    /// Chooses each lane's light triangle and point by the light tree at the lane's vertex, or by
+    /// power where a scene without a tree has emissive textures (`AreaLights::sample`'s answers:
+    /// [`TREE_WALKS`] lanes' walks at a time) and loads the light's emission.
     fn sample_by_tree<const ENV: bool>(&mut self, u_select: &F, u_light: &[F; 2]) {
         let scene = self.scene;
         let mut waiting = [0usize; LANES];
@@ -119,6 +120,16 @@ impl Lanes<'_> {
         };
         self.light_front.set(i, m.emission_front);
         self.light_back.set(i, m.emission_back);
+        if m.emissive_textured {
+            // The texel where the sample lands (`area_light_query`'s `light_uv`).
+            let tri = ls.triangle as usize;
+            let uv = light_uv(scene, tri, ls.barycentrics);
+            let material = &scene.materials[scene.mesh.material[tri] as usize];
+            self.light_front
+                .set(i, material.emission(&scene.textures, &uv, true));
+            self.light_back
+                .set(i, material.emission(&scene.textures, &uv, false));
+        }
     }
 
     /// The environment's direction, radiance and density (× its choice `p_env`) for each lane

@@ -67,6 +67,17 @@ impl Lanes<'_> {
             self.material[i] = material;
             self.emission_front.set(i, m.emission_front);
             self.emission_back.set(i, m.emission_back);
+            if m.emissive_textured && self.hit[i] {
+                // The texel where the ray meets it (`Material::emission` at `Scene::surface`'s
+                // texture coordinates).
+                let uv = scene.hit_uv(&hit);
+                let material = &scene.materials[material as usize];
+                let textures = &scene.textures;
+                self.emission_front
+                    .set(i, material.emission(textures, &uv, true));
+                self.emission_back
+                    .set(i, material.emission(textures, &uv, false));
+            }
             self.diffuse_on[i] = m.diffuse_on;
             // The density depends on the vertex the ray left (`p` and `ng` still hold it) and on
             // where the ray meets the light: `trace_path`'s `EmissionWeight::Mis`, the normal
