@@ -337,14 +337,7 @@ fn absorbing_volumes_attenuate_the_lanes_as_they_attenuate_the_scalar_integrator
     let (green, red, white) = (wall(&p, "green"), wall(&p, "red"), wall(&p, "white"));
     // Behind the glass wall, outside the box, a copy of it: what paths inside the medium shade
     // and light.
-    let (lo, hi) = p
-        .mesh
-        .positions
-        .iter()
-        .flatten()
-        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
-            (lo.min(*c), hi.max(*c))
-        });
+    let (lo, hi) = p.mesh.bounds();
     let glass_wall: Vec<[Vec3; 3]> = (0..p.mesh.len())
         .filter(|&t| p.mesh.material[t] as usize == green)
         .map(|t| p.mesh.positions[t])
@@ -522,14 +515,7 @@ fn glossy_materials_are_shaded_as_the_scalar_integrator_shades_them() {
         assert_same_bits(&principled, &settings(seed, rr, None), 0..6);
     }
     // A lamp (`light_punctual`'s evaluation) and a sky (`light_environment`'s).
-    let (lo, hi) = p
-        .mesh
-        .positions
-        .iter()
-        .flatten()
-        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
-            (lo.min(*c), hi.max(*c))
-        });
+    let (lo, hi) = p.mesh.bounds();
     // Two lamps: chosen at each point by what they send there (`lamp_weights` in the lanes).
     p.punctual_lights = vec![
         PunctualLight::Point(PointLight {
