@@ -307,16 +307,43 @@ impl Scene {
     /// without them, its BSDF made once at build time and moved to the point (the same value).
     #[inline]
     pub fn bsdf_at(&self, si: &SurfaceInteraction) -> Bsdf {
-        let tangent = si.tangent.map(|t| t.truncate());
-        if let Some(Some(template)) = self.bsdf_templates.get(si.material as usize) {
-            return template.at(si.ns, si.ng, tangent);
+        self.bsdf_of(si.material, si.ns, si.ng, si.tangent, || si.uv)
+    }
+
+    /// [`Scene::bsdf_at`] at a hit whose normals (`ns`, `ng`) and tangent are known, its texture
+    /// coordinates read only if the material is textured (the wavefront's lanes, which make the
+    /// surface's parts in their own steps).
+    #[inline]
+    pub(crate) fn hit_bsdf(
+        &self,
+        material: u32,
+        hit: &Hit,
+        ns: Vec3,
+        ng: Vec3,
+        tangent: Option<glam::Vec4>,
+    ) -> Bsdf {
+        self.bsdf_of(material, ns, ng, tangent, || self.hit_uv(hit))
+    }
+
+    #[inline(always)]
+    fn bsdf_of(
+        &self,
+        material: u32,
+        ns: Vec3,
+        ng: Vec3,
+        tangent4: Option<glam::Vec4>,
+        uv: impl FnOnce() -> [glam::Vec2; 2],
+    ) -> Bsdf {
+        let tangent = tangent4.map(|t| t.truncate());
+        if let Some(Some(template)) = self.bsdf_templates.get(material as usize) {
+            return template.at(ns, ng, tangent);
         }
-        let material = &self.materials[si.material as usize];
-        let shading = material.shade(&self.textures, &si.uv, si.ns, si.tangent);
+        let m = &self.materials[material as usize];
+        let shading = m.shade(&self.textures, &uv(), ns, tangent4);
         Bsdf::with_coat_normal(
             shading.params,
             shading.normal,
-            si.ng,
+            ng,
             tangent,
             shading.coat_normal,
         )

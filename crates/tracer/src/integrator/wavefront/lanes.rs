@@ -16,8 +16,8 @@
 //!    with its shadow ray traced at once, two lanes a walk;
 //! 5. `scatter` (vector): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray (for a Lambertian, and for a glossy material where the scene has
-//!    one: its BSDF made again in the lanes, `glossy.rs`; a specular material's lanes take theirs
-//!    after it, lane by lane: `scatter_specular`, `specular.rs`);
+//!    one: its BSDF made again in the lanes, `glossy.rs`; a specular or general material's lanes
+//!    take theirs after it, lane by lane: `scatter_lane_by_lane`, `general.rs`);
 //! 6. `trace_shadows` (scalar, `trace.rs`): each shadow ray, together with the lane's next ray
 //!    when the path goes on (as `trace_path` does), and the results of the paths that ended.
 //!
@@ -32,12 +32,12 @@
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 
 mod builds;
+mod general;
 mod glossy;
 mod lamps;
 mod lights;
 mod normals;
 mod refill;
-mod specular;
 mod trace;
 mod volumes;
 
@@ -46,7 +46,7 @@ use refill::CameraRays;
 
 use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
-use crate::bsdf::lambert_at;
+use crate::bsdf::{lambert_at, Bsdf};
 use crate::integrator::direct::LightGeometry;
 use crate::integrator::path::survival;
 use crate::integrator::PathResult;
@@ -185,12 +185,13 @@ pub(super) struct Lanes<'a> {
     env_value: V3,
     env_o: V3,
 
-    /// The hit's material (for a specular one's BSDF: `scatter_specular`).
+    /// The hit's material (for a specular one's BSDF: `scatter_lane_by_lane`).
     material: U,
     /// Some material is specular (`DiffuseMaterial::specular`).
     any_specular: bool,
-    /// Some material is glossy (`DiffuseMaterial::glossy`): the vector steps that evaluate and
-    /// sample the BSDF run their copies that model it (`GLOSSY`).
+    /// Some material is glossy or general (`DiffuseMaterial::glossy`, `::general`): the vector
+    /// steps that evaluate and sample the BSDF run their copies that model it (`GLOSSY`), and
+    /// take the general lanes' values from `GlossyLanes`.
     any_glossy: bool,
     /// Some mesh has tangents (`DiffuseScene::tangents`): frames are oriented by `tangent`.
     tangents: bool,
@@ -207,6 +208,11 @@ pub(super) struct Lanes<'a> {
     /// For each lane inside an absorbing medium, its light sample's value with the medium's
     /// transmittance (`absorb_light_samples`), which `scatter`'s loop leaves out.
     absorbed_value: V3,
+    /// Some material is general (`DiffuseMaterial::general`).
+    any_general: bool,
+    /// Each lane's BSDF at its hit, where its material is general (`Lanes::shade_general`);
+    /// None elsewhere.
+    general: Box<[Option<Bsdf>; LANES]>,
 }
 
 impl<'a> Lanes<'a> {
@@ -280,13 +286,18 @@ impl<'a> Lanes<'a> {
             env_o: V3::ZERO,
             material: [0; LANES],
             any_specular: diffuse.materials.iter().any(|m| m.specular.is_some()),
-            any_glossy: diffuse.materials.iter().any(|m| m.glossy.is_some()),
+            any_glossy: diffuse
+                .materials
+                .iter()
+                .any(|m| m.glossy.is_some() || m.general),
             tangents: diffuse.tangents,
             tangent: V3::ZERO,
             texels: diffuse.tangents || diffuse.materials.iter().any(|m| m.textured),
             any_absorbing: diffuse.absorbing,
             medium: V3::ZERO,
             absorbed_value: V3::ZERO,
+            any_general: diffuse.materials.iter().any(|m| m.general),
+            general: Box::new([None; LANES]),
             shadow: [false; LANES],
             shadow_o: V3::ZERO,
             shadow_d: V3::ZERO,
@@ -333,8 +344,8 @@ impl<'a> Lanes<'a> {
             if self.sampled_environment {
                 self.take_environment_shadows_for(isa);
             }
-            if self.any_specular {
-                self.scatter_specular();
+            if self.any_specular || self.any_general {
+                self.scatter_lane_by_lane();
             }
             self.trace_shadows_for(isa, &mut each);
         }
@@ -419,6 +430,9 @@ impl<'a> Lanes<'a> {
         (self.ns, self.u_punctual) = (nss, u_punctual);
         if self.texels {
             self.shade_texels();
+        }
+        if self.any_general {
+            self.shade_general();
         }
         self.choose_lights(isa, &u_select, &u_light);
     }
@@ -525,7 +539,7 @@ impl<'a> Lanes<'a> {
                 light_back.get(i)
             };
             let (f, bsdf_pdf) = lambert_at::eval_pdf(nss.get(i), ng, albedo, wo, g.wi);
-            let (f, bsdf_pdf) = match GLOSSY && glossy.on[i] {
+            let (f, bsdf_pdf) = match GLOSSY && glossy.shaded[i] {
                 true => (glossy_f.get(i), glossy_pdf[i]),
                 false => (f, bsdf_pdf),
             };

@@ -9,18 +9,19 @@
 //! vectorises them, and IEEE arithmetic lane by lane rounds as it does one value at a time (Rust
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
-//! It models only what the scenes it takes need (see [`DiffuseScene`]): materials untextured but
-//! for a base colour, a metallic-roughness texture and a normal map (each hit's texels, tangent and
-//! mapped normal read by `Lanes::shade_texels`), pure Lambertian, glossy (a rough metal, a Lambertian base under a rough specular layer, or a
-//! mix: `bsdf::GlossyLobes`, evaluated and sampled in the lanes by the BSDF's own code) or purely
-//! specular (a perfect mirror, smooth glass: delta lobes only, sampled lane by lane through
-//! `Bsdf::sample`); emissive triangles, punctual lamps and the environment
-//! as the lights; no alpha (vertex normals are interpolated as `Scene::surface`
-//! does, and instanced meshes moved to world space as it moves them:
-//! `Scene::instance_triangle`); MIS
-//! with the Sobol sampler, on an x86-64 processor with AVX2 or AVX-512. Everything else runs the
-//! scalar integrator, with the same result it always had. Ray queries stay scalar, one lane at a
-//! time, through the scene's BVH.
+//! It takes every scene without alpha (see [`DiffuseScene`]), lit by emissive triangles, punctual
+//! lamps or the environment, rendered with MIS and the Sobol sampler on an x86-64 processor with
+//! AVX2 or AVX-512; everything else runs the scalar integrator, with the same result it always
+//! had. Its vector code models pure Lambertian and glossy materials (a rough metal, a Lambertian
+//! base under a rough specular layer, or a mix: `bsdf::GlossyLobes`, evaluated and sampled in the
+//! lanes by the BSDF's own code), untextured or with textures that keep their kind (a base
+//! colour, a metallic-roughness texture and a normal map: each hit's texels, tangent and mapped
+//! normal read by `Lanes::shade_texels`); a purely specular material (a perfect mirror, smooth
+//! glass: delta lobes only) is sampled lane by lane through `Bsdf::sample`, and any other (a
+//! general material) has its BSDF made at each hit, evaluated and sampled lane by lane. Vertex
+//! normals are interpolated as `Scene::surface` does, and instanced meshes moved to world space
+//! as it moves them (`Scene::instance_triangle`). Ray queries stay scalar, one lane at a time,
+//! through the scene's BVH.
 //!
 //! A lane whose path ends takes the next (pixel, sample) of its thread's work at once, so lanes
 //! do not idle while the longest path of a group finishes. Results therefore arrive out of index
@@ -79,7 +80,7 @@ pub(crate) struct DiffuseMaterial {
     /// so that the Lambertian code of `scatter` gives its lanes nothing).
     pub albedo: Vec3,
     /// A material of delta lobes only (a perfect mirror, smooth glass): its BSDF, sampled lane by
-    /// lane after `scatter` (`Lanes::scatter_specular`). None for a Lambertian.
+    /// lane after `scatter` (`Lanes::scatter_lane_by_lane`). None for the others.
     pub specular: Option<crate::bsdf::Bsdf>,
     /// A glossy material (a rough metal, a Lambertian base under a rough specular layer, or a
     /// mix: `bsdf::GlossyLobes`): its lobes, which the vector steps evaluate and sample beside the
@@ -96,6 +97,12 @@ pub(crate) struct DiffuseMaterial {
     /// from its texels (`Scene::textured_bsdf`), and `albedo`, `glossy` and `diffuse_on` above
     /// are only its kind's (a Lambertian's or a glossy one's, which no texel changes).
     pub textured: bool,
+    /// A material of none of the kinds above (a clear coat, a sheen, rough or partly smooth
+    /// transmission, or textures that change its kind from texel to texel): each lane's BSDF is
+    /// made at its hit as `Scene::bsdf_at` makes it (`Lanes::shade_general`), and evaluated and
+    /// sampled lane by lane through the BSDF's own code (`lanes/general.rs`). Its `albedo` is
+    /// zero, and `diffuse_on` only its factors' (a textured one's is its hit's).
+    pub general: bool,
     /// It emits through an emissive texture: `emission_front` and `emission_back` are only its
     /// factor's, and the lanes read the texel where a ray meets it (`Lanes::trace_closest`) and
     /// where a light sample lands on it (`Lanes::take_light`).
@@ -122,14 +129,15 @@ pub(crate) struct DiffuseScene {
 }
 
 impl DiffuseScene {
-    /// The lanes' view of a scene, if every material is without alpha, and either a pure
-    /// Lambertian (emissive or not), glossy (`Bsdf::glossy_lobes`: rough, without transmission or
-    /// layers) or made of delta lobes only (a perfect mirror, smooth glass, clear or absorbing: no
-    /// light sample at its vertices); untextured, but for textures that leave a
-    /// Lambertian or glossy material's kind as it is (base colour, normal map, metallic-roughness
-    /// with the roughness above zero: `Material::params_of_factors`), and emissive textures
-    /// (read where rays meet them and light samples land); and the scene has a light
-    /// (emissive triangles, punctual lamps or an environment, one colour or an image).
+    /// The lanes' view of a scene, if every material is without alpha and the scene has a light
+    /// (emissive triangles, punctual lamps or an environment, one colour or an image). Each
+    /// material is taken as the kind the vector steps model, if it is one: a pure Lambertian
+    /// (emissive or not), glossy (`Bsdf::glossy_lobes`: rough, without transmission or layers)
+    /// or made of delta lobes only (a perfect mirror, smooth glass, clear or absorbing: no light
+    /// sample at its vertices), untextured or with textures that leave its kind as it is (base
+    /// colour, normal map, metallic-roughness with the roughness above zero:
+    /// `Material::params_of_factors`); any other is `general`. Emissive textures are read where
+    /// rays meet them and light samples land.
     /// The one place that decides which scenes the lanes render.
     pub(crate) fn new(
         materials: &[Material],
@@ -149,42 +157,52 @@ impl DiffuseScene {
         }
         let mut out = Vec::with_capacity(materials.len());
         for (material, template) in materials.iter().zip(templates) {
+            // Alpha takes a sample value at every closest hit, which the lanes' rays do not draw.
+            if material.has_alpha() {
+                return None;
+            }
+            let vector_kind = |bsdf: &crate::bsdf::Bsdf| {
+                bsdf.single_lobe() || bsdf.glossy_lobes().is_some() || !bsdf.has_non_delta()
+            };
             // A textured material whose textures change only its lobes' colours and values
             // (`Material::params_of_factors`), Lambertian or glossy without transmission (whose
             // switch reads the base colour): its kind at every texel is its factors'.
-            let (bsdf, textured) = match template {
-                Some(bsdf) => (*bsdf, false),
-                None => {
-                    let p = material.params_of_factors(textures)?;
-                    let bsdf = crate::bsdf::Bsdf::new(p, Vec3::Z, Vec3::Z, None);
-                    let kind_fixed = bsdf.single_lobe() || bsdf.glossy_lobes().is_some();
-                    if !kind_fixed || bsdf.params().transmission != 0.0 {
-                        return None;
-                    }
-                    (bsdf, true)
-                }
+            let of_factors = || {
+                let p = material.params_of_factors(textures)?;
+                let bsdf = crate::bsdf::Bsdf::new(p, Vec3::Z, Vec3::Z, None);
+                let kind_fixed = bsdf.single_lobe() || bsdf.glossy_lobes().is_some();
+                (kind_fixed && bsdf.params().transmission == 0.0).then_some(bsdf)
             };
-            let plain = !material.has_alpha();
-            let specular = !bsdf.single_lobe() && !bsdf.has_non_delta();
-            let glossy = bsdf.glossy_lobes();
-            if !(bsdf.single_lobe() || specular || glossy.is_some()) || !plain {
-                return None;
-            }
+            let (bsdf, textured) = match template {
+                Some(bsdf) => (Some(*bsdf).filter(vector_kind), false),
+                None => (of_factors(), true),
+            };
             let no_uv = [glam::Vec2::ZERO; 2];
-            out.push(DiffuseMaterial {
-                albedo: match bsdf.single_lobe() {
-                    true => bsdf.params().base_color,
-                    false => Vec3::ZERO,
-                },
-                specular: specular.then_some(bsdf),
-                glossy,
-                diffuse_on: bsdf.has_non_delta(),
+            let mut m = DiffuseMaterial {
                 emission_front: material.emission(&[], &no_uv, true),
                 emission_back: material.emission(&[], &no_uv, false),
                 emits: material.is_emissive(),
-                textured,
                 emissive_textured: material.is_emissive() && material.emissive_texture.is_some(),
-            });
+                ..DiffuseMaterial::default()
+            };
+            match bsdf {
+                Some(bsdf) => {
+                    let specular = !bsdf.single_lobe() && !bsdf.has_non_delta();
+                    m.albedo = match bsdf.single_lobe() {
+                        true => bsdf.params().base_color,
+                        false => Vec3::ZERO,
+                    };
+                    m.specular = specular.then_some(bsdf);
+                    m.glossy = bsdf.glossy_lobes();
+                    m.diffuse_on = bsdf.has_non_delta();
+                    m.textured = textured;
+                }
+                None => {
+                    m.general = true;
+                    m.diffuse_on = template.is_none_or(|b| b.has_non_delta());
+                }
+            }
+            out.push(m);
         }
         // Lights chosen by power are chosen in the lanes, from the table; by the tree, lane by lane.
         // Without area lights, the tree's path finds none (`AreaLights::sample`), as `trace_path`

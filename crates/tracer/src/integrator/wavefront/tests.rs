@@ -288,16 +288,113 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     ] {
         assert!(Wavefront::new(&cornell, &other).is_none());
     }
-    // Rough glass, a clear coat, a sheen: the BSDF's lobes that the lanes do not model.
-    for change in [
-        |m: &mut crate::material::Material| (m.transmission, m.roughness) = (1.0, 0.3),
-        |m: &mut crate::material::Material| m.clearcoat = 1.0,
-        |m: &mut crate::material::Material| m.sheen_color = Vec3::ONE,
+    // Alpha (a cut-out or a blend): the closest hit takes a sample value the lanes do not draw.
+    for mode in [
+        crate::material::AlphaMode::Mask { cutoff: 0.5 },
+        crate::material::AlphaMode::Blend,
     ] {
         let mut p = parts("glossy");
-        change(&mut p.materials[0]);
+        p.materials[0].alpha_mode = mode;
         assert!(scene(p).diffuse.is_none());
     }
+}
+
+/// General materials (`DiffuseMaterial::general`: the BSDF's lobes the vector steps do not
+/// model) are made at each hit, evaluated and sampled lane by lane through the BSDF's own code
+/// (`lanes/general.rs`): the box with walls of a rough and a smooth clear coat, a sheen, rough
+/// glass (clear and absorbing, and thin-walled), a plastic half transmitting through smooth glass
+/// (delta and non-delta lobes in one BSDF), beside its Lambertian and glossy walls, lit by its
+/// light, by lamps (chosen per point and by power) and by a sky; and Blender's export of coats and
+/// sheens (the suite's `clearcoat`).
+#[test]
+fn general_materials_are_shaded_lane_by_lane_as_the_scalar_integrator_shades_them() {
+    use crate::light::{DirectionalLight, Environment, PointLight, PunctualLight};
+    use crate::material::{Material, Volume};
+    let kinds: [fn(&mut Material); 7] = [
+        |m| (m.clearcoat, m.clearcoat_roughness) = (1.0, 0.2),
+        |m| (m.clearcoat, m.clearcoat_roughness, m.metallic) = (0.8, 0.0, 1.0),
+        |m| (m.sheen_color, m.sheen_roughness) = (Vec3::new(0.9, 0.6, 0.3), 0.4),
+        |m| (m.transmission, m.roughness) = (1.0, 0.3),
+        |m| {
+            (m.transmission, m.roughness) = (1.0, 0.45);
+            m.volume = Some(Volume {
+                sigma_a: Vec3::new(0.9, 0.35, 0.1),
+            });
+        },
+        |m| (m.transmission, m.roughness, m.double_sided) = (0.9, 0.25, true),
+        |m| (m.transmission, m.roughness, m.specular) = (0.5, 0.0, 1.0),
+    ];
+    let mut p = parts("cornell");
+    let mut changed = 0;
+    for (k, m) in p.materials.iter_mut().enumerate() {
+        if m.emissive != Vec3::ZERO {
+            continue;
+        }
+        kinds[k % kinds.len()](m);
+        changed += 1;
+    }
+    assert!(changed >= 3);
+    let general = scene(p.clone());
+    let d = general
+        .diffuse
+        .as_ref()
+        .expect("the lanes take every material");
+    assert!(d.materials.iter().filter(|m| m.general).count() >= 3);
+    let s = settings(1, RussianRoulette::Auto, None);
+    assert!(pixels_that_differ(&scene(parts("cornell")), &general, &s) > 500);
+    for (seed, rr) in [
+        (61, RussianRoulette::Auto),
+        (62, RussianRoulette::Fixed(0.7)),
+        (63, RussianRoulette::Off),
+    ] {
+        assert_same_bits(&general, &settings(seed, rr, Some(8)), 0..6);
+    }
+    // Every kind on every wall in turn, so that each kind shades where the light falls.
+    for shift in 1..kinds.len() {
+        let mut q = parts("cornell");
+        for (k, m) in q.materials.iter_mut().enumerate() {
+            if m.emissive == Vec3::ZERO {
+                kinds[(k + shift) % kinds.len()](m);
+            }
+        }
+        assert_same_bits(
+            &scene(q),
+            &settings(64 + shift as u64, RussianRoulette::Auto, None),
+            0..4,
+        );
+    }
+    // Lamps (`light_punctual`'s evaluation, per point and lane by lane) and a sky
+    // (`light_environment`'s).
+    let (lo, hi) = p.mesh.bounds();
+    p.punctual_lights = vec![
+        PunctualLight::Point(PointLight {
+            position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
+            intensity: Vec3::splat((hi - lo).length_squared()),
+        }),
+        PunctualLight::Directional(DirectionalLight {
+            direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
+            illuminance: Vec3::new(1.0, 0.9, 0.8),
+        }),
+    ];
+    let sky = Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
+    let mut lit = scene(p).with_environment(Some(sky));
+    assert!(lit.diffuse.is_some() && lit.lights.punctual_per_point);
+    assert_same_bits(&lit, &settings(71, RussianRoulette::Auto, Some(6)), 0..6);
+    lit.lights.choose_punctual_by_power();
+    assert_same_bits(&lit, &settings(72, RussianRoulette::Auto, Some(6)), 0..6);
+    // Blender's export: coats and sheens, as a user's file has them.
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/suite/clearcoat.glb");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let exported = load_parts(&bytes, &NoExternalResources, &LoadOptions::default())
+        .expect("the suite's clearcoat scene loads");
+    let exported = scene(exported);
+    let d = exported
+        .diffuse
+        .as_ref()
+        .expect("the lanes take Blender's coats and sheens");
+    assert!(d.materials.iter().any(|m| m.general));
+    assert_same_bits(&exported, &settings(73, RussianRoulette::Auto, None), 0..4);
 }
 
 /// Glass that absorbs (a volume with an attenuation): each lane tracks the medium its path is
@@ -419,7 +516,7 @@ fn absorbing_volumes_attenuate_the_lanes_as_they_attenuate_the_scalar_integrator
 }
 
 /// Specular materials (delta lobes only: a perfect mirror, smooth glass with a clear volume)
-/// continue their paths lane by lane through `Bsdf::sample` (`scatter_specular`), as
+/// continue their paths lane by lane through `Bsdf::sample` (`scatter_lane_by_lane`), as
 /// `trace_path` does: the caustics scene's glass and mirror spheres, and the box with a mirror
 /// wall and a glass wall, with and without an environment seen through the glass.
 #[test]
@@ -824,7 +921,8 @@ fn instanced_meshes_are_shaded_as_the_scalar_integrator_shades_them() {
 
 /// Textures: the shipped textured scene (a Lambertian floor with a base colour texture; a
 /// sphere with base colour, metallic-roughness and normal textures, and tangents), then with its
-/// roughness texture reaching zero somewhere (not the lanes'), without tangents, and with base
+/// roughness texture reaching zero somewhere and with texels of every kind (a general
+/// material), without tangents, and with base
 /// colours alone on a metal and a plastic sphere; each hit's texels read and its frame oriented
 /// as `Scene::bsdf_at` does, in the world-space mesh and in instances (one mirrored: its
 /// barycentrics swap, its texture coordinates must not, its tangents' handedness flips).
@@ -856,7 +954,7 @@ fn textures_are_read_as_the_scalar_integrator_reads_them() {
     assert!(matte.diffuse.as_ref().is_some_and(|d| d.tangents));
     assert_same_bits(&matte, &settings(57, RussianRoulette::Auto, None), 0..6);
     // Lit by a lamp as well (`light_punctual`'s glossy evaluation), and the sphere an
-    // untextured mirror on its tangents (`scatter_specular`'s frame).
+    // untextured mirror on its tangents (`scatter_lane_by_lane`'s frame).
     let mut lamp = p.clone();
     let (lo, hi) = lamp.mesh.bounds();
     lamp.punctual_lights = vec![crate::light::PunctualLight::Point(
@@ -887,12 +985,46 @@ fn textures_are_read_as_the_scalar_integrator_reads_them() {
         .as_ref()
         .expect("a metallic-roughness texture")
         .texture as usize;
+    // A roughness texture that reaches zero: a kind that changes from texel to texel, general
+    // (`lanes/general.rs`), its texels made into its BSDF lane by lane.
     let mut smooth_somewhere = p.clone();
     smooth_somewhere.textures[rough].texels[0][1] = 0;
-    assert!(
-        scene(smooth_somewhere).diffuse.is_none(),
-        "a roughness texture that reaches zero"
+    let smooth_somewhere = scene(smooth_somewhere);
+    let d = smooth_somewhere
+        .diffuse
+        .as_ref()
+        .expect("a general material");
+    assert!(d.materials[sphere].general && !d.materials[sphere].textured);
+    assert_same_bits(
+        &smooth_somewhere,
+        &settings(61, RussianRoulette::Auto, None),
+        0..6,
     );
+    // Texels of every kind on one general material: a band of pure Lambertian texels (no
+    // specular layer, metallic zero: no lobe value drawn), a band of mirror texels (metallic one,
+    // roughness zero: delta lobes only, no light sample), glossy metal between.
+    let mut kinds = p.clone();
+    let m = &mut kinds.materials[sphere];
+    (m.specular, m.metallic, m.roughness) = (0.0, 1.0, 1.0);
+    let texels = &mut kinds.textures[rough].texels;
+    let n = texels.len();
+    for (k, t) in texels.iter_mut().enumerate() {
+        match 3 * k / n {
+            0 => t[2] = 0,
+            1 => (t[1], t[2]) = (0, 255),
+            _ => (t[1], t[2]) = (t[1].max(40), 255),
+        }
+    }
+    let kinds = scene(kinds);
+    assert!(kinds
+        .diffuse
+        .as_ref()
+        .is_some_and(|d| d.materials[sphere].general));
+    let first = settings(1, RussianRoulette::Auto, None);
+    assert!(pixels_that_differ(&kinds, &smooth_somewhere, &first) > 100);
+    for (seed, rr) in [(63, RussianRoulette::Auto), (64, RussianRoulette::Max)] {
+        assert_same_bits(&kinds, &settings(seed, rr, None), 0..6);
+    }
     // Without tangents, the normal map changes nothing (as in `Material::shade`).
     p.mesh.tangents = None;
     let untangled = scene(p.clone());
@@ -908,9 +1040,15 @@ fn textures_are_read_as_the_scalar_integrator_reads_them() {
     p.materials[sphere].normal_texture = None;
     p.materials[sphere].metallic_roughness_texture = None;
     p.materials[sphere].roughness = 0.35;
+    // Textured and transmitting: general too, on its base colour's texels.
     let mut other = p.clone();
     other.materials[sphere].transmission = 1.0;
-    assert!(scene(other).diffuse.is_none(), "a transmitting texture");
+    let other = scene(other);
+    assert!(other
+        .diffuse
+        .as_ref()
+        .is_some_and(|d| d.materials[sphere].general));
+    assert_same_bits(&other, &settings(62, RussianRoulette::Auto, None), 0..6);
     let untextured = {
         let mut q = p.clone();
         for m in &mut q.materials {

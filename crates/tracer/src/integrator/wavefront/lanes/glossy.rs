@@ -2,7 +2,8 @@
 //! a rough specular layer, or a mix): each lane's lobes loaded one array per value, with the
 //! albedo table's values at its cos θo, so that the vector steps make the lane's BSDF again
 //! (`GlossyLobes::at`) and run its queries beside the Lambertian's, keeping the glossy lanes'
-//! results.
+//! results. The lanes of a general material (`general.rs`) ride along: their BSDF's values,
+//! computed lane by lane, replace the vector code's.
 
 use super::{Lanes, B, F, LANES, V3};
 use crate::bsdf::{Bsdf, GlossyLobes};
@@ -10,9 +11,14 @@ use crate::math::is_black;
 use glam::{Vec2, Vec3};
 
 /// Every lane's glossy lobes (zero where the lane's material is not glossy: `on` false).
-pub(super) struct GlossyLanes {
+pub(super) struct GlossyLanes<'a> {
     /// The lane's material is glossy.
     pub on: B,
+    /// The lane's BSDF values are this struct's (`eval_pdf`, `eval`): a glossy or a general
+    /// material's.
+    pub shaded: B,
+    /// Each lane's BSDF, where its material is general (`Lanes::general`).
+    general: Option<&'a [Option<Bsdf>; LANES]>,
     base_color: V3,
     alpha: F,
     weight: F,
@@ -31,12 +37,14 @@ pub(super) struct GlossyLanes {
     tangent: Option<V3>,
 }
 
-impl GlossyLanes {
+impl<'a> GlossyLanes<'a> {
     /// No lane glossy.
     #[inline(always)]
     pub(super) fn none() -> Self {
         GlossyLanes {
             on: [false; LANES],
+            shaded: [false; LANES],
+            general: None,
             base_color: V3::ZERO,
             alpha: [0.0; LANES],
             weight: [0.0; LANES],
@@ -63,14 +71,20 @@ impl GlossyLanes {
         ns: &V3,
         d: &V3,
         tangent: Option<V3>,
+        general: Option<&'a [Option<Bsdf>; LANES]>,
     ) -> Self {
         let mut g = Self::none();
         g.tangent = tangent;
+        g.general = general;
+        if let Some(general) = general {
+            g.shaded = std::array::from_fn(|i| general[i].is_some());
+        }
         for i in 0..LANES {
             let Some(l) = lobes(i) else {
                 continue;
             };
             g.on[i] = true;
+            g.shaded[i] = true;
             g.base_color.set(i, l.base_color);
             g.alpha[i] = l.alpha;
             g.weight[i] = l.weight;
@@ -123,13 +137,34 @@ impl GlossyLanes {
     /// `Bsdf::eval_pdf(wo, wi)` of every lane's glossy BSDF (wo = −d), in a loop of its own
     /// with nothing but the BSDF in it (measured faster than inside the light sample's loop:
     /// docs/benchmarks.md, December 6). Lanes that are not glossy compute values never read.
+    /// The general lanes' values are their BSDFs' (`Bsdf::eval_pdf`).
     #[inline(always)]
     pub(super) fn eval_pdf(&self, ns: &V3, ng: &V3, d: &V3, wi: &V3) -> (V3, F) {
-        match self.tangent.is_some() {
+        let (mut f, mut pdf) = match self.tangent.is_some() {
             // SAFETY: the lanes run only where an `Isa` was detected, and both have AVX2.
             true => unsafe { self.eval_pdf_oriented(ns, ng, d, wi) },
             false => self.eval_pdf_in::<false>(ns, ng, d, wi),
+        };
+        if let Some(general) = self.general {
+            general_eval_pdf(general, d, wi, &mut f, &mut pdf);
         }
+        (f, pdf)
+    }
+
+    /// [`GlossyLanes::eval_pdf`]'s values of f alone, as `Bsdf::eval` gives them (the lamps'
+    /// sample, `direct_punctual`'s): the glossy lanes' from the same code, the general lanes'
+    /// from `Bsdf::eval`.
+    #[inline(always)]
+    pub(super) fn eval(&self, ns: &V3, ng: &V3, d: &V3, wi: &V3) -> V3 {
+        let mut f = match self.tangent.is_some() {
+            // SAFETY: as in `eval_pdf`.
+            true => unsafe { self.eval_pdf_oriented(ns, ng, d, wi) }.0,
+            false => self.eval_pdf_in::<false>(ns, ng, d, wi).0,
+        };
+        if let Some(general) = self.general {
+            general_eval(general, d, wi, &mut f);
+        }
+        f
     }
 
     /// [`GlossyLanes::eval_pdf`] in frames oriented by the tangents: out of line, so that the
@@ -201,6 +236,29 @@ impl GlossyLanes {
     }
 }
 
+/// The general lanes' `Bsdf::eval_pdf(wo, wi)` (wo = −d) in place of the vector code's: out of
+/// line, a scalar loop over the few lanes that have one.
+#[inline(never)]
+fn general_eval_pdf(general: &[Option<Bsdf>; LANES], d: &V3, wi: &V3, f: &mut V3, pdf: &mut F) {
+    for (i, bsdf) in general.iter().enumerate() {
+        if let Some(bsdf) = bsdf {
+            let fi;
+            (fi, pdf[i]) = bsdf.eval_pdf(-d.get(i), wi.get(i));
+            f.set(i, fi);
+        }
+    }
+}
+
+/// The general lanes' `Bsdf::eval(wo, wi)`, as [`general_eval_pdf`].
+#[inline(never)]
+fn general_eval(general: &[Option<Bsdf>; LANES], d: &V3, wi: &V3, f: &mut V3) {
+    for (i, bsdf) in general.iter().enumerate() {
+        if let Some(bsdf) = bsdf {
+            f.set(i, bsdf.eval(-d.get(i), wi.get(i)));
+        }
+    }
+}
+
 /// Each lane's BSDF sample (`GlossyLanes::sample`).
 pub(super) struct Sample {
     pub wi: V3,
@@ -212,10 +270,12 @@ pub(super) struct Sample {
 impl Lanes<'_> {
     /// The lanes' glossy lobes at their hits (`shade_hit` has set `ns`; `d` is still the ray
     /// that found the hit).
+    /// The general lanes' BSDFs ride along (`GlossyLanes::shaded`).
     #[inline(always)]
-    pub(super) fn glossy_lanes(&self) -> GlossyLanes {
+    pub(super) fn glossy_lanes(&self) -> GlossyLanes<'_> {
         let tangent = self.tangents.then_some(self.tangent);
-        GlossyLanes::load(|i| self.lobes(i), &self.ns, &self.d, tangent)
+        let general = self.any_general.then_some(&*self.general);
+        GlossyLanes::load(|i| self.lobes(i), &self.ns, &self.d, tangent, general)
     }
 
     /// Lane `i`'s tangent for its BSDF's frame (`Bsdf::at`), where some mesh has tangents.

@@ -6,7 +6,7 @@
 //! Where a few lamps are chosen per point by what each sends there (`choose_by_contribution`), the
 //! lanes make the choice in vector loops, lamp by lamp across the lanes, with each lane's
 //! operations those of the scalar choice (the same bits): the Lambertian lanes' BSDF in the loop,
-//! the glossy lanes' in `GlossyLanes::eval_pdf`'s. The lamps chosen by power or a tree take
+//! the glossy and general lanes' in `GlossyLanes::eval`'s. The lamps chosen by power or a tree take
 //! `punctual_query` lane by lane.
 
 use super::glossy::GlossyLanes;
@@ -111,6 +111,9 @@ impl Lanes<'_> {
         let at = self.punctual_at(i);
         let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
         let albedo = self.albedo.get(i);
+        if let Some(bsdf) = &self.general[i] {
+            return punctual_query(scene, &at, |wi| bsdf.eval(wo, wi), transmittance);
+        }
         match &self.lobes(i) {
             // The glossy BSDF as `trace_path` evaluates it (`Bsdf::eval`, out of line).
             Some(lobes) => {
@@ -211,14 +214,14 @@ impl Lanes<'_> {
             li.set(i, ls.li);
         }
         let f_glossy = match GLOSSY {
-            true => glossy.eval_pdf(&self.ns, &self.ng, &self.d, &wi).0,
+            true => glossy.eval(&self.ns, &self.ng, &self.d, &wi),
             false => V3::ZERO,
         };
         for i in 0..LANES {
             let (ng, ns, wo) = (self.ng.get(i), self.ns.get(i), -self.d.get(i));
             let (wi_i, li_i) = (wi.get(i), li.get(i));
             let lambert = lambert_at::eval_pdf(ns, ng, self.albedo.get(i), wo, wi_i).0;
-            let f = if GLOSSY && glossy.on[i] {
+            let f = if GLOSSY && glossy.shaded[i] {
                 f_glossy.get(i)
             } else {
                 lambert

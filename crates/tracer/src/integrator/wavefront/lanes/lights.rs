@@ -176,7 +176,7 @@ impl Lanes<'_> {
             let (p, ng, wi) = (ps.get(i), ngs.get(i), wis.get(i));
             let (wo, albedo) = (-ds.get(i), albedos.get(i));
             let (f, bsdf_pdf) = lambert_at::eval_pdf(nss.get(i), ng, albedo, wo, wi);
-            let (f, bsdf_pdf) = match GLOSSY && glossy.on[i] {
+            let (f, bsdf_pdf) = match GLOSSY && glossy.shaded[i] {
                 true => (glossy_f.get(i), glossy_pdf[i]),
                 false => (f, bsdf_pdf),
             };

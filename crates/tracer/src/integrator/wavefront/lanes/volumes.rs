@@ -1,6 +1,6 @@
 //! Absorbing volumes in the lanes (`KHR_materials_volume` with an attenuation: coloured glass):
 //! each lane keeps the absorption coefficient of the medium its path is in (`Lanes::medium`,
-//! zero outside), set where a specular material transmits (`scatter_specular`), and applies it
+//! zero outside), set where a specular or general material transmits (`scatter_lane_by_lane`), and applies it
 //! where `trace_path` applies its `medium`: to the throughput over each segment the path travels
 //! inside (`absorb_along_rays`), and to the light samples of a vertex inside (its shadow ray's
 //! transmittance: the area light's value computed again before `scatter` and put in after it,
@@ -67,6 +67,7 @@ impl Lanes<'_> {
             true => glossy.eval_pdf(&self.ns, &self.ng, &self.d, &light_wi),
             false => (V3::ZERO, [0.0; LANES]),
         };
+        let mut absorbed = self.absorbed_value;
         for i in 0..LANES {
             if !lit_inside[i] {
                 continue;
@@ -84,7 +85,7 @@ impl Lanes<'_> {
             } else {
                 self.light_back.get(i)
             };
-            let (f, bsdf_pdf) = match self.any_glossy && glossy.on[i] {
+            let (f, bsdf_pdf) = match self.any_glossy && glossy.shaded[i] {
                 true => (glossy_f.get(i), glossy_pdf[i]),
                 false => lambert_at::eval_pdf(ns, ng, self.albedo.get(i), wo, g.wi),
             };
@@ -92,8 +93,9 @@ impl Lanes<'_> {
             let t = transmittance(sigma, g.dist);
             let value = g.value(pdf_area, le, f, bsdf_pdf, t, true);
             let value = self.beta.get(i) * value.unwrap_or(Vec3::ZERO);
-            self.absorbed_value.set(i, value);
+            absorbed.set(i, value);
         }
+        self.absorbed_value = absorbed;
     }
 
     /// After `scatter`: the values of [`Lanes::absorb_light_samples`] in place of `scatter`'s,
