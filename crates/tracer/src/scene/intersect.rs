@@ -147,13 +147,14 @@ impl Scene {
         self.intersect_instances(ray, t_max, alpha_u, found)
     }
 
-    /// [`Scene::intersect_in`] of two rays (alpha value 0, no limit), their world-space walks
-    /// traced together (`Bvh::closest_pair_in`): the same answers as the two calls.
+    /// [`Scene::intersect_in`] of two rays (no limit; alpha values `alpha_a`, `alpha_b`), their
+    /// world-space walks traced together (`Bvh::closest_pair_in`): the same answers as the two
+    /// calls.
     #[inline(always)]
     pub(crate) fn intersect_pair_in<const INLINED: bool>(
         &self,
-        a: &Ray,
-        b: &Ray,
+        (a, alpha_a): (&Ray, f32),
+        (b, alpha_b): (&Ray, f32),
     ) -> (Option<Hit>, Option<Hit>) {
         let (pre_a, pre_b) = (RayPrecomp::new(a), RayPrecomp::new(b));
         let query = |pre, d| RayQuery {
@@ -163,9 +164,13 @@ impl Scene {
         };
         let (qa, qb) = (query(&pre_a, a.d), query(&pre_b, b.d));
         let (found_a, found_b) = if self.any_alpha {
-            let accept =
-                |id: u32, h: &TriangleHit| !self.passes_through(id as usize, h.b1, h.b2, 0.0);
-            self.bvh.closest_pair_in::<INLINED>(qa, accept, qb, accept)
+            let accept = |alpha_u: f32| {
+                move |id: u32, h: &TriangleHit| {
+                    !self.passes_through(id as usize, h.b1, h.b2, alpha_u)
+                }
+            };
+            self.bvh
+                .closest_pair_in::<INLINED>(qa, accept(alpha_a), qb, accept(alpha_b))
         } else {
             self.bvh
                 .closest_pair_in::<INLINED>(qa, |_, _| true, qb, |_, _| true)
@@ -175,8 +180,8 @@ impl Scene {
             return (found_a, found_b);
         }
         (
-            self.intersect_instances(a, f32::INFINITY, 0.0, found_a),
-            self.intersect_instances(b, f32::INFINITY, 0.0, found_b),
+            self.intersect_instances(a, f32::INFINITY, alpha_a, found_a),
+            self.intersect_instances(b, f32::INFINITY, alpha_b, found_b),
         )
     }
 
@@ -239,22 +244,25 @@ impl Scene {
         !blocked && (self.instances.is_empty() || !self.instance_blocks(ray, t_max, alpha_u))
     }
 
-    /// [`Scene::visible_in`] of two segments (one alpha value), their world-space walks traced
-    /// together (`Bvh::any_pair_in`): the same answers as the two calls.
+    /// [`Scene::visible_in`] of two segments (each with its limit and alpha value), their
+    /// world-space walks traced together (`Bvh::any_pair_in`): the same answers as the two calls.
     #[inline(always)]
     pub(crate) fn visible_pair_in<const INLINED: bool>(
         &self,
-        (a, a_max): (&Ray, f32),
-        (b, b_max): (&Ray, f32),
-        alpha_u: f32,
+        (a, a_max, alpha_a): (&Ray, f32, f32),
+        (b, b_max, alpha_b): (&Ray, f32, f32),
     ) -> (bool, bool) {
         let (pre_a, pre_b) = (RayPrecomp::new(a), RayPrecomp::new(b));
         let query = |pre, d, t_max| RayQuery { pre, d, t_max };
         let (qa, qb) = (query(&pre_a, a.d, a_max), query(&pre_b, b.d, b_max));
         let (blocked_a, blocked_b) = if self.any_alpha {
-            let accept =
-                |id: u32, h: &TriangleHit| !self.passes_through(id as usize, h.b1, h.b2, alpha_u);
-            self.bvh.any_pair_in::<INLINED>(qa, accept, qb, accept)
+            let accept = |alpha_u: f32| {
+                move |id: u32, h: &TriangleHit| {
+                    !self.passes_through(id as usize, h.b1, h.b2, alpha_u)
+                }
+            };
+            self.bvh
+                .any_pair_in::<INLINED>(qa, accept(alpha_a), qb, accept(alpha_b))
         } else {
             self.bvh
                 .any_pair_in::<INLINED>(qa, |_, _| true, qb, |_, _| true)
@@ -263,8 +271,8 @@ impl Scene {
             return (!blocked_a, !blocked_b);
         }
         (
-            !blocked_a && !self.instance_blocks(a, a_max, alpha_u),
-            !blocked_b && !self.instance_blocks(b, b_max, alpha_u),
+            !blocked_a && !self.instance_blocks(a, a_max, alpha_a),
+            !blocked_b && !self.instance_blocks(b, b_max, alpha_b),
         )
     }
 

@@ -66,6 +66,17 @@ const _: () = assert!(dims::BOUNCE_BASE.is_multiple_of(4) && dims::PER_BOUNCE.is
 const _: () =
     assert!(dims::LIGHT_POINT.is_multiple_of(4) && dims::LIGHT_SELECT / 4 == dims::LIGHT_POINT / 4);
 const _: () = assert!(dims::BSDF_DIR.is_multiple_of(4) && dims::ROULETTE / 4 == dims::BSDF_DIR / 4);
+const _: () =
+    assert!(dims::DIRECT_DIR.is_multiple_of(4) && dims::ALPHA / 4 == dims::DIRECT_DIR / 4);
+
+/// The alpha-coverage value of bounce `depth` of the sample with `key` and `index_rev`
+/// (`trace_path`'s `alpha_at`: `PixelSampler::bounce1(depth, dims::ALPHA)`), for the closest ray
+/// that finds the vertex at `depth` and for that vertex's shadow rays.
+#[inline(always)]
+fn alpha_value(key: u32, index_rev: u32, depth: u32) -> f32 {
+    let group = bounce_dim(depth, dims::DIRECT_DIR);
+    owen_sobol_group_lanewise(key, index_rev, group, [dims::ALPHA - dims::DIRECT_DIR])[0]
+}
 
 type F = [f32; LANES];
 type U = [u32; LANES];
@@ -208,6 +219,9 @@ pub(super) struct Lanes<'a> {
     /// For each lane inside an absorbing medium, its light sample's value with the medium's
     /// transmittance (`absorb_light_samples`), which `scatter`'s loop leaves out.
     absorbed_value: V3,
+    /// Some material has alpha (`Scene::any_alpha`): each ray query takes its lane's coverage
+    /// value (`Lanes::alpha_at`).
+    alpha: bool,
     /// Some material is general (`DiffuseMaterial::general`).
     any_general: bool,
     /// Each lane's BSDF at its hit, where its material is general (`Lanes::shade_general`);
@@ -296,6 +310,7 @@ impl<'a> Lanes<'a> {
             any_absorbing: diffuse.absorbing,
             medium: V3::ZERO,
             absorbed_value: V3::ZERO,
+            alpha: scene.any_alpha(),
             any_general: diffuse.materials.iter().any(|m| m.general),
             general: Box::new([None; LANES]),
             shadow: [false; LANES],
@@ -435,6 +450,16 @@ impl<'a> Lanes<'a> {
             self.shade_general();
         }
         self.choose_lights(isa, &u_select, &u_light);
+    }
+
+    /// Lane `i`'s alpha-coverage value for bounce `depth` ([`alpha_value`]; 0 in a scene
+    /// without alpha, as `trace_path` takes it).
+    #[inline(always)]
+    fn alpha_at(&self, i: usize, depth: u32) -> f32 {
+        match self.alpha {
+            true => alpha_value(self.key[i], self.index_rev[i], depth),
+            false => 0.0,
+        }
     }
 
     /// [`Lanes::scatter`] with the roulette's variant a constant in each copy: a `match` on it

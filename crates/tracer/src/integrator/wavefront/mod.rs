@@ -9,8 +9,8 @@
 //! vectorises them, and IEEE arithmetic lane by lane rounds as it does one value at a time (Rust
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
-//! It takes every scene without alpha (see [`DiffuseScene`]), lit by emissive triangles, punctual
-//! lamps or the environment, rendered with MIS and the Sobol sampler on an x86-64 processor with
+//! It takes every scene (see [`DiffuseScene`]) lit by emissive triangles, punctual lamps or the
+//! environment, rendered with MIS and the Sobol sampler on an x86-64 processor with
 //! AVX2 or AVX-512; everything else runs the scalar integrator, with the same result it always
 //! had. Its vector code models pure Lambertian and glossy materials (a rough metal, a Lambertian
 //! base under a rough specular layer, or a mix: `bsdf::GlossyLobes`, evaluated and sampled in the
@@ -20,8 +20,9 @@
 //! glass: delta lobes only) is sampled lane by lane through `Bsdf::sample`, and any other (a
 //! general material) has its BSDF made at each hit, evaluated and sampled lane by lane. Vertex
 //! normals are interpolated as `Scene::surface` does, and instanced meshes moved to world space
-//! as it moves them (`Scene::instance_triangle`). Ray queries stay scalar, one lane at a time,
-//! through the scene's BVH.
+//! as it moves them (`Scene::instance_triangle`). Ray queries stay scalar, one lane at a time
+//! (two a walk), through the scene's BVH, each with its lane's alpha-coverage value where the
+//! scene has alpha.
 //!
 //! A lane whose path ends takes the next (pixel, sample) of its thread's work at once, so lanes
 //! do not idle while the longest path of a group finishes. Results therefore arrive out of index
@@ -129,8 +130,8 @@ pub(crate) struct DiffuseScene {
 }
 
 impl DiffuseScene {
-    /// The lanes' view of a scene, if every material is without alpha and the scene has a light
-    /// (emissive triangles, punctual lamps or an environment, one colour or an image). Each
+    /// The lanes' view of a scene, if it has a light (emissive triangles, punctual lamps or an
+    /// environment, one colour or an image). Each
     /// material is taken as the kind the vector steps model, if it is one: a pure Lambertian
     /// (emissive or not), glossy (`Bsdf::glossy_lobes`: rough, without transmission or layers)
     /// or made of delta lobes only (a perfect mirror, smooth glass, clear or absorbing: no light
@@ -157,10 +158,6 @@ impl DiffuseScene {
         }
         let mut out = Vec::with_capacity(materials.len());
         for (material, template) in materials.iter().zip(templates) {
-            // Alpha takes a sample value at every closest hit, which the lanes' rays do not draw.
-            if material.has_alpha() {
-                return None;
-            }
             let vector_kind = |bsdf: &crate::bsdf::Bsdf| {
                 bsdf.single_lobe() || bsdf.glossy_lobes().is_some() || !bsdf.has_non_delta()
             };

@@ -268,7 +268,7 @@ fn every_camera_ray_is_the_scalar_integrators() {
 }
 
 #[test]
-fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
+fn settings_it_does_not_model_go_to_the_scalar_integrator() {
     let cornell = scene(parts("cornell"));
     let base = settings(1, RussianRoulette::Auto, None);
     assert!(cornell.diffuse.is_some());
@@ -288,14 +288,107 @@ fn scenes_and_settings_it_does_not_model_go_to_the_scalar_integrator() {
     ] {
         assert!(Wavefront::new(&cornell, &other).is_none());
     }
-    // Alpha (a cut-out or a blend): the closest hit takes a sample value the lanes do not draw.
-    for mode in [
-        crate::material::AlphaMode::Mask { cutoff: 0.5 },
-        crate::material::AlphaMode::Blend,
+}
+
+/// Alpha: every ray query takes its lane's coverage value (`Lanes::alpha_at`, `trace_path`'s
+/// `alpha_at`), the camera rays' bundle, the closest rays (two a walk and alone), the shadow
+/// rays traced with them and alone, and the lamps' (two a walk). The box with walls blended at
+/// 45 % and cut out where a texture's alpha is low, lit by its light, lamps and a sky seen
+/// through the walls; copies of its walls placed inside it as instances (whose coverage is
+/// salted by the instance); and the textured scene with its texture's alpha cut out on the
+/// floor and blended on the sphere.
+#[test]
+fn alpha_covers_the_lanes_as_it_covers_the_scalar_integrator() {
+    use crate::geometry::{Mesh, Placement};
+    use crate::light::{DirectionalLight, Environment, PointLight, PunctualLight};
+    use crate::material::AlphaMode;
+    use glam::{DMat4, DQuat, DVec3};
+    let mut p = parts("cornell");
+    let mut blended = 0;
+    for (k, m) in p.materials.iter_mut().enumerate() {
+        if m.emissive == Vec3::ZERO && k % 2 == 0 {
+            m.alpha_mode = AlphaMode::Blend;
+            m.base_color.w = 0.45;
+            blended += 1;
+        }
+    }
+    assert!(blended >= 1);
+    let (lo, hi) = p.mesh.bounds();
+    p.punctual_lights = vec![
+        PunctualLight::Point(PointLight {
+            position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
+            intensity: Vec3::splat((hi - lo).length_squared()),
+        }),
+        PunctualLight::Directional(DirectionalLight {
+            direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
+            illuminance: Vec3::new(1.0, 0.9, 0.8),
+        }),
+    ];
+    let sky = || Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
+    let walls = scene(p.clone()).with_environment(Some(sky()));
+    assert!(walls.any_alpha() && walls.diffuse.is_some());
+    let s = settings(1, RussianRoulette::Auto, None);
+    let opaque = scene(parts("cornell"));
+    assert!(pixels_that_differ(&opaque, &walls, &s) > 500);
+    for (seed, rr) in [
+        (81, RussianRoulette::Auto),
+        (82, RussianRoulette::Fixed(0.7)),
     ] {
-        let mut p = parts("glossy");
-        p.materials[0].alpha_mode = mode;
-        assert!(scene(p).diffuse.is_none());
+        assert_same_bits(&walls, &settings(seed, rr, None), 0..6);
+    }
+    // Copies of the walls, blended, as instances inside the box.
+    let centre = (lo + hi) * 0.5;
+    let size = hi - lo;
+    let mut proto = Mesh::default();
+    for (tri, &m) in p.mesh.positions.iter().zip(&p.mesh.material) {
+        if !p.materials[m as usize].is_emissive() {
+            proto.positions.push(tri.map(|v| (v - centre) / size));
+            proto.material.push(m);
+        }
+    }
+    let (c, sz) = (centre.as_dvec3(), size.as_dvec3());
+    let place = |at: DVec3, scale: f64, turn: f64| Placement {
+        prototype: 0,
+        to_world: DMat4::from_scale_rotation_translation(
+            sz * scale,
+            DQuat::from_euler(glam::EulerRot::YXZ, turn, 0.3 * turn, 0.0),
+            c + sz * at,
+        ),
+    };
+    p.prototypes = vec![proto];
+    p.placements = vec![
+        place(DVec3::new(-0.2, -0.25, 0.1), 0.3, 0.4),
+        place(DVec3::new(0.2, -0.2, -0.1), 0.25, -0.7),
+    ];
+    let placed = scene(p).with_environment(Some(sky()));
+    assert_eq!(placed.info.instances, 2);
+    assert!(pixels_that_differ(&walls, &placed, &s) > 100);
+    assert_same_bits(&placed, &settings(83, RussianRoulette::Auto, None), 0..6);
+    // Cut out and blended by a texture's alpha.
+    let mut t = parts("textured");
+    let textured: Vec<usize> = (0..t.materials.len())
+        .filter(|&m| t.materials[m].base_color_texture.is_some())
+        .collect();
+    assert!(textured.len() >= 2);
+    for (k, &m) in textured.iter().enumerate() {
+        let texture = t.materials[m]
+            .base_color_texture
+            .as_ref()
+            .expect("textured")
+            .texture;
+        for (j, texel) in t.textures[texture as usize].texels.iter_mut().enumerate() {
+            texel[3] = ((j * 37) % 256) as u8;
+        }
+        t.materials[m].alpha_mode = match k % 2 {
+            0 => AlphaMode::Mask { cutoff: 0.5 },
+            _ => AlphaMode::Blend,
+        };
+    }
+    let cut = scene(t).with_environment(Some(sky()));
+    assert!(cut.any_alpha() && cut.diffuse.is_some());
+    assert!(pixels_that_differ(&scene(parts("textured")), &cut, &s) > 300);
+    for (seed, rr) in [(84, RussianRoulette::Auto), (85, RussianRoulette::Max)] {
+        assert_same_bits(&cut, &settings(seed, rr, None), 0..6);
     }
 }
 

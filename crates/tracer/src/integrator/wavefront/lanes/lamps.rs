@@ -80,8 +80,10 @@ impl Lanes<'_> {
             let (Some(a), Some(b)) = (&queries[i], &queries[j]) else {
                 continue;
             };
-            (visible[i], visible[j]) =
-                scene.visible_pair_in::<true>((&a.ray, a.t_max), (&b.ray, b.t_max), a.alpha_u);
+            (visible[i], visible[j]) = scene.visible_pair_in::<true>(
+                (&a.ray, a.t_max, a.alpha_u),
+                (&b.ray, b.t_max, b.alpha_u),
+            );
         }
         for &i in pairs.remainder() {
             let i = usize::from(i);
@@ -139,7 +141,7 @@ impl Lanes<'_> {
                 self.corner_c.get(i),
             ]),
             u_select: self.u_punctual[i],
-            alpha_u: 0.0,
+            alpha_u: self.alpha_at(i, self.depth[i]),
         }
     }
 

@@ -100,8 +100,12 @@ impl CameraRays {
                 Ray::new(Vec3::ZERO, Vec3::Z)
             }
         });
+        // The coverage values of bounce 0, in a scene with alpha (`Lanes::alpha_at`).
+        let alpha_u: [f32; LANES] = match scene.any_alpha() {
+            true => std::array::from_fn(|k| super::alpha_value(self.key[k], self.index_rev[k], 0)),
+            false => [0.0; LANES],
+        };
         // Inlined: this step is compiled for the test's instruction set (`builds.rs`).
-        let alpha_u = [0.0; LANES];
         scene.intersect_bundle_in::<true>(&rays[..self.len], &alpha_u, &mut self.found);
     }
 

@@ -30,13 +30,19 @@ impl Lanes<'_> {
             self.rays[j] += 1;
             let a = Ray::new(self.o.get(i), self.d.get(i));
             let b = Ray::new(self.o.get(j), self.d.get(j));
-            (self.found[i], self.found[j]) = scene.intersect_pair_in::<true>(&a, &b);
+            let (alpha_a, alpha_b) = (
+                self.alpha_at(i, self.depth[i]),
+                self.alpha_at(j, self.depth[j]),
+            );
+            (self.found[i], self.found[j]) =
+                scene.intersect_pair_in::<true>((&a, alpha_a), (&b, alpha_b));
         }
         for &i in pairs.remainder() {
             let i = usize::from(i);
             self.rays[i] += 1;
             let ray = Ray::new(self.o.get(i), self.d.get(i));
-            self.found[i] = scene.intersect_in::<true>(&ray, f32::INFINITY, 0.0);
+            let alpha_u = self.alpha_at(i, self.depth[i]);
+            self.found[i] = scene.intersect_in::<true>(&ray, f32::INFINITY, alpha_u);
         }
         // Every lane loads a triangle (`miss` where there is no hit), so nothing here branches
         // but the instanced hits' move to world space.
@@ -205,12 +211,15 @@ impl Lanes<'_> {
             self.rays[i] += 1;
             let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
             let ray = Ray::new(self.o.get(i), self.d.get(i));
+            // The next ray's bounce is one past the shadow ray's vertex (`scatter` moved it on).
+            let depth = self.depth[i];
+            let (alpha_u, shadow_alpha_u) = (self.alpha_at(i, depth), self.alpha_at(i, depth - 1));
             let (found, visible) = scene.intersect_and_visible_in::<true>(
                 &ray,
-                0.0,
+                alpha_u,
                 &shadow,
                 self.shadow_t_max[i],
-                0.0,
+                shadow_alpha_u,
             );
             self.found[i] = found;
             self.add_if(i, visible);
@@ -218,7 +227,8 @@ impl Lanes<'_> {
         for &i in &alone[..n_alone] {
             let i = usize::from(i);
             let shadow = Ray::new(self.shadow_o.get(i), self.shadow_d.get(i));
-            let visible = scene.visible_in::<true>(&shadow, self.shadow_t_max[i], 0.0);
+            let alpha_u = self.alpha_at(i, self.depth[i]);
+            let visible = scene.visible_in::<true>(&shadow, self.shadow_t_max[i], alpha_u);
             self.add_if(i, visible);
         }
         for &i in &ended[..n_ended] {
