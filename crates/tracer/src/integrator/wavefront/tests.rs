@@ -606,6 +606,21 @@ fn absorbing_volumes_attenuate_the_lanes_as_they_attenuate_the_scalar_integrator
         assert!(differ > 100, "{differ}");
         assert_same_bits(&absorbing, &s, 0..6);
     }
+    // Rough glass, and a coat on the white walls (general materials, `lanes/general.rs`): paths
+    // enter the medium through a non-delta lobe, and shade the coated copy from inside it.
+    let mut rough = p.clone();
+    rough.materials[green].roughness = 0.3;
+    let coat = &mut rough.materials[white];
+    (coat.clearcoat, coat.clearcoat_roughness) = (1.0, 0.2);
+    let rough = scene(rough);
+    let d = rough
+        .diffuse
+        .as_ref()
+        .expect("the lanes take general materials");
+    assert!(d.absorbing && d.materials[green].general && d.materials[white].general);
+    for (seed, rr) in [(56, RussianRoulette::Auto), (57, RussianRoulette::Max)] {
+        assert_same_bits(&rough, &settings(seed, rr, None), 0..8);
+    }
 }
 
 /// Specular materials (delta lobes only: a perfect mirror, smooth glass with a clear volume)

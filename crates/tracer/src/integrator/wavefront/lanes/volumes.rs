@@ -8,8 +8,7 @@
 //! such volumes stay as they are). A lane outside every volume, or inside
 //! a clear one, multiplies by nothing, as `trace_path` does with no medium: the same bits.
 
-use super::glossy::GlossyLanes;
-use super::{Lanes, LANES, V3};
+use super::{Lanes, LANES};
 use crate::bsdf::{lambert_at, Bsdf, BsdfSample};
 use crate::integrator::direct::LightGeometry;
 use crate::math::det;
@@ -50,26 +49,9 @@ impl Lanes<'_> {
         if !lit_inside.contains(&true) {
             return;
         }
-        let mut light_wi = V3::ZERO;
-        for i in 0..LANES {
-            let g = LightGeometry::new(
-                self.p.get(i),
-                self.light_point.get(i),
-                self.light_normal.get(i),
-            );
-            light_wi.set(i, g.wi);
-        }
-        let glossy = match self.any_glossy {
-            true => self.glossy_lanes(),
-            false => GlossyLanes::none(),
-        };
-        let (glossy_f, glossy_pdf) = match self.any_glossy {
-            true => glossy.eval_pdf(&self.ns, &self.ng, &self.d, &light_wi),
-            false => (V3::ZERO, [0.0; LANES]),
-        };
         let mut absorbed = self.absorbed_value;
-        for i in 0..LANES {
-            if !lit_inside[i] {
+        for (i, &inside) in lit_inside.iter().enumerate() {
+            if !inside {
                 continue;
             }
             let sigma = self.medium.get(i);
@@ -85,9 +67,12 @@ impl Lanes<'_> {
             } else {
                 self.light_back.get(i)
             };
-            let (f, bsdf_pdf) = match self.any_glossy && glossy.shaded[i] {
-                true => (glossy_f.get(i), glossy_pdf[i]),
-                false => lambert_at::eval_pdf(ns, ng, self.albedo.get(i), wo, g.wi),
+            // Lane by lane, as `trace_path` evaluates the BSDF (`Bsdf::eval_pdf`, whose values
+            // the vector steps' equal): on coloured rough glass most vertices are inside.
+            let (f, bsdf_pdf) = match (&self.general[i], self.lobes(i)) {
+                (Some(bsdf), _) => bsdf.eval_pdf(wo, g.wi),
+                (None, Some(lobes)) => lobes.at(ns, ng, self.frame_tangent(i)).eval_pdf(wo, g.wi),
+                (None, None) => lambert_at::eval_pdf(ns, ng, self.albedo.get(i), wo, g.wi),
             };
             let pdf_area = self.light_pdf_area[i];
             let t = transmittance(sigma, g.dist);
