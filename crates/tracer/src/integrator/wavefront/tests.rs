@@ -612,6 +612,7 @@ fn absorbing_volumes_attenuate_the_lanes_as_they_attenuate_the_scalar_integrator
     rough.materials[green].roughness = 0.3;
     let coat = &mut rough.materials[white];
     (coat.clearcoat, coat.clearcoat_roughness) = (1.0, 0.2);
+    let mut tangled = rough.clone();
     let rough = scene(rough);
     let d = rough
         .diffuse
@@ -621,6 +622,21 @@ fn absorbing_volumes_attenuate_the_lanes_as_they_attenuate_the_scalar_integrator
     for (seed, rr) in [(56, RussianRoulette::Auto), (57, RussianRoulette::Max)] {
         assert_same_bits(&rough, &settings(seed, rr, None), 0..8);
     }
+    // With tangents (along each triangle's first edge): the frames of the lanes lit inside the
+    // medium, glossy and general, are oriented by them.
+    tangled.mesh.tangents = Some(
+        tangled
+            .mesh
+            .positions
+            .iter()
+            .map(|&[a, b, _]| [(b - a).normalize().extend(1.0); 3])
+            .collect(),
+    );
+    let tangled = scene(tangled);
+    assert!(tangled.diffuse.as_ref().is_some_and(|d| d.tangents));
+    let first = settings(1, RussianRoulette::Auto, None);
+    assert!(pixels_that_differ(&rough, &tangled, &first) > 100);
+    assert_same_bits(&tangled, &settings(58, RussianRoulette::Auto, None), 0..8);
 }
 
 /// Specular materials (delta lobes only: a perfect mirror, smooth glass with a clear volume)
