@@ -82,6 +82,28 @@ fn pixels_that_differ(a: &Scene, b: &Scene, s: &RenderSettings) -> usize {
         .count()
 }
 
+/// Two lamps for a scene: a point inside its bounds and a sun (chosen at each point by what they
+/// send there: `lamp_weights` in the lanes).
+fn point_and_sun(p: &SceneParts) -> Vec<crate::light::PunctualLight> {
+    use crate::light::{DirectionalLight, PointLight, PunctualLight};
+    let (lo, hi) = p.mesh.bounds();
+    vec![
+        PunctualLight::Point(PointLight {
+            position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
+            intensity: Vec3::splat((hi - lo).length_squared()),
+        }),
+        PunctualLight::Directional(DirectionalLight {
+            direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
+            illuminance: Vec3::new(1.0, 0.9, 0.8),
+        }),
+    ]
+}
+
+/// A sky of one colour (the peer comparison's environment scene's).
+fn sky() -> crate::light::Environment {
+    crate::light::Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour")
+}
+
 fn settings(seed: u64, rr: RussianRoulette, max_depth: Option<u32>) -> RenderSettings {
     RenderSettings {
         seed,
@@ -300,7 +322,6 @@ fn settings_it_does_not_model_go_to_the_scalar_integrator() {
 #[test]
 fn alpha_covers_the_lanes_as_it_covers_the_scalar_integrator() {
     use crate::geometry::{Mesh, Placement};
-    use crate::light::{DirectionalLight, Environment, PointLight, PunctualLight};
     use crate::material::AlphaMode;
     use glam::{DMat4, DQuat, DVec3};
     let mut p = parts("cornell");
@@ -314,17 +335,7 @@ fn alpha_covers_the_lanes_as_it_covers_the_scalar_integrator() {
     }
     assert!(blended >= 1);
     let (lo, hi) = p.mesh.bounds();
-    p.punctual_lights = vec![
-        PunctualLight::Point(PointLight {
-            position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
-            intensity: Vec3::splat((hi - lo).length_squared()),
-        }),
-        PunctualLight::Directional(DirectionalLight {
-            direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
-            illuminance: Vec3::new(1.0, 0.9, 0.8),
-        }),
-    ];
-    let sky = || Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
+    p.punctual_lights = point_and_sun(&p);
     let walls = scene(p.clone()).with_environment(Some(sky()));
     assert!(walls.any_alpha() && walls.diffuse.is_some());
     let s = settings(1, RussianRoulette::Auto, None);
@@ -401,7 +412,6 @@ fn alpha_covers_the_lanes_as_it_covers_the_scalar_integrator() {
 /// sheens (the suite's `clearcoat`).
 #[test]
 fn general_materials_are_shaded_lane_by_lane_as_the_scalar_integrator_shades_them() {
-    use crate::light::{DirectionalLight, Environment, PointLight, PunctualLight};
     use crate::material::{Material, Volume};
     let kinds: [fn(&mut Material); 7] = [
         |m| (m.clearcoat, m.clearcoat_roughness) = (1.0, 0.2),
@@ -458,19 +468,8 @@ fn general_materials_are_shaded_lane_by_lane_as_the_scalar_integrator_shades_the
     }
     // Lamps (`light_punctual`'s evaluation, per point and lane by lane) and a sky
     // (`light_environment`'s).
-    let (lo, hi) = p.mesh.bounds();
-    p.punctual_lights = vec![
-        PunctualLight::Point(PointLight {
-            position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
-            intensity: Vec3::splat((hi - lo).length_squared()),
-        }),
-        PunctualLight::Directional(DirectionalLight {
-            direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
-            illuminance: Vec3::new(1.0, 0.9, 0.8),
-        }),
-    ];
-    let sky = Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
-    let mut lit = scene(p).with_environment(Some(sky));
+    p.punctual_lights = point_and_sun(&p);
+    let mut lit = scene(p).with_environment(Some(sky()));
     assert!(lit.diffuse.is_some() && lit.lights.punctual_per_point);
     assert_same_bits(&lit, &settings(71, RussianRoulette::Auto, Some(6)), 0..6);
     lit.lights.choose_punctual_by_power();
@@ -696,7 +695,6 @@ fn specular_materials_scatter_as_the_scalar_integrator_scatters() {
 /// by lamps and by a sky.
 #[test]
 fn glossy_materials_are_shaded_as_the_scalar_integrator_shades_them() {
-    use crate::light::{DirectionalLight, Environment, PointLight, PunctualLight};
     let glossy = scene(parts("glossy"));
     assert!(glossy.diffuse.is_some(), "the lanes take rough metal");
     for (seed, rr) in [(41, RussianRoulette::Auto), (42, RussianRoulette::Max)] {
@@ -736,20 +734,8 @@ fn glossy_materials_are_shaded_as_the_scalar_integrator_shades_them() {
         assert_same_bits(&principled, &settings(seed, rr, None), 0..6);
     }
     // A lamp (`light_punctual`'s evaluation) and a sky (`light_environment`'s).
-    let (lo, hi) = p.mesh.bounds();
-    // Two lamps: chosen at each point by what they send there (`lamp_weights` in the lanes).
-    p.punctual_lights = vec![
-        PunctualLight::Point(PointLight {
-            position: (lo + hi) * 0.5 + Vec3::new(0.1, 0.3, 0.1) * (hi - lo),
-            intensity: Vec3::splat((hi - lo).length_squared()),
-        }),
-        PunctualLight::Directional(DirectionalLight {
-            direction: Vec3::new(0.3, -0.4, -1.0).normalize(),
-            illuminance: Vec3::new(1.0, 0.9, 0.8),
-        }),
-    ];
-    let sky = Environment::uniform(Vec3::new(0.6, 0.75, 1.0)).expect("a valid colour");
-    let lit = scene(p).with_environment(Some(sky));
+    p.punctual_lights = point_and_sun(&p);
+    let lit = scene(p).with_environment(Some(sky()));
     assert!(lit.diffuse.is_some() && lit.lights.punctual_per_point);
     assert_same_bits(&lit, &settings(45, RussianRoulette::Auto, Some(6)), 0..6);
 }
