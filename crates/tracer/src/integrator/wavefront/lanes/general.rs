@@ -57,10 +57,15 @@ impl Lanes<'_> {
                 self.ns.get(i),
                 -self.d.get(i),
             );
+            // A general lane's BSDF is borrowed where it lies (a whole `Bsdf` is large).
+            let made;
             let bsdf = match (&self.general[i], &self.materials[self.material[i] as usize]) {
-                (Some(general), _) => *general,
+                (Some(general), _) => general,
                 (None, m) => match &m.specular {
-                    Some(template) => template.at(ns, ng, self.frame_tangent(i)),
+                    Some(template) => {
+                        made = template.at(ns, ng, self.frame_tangent(i));
+                        &made
+                    }
                     None => continue,
                 },
             };
@@ -100,7 +105,8 @@ impl Lanes<'_> {
                 self.corner_b.get(i),
                 self.corner_c.get(i),
             ];
-            self.cross_boundary(i, &bsdf, &bs, wo);
+            let thin_walled = bsdf.params().thin_walled;
+            self.cross_boundary(i, thin_walled, &bs, wo);
             let side = if bs.wi.dot(ng) > 0.0 { ng } else { -ng };
             self.cont[i] = true;
             self.beta.set(i, beta);

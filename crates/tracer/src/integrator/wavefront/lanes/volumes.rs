@@ -9,7 +9,7 @@
 //! a clear one, multiplies by nothing, as `trace_path` does with no medium: the same bits.
 
 use super::{Lanes, LANES};
-use crate::bsdf::{lambert_at, Bsdf, BsdfSample};
+use crate::bsdf::{lambert_at, BsdfSample};
 use crate::integrator::direct::LightGeometry;
 use crate::math::det;
 use glam::Vec3;
@@ -96,14 +96,20 @@ impl Lanes<'_> {
 
     /// The medium lane `i`'s path is in after its specular material's sample `bs` from `wo`
     /// (`trace_path`'s: a transmission through a solid's boundary enters its volume from the
-    /// front side and leaves it from the back).
+    /// front side and leaves it from the back, unless the material is thin-walled).
     #[inline(always)]
-    pub(super) fn cross_boundary(&mut self, i: usize, bsdf: &Bsdf, bs: &BsdfSample, wo: Vec3) {
+    pub(super) fn cross_boundary(
+        &mut self,
+        i: usize,
+        thin_walled: bool,
+        bs: &BsdfSample,
+        wo: Vec3,
+    ) {
         if !(self.any_absorbing && bs.transmitted) {
             return;
         }
         let material = &self.scene.materials[self.material[i] as usize];
-        if let Some(v) = material.volume.filter(|_| !bsdf.params().thin_walled) {
+        if let Some(v) = material.volume.filter(|_| !thin_walled) {
             let entering = wo.dot(self.ng.get(i)) > 0.0;
             self.medium
                 .set(i, if entering { v.sigma_a } else { Vec3::ZERO });
