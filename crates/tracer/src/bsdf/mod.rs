@@ -62,17 +62,20 @@
 //! The layers' lobes take the top of the lobe choice's range, and everything about them sits behind
 //! one flag, so a material without them samples and evaluates to the same bits as before they
 //! existed. The pure Lambertian material (metallic = specular = transmission = clearcoat = 0 and a
-//! black sheen) takes a short path everywhere.
+//! black sheen) takes a short path everywhere (`lambert.rs`); every other material's queries are
+//! in `eval.rs` ([`Bsdf::eval`], [`Bsdf::pdf`]) and `sample.rs` ([`Bsdf::sample`]).
 
 mod albedo;
 mod clearcoat;
 mod conductor;
 mod dielectric;
+mod eval;
 mod fresnel;
 mod glossy;
 mod lambert;
 pub mod microfacet;
 mod params;
+mod sample;
 mod sheen;
 mod specular_layer;
 
@@ -84,8 +87,8 @@ pub(crate) use lambert::at as lambert_at;
 
 use crate::math::Frame;
 use albedo::AlbedoRow;
-use clearcoat::{from_coat, to_coat, Coat};
-use dielectric::{refraction_half_vector, Interface, INDEX_MATCHED};
+use clearcoat::{to_coat, Coat};
+use dielectric::{Interface, INDEX_MATCHED};
 use glam::{Vec2, Vec3};
 use microfacet::Ggx;
 use sheen::Sheen;
@@ -399,50 +402,6 @@ impl Bsdf {
         self.general_eval_pdf::<true, true>(wo, wi)
     }
 
-    /// The public queries of every material but the pure Lambertian, out of line: the
-    /// Lambertian's short paths (`lambert.rs`) are inlined into the integrator, this is not.
-    /// Materials with layers take a copy of their own (`LAYERED`), so that the others run the code
-    /// they ran before the layers existed.
-    #[inline(never)]
-    fn general_eval_pdf<const EVAL: bool, const PDF: bool>(
-        &self,
-        wo: Vec3,
-        wi: Vec3,
-    ) -> (Vec3, f32) {
-        if self.layered {
-            return self.layered_eval_pdf::<EVAL, PDF>(wo, wi);
-        }
-        self.general_eval_pdf_in::<EVAL, PDF, false>(wo, wi, |co| self.row.lookup(co))
-    }
-
-    /// [`Bsdf::general_eval_pdf`] of a material with layers.
-    #[inline(never)]
-    fn layered_eval_pdf<const EVAL: bool, const PDF: bool>(
-        &self,
-        wo: Vec3,
-        wi: Vec3,
-    ) -> (Vec3, f32) {
-        self.general_eval_pdf_in::<EVAL, PDF, true>(wo, wi, |co| self.row.lookup(co))
-    }
-
-    /// `albedo_terms`: the GGX albedo table's (A, B) at cos θo (`AlbedoRow::lookup`, or the same
-    /// values looked up before, as the wavefront's lanes do).
-    #[inline(always)]
-    fn general_eval_pdf_in<const EVAL: bool, const PDF: bool, const LAYERED: bool>(
-        &self,
-        wo: Vec3,
-        wi: Vec3,
-        albedo_terms: impl FnOnce(f32) -> (f32, f32),
-    ) -> (Vec3, f32) {
-        let Some((o, i, entering)) = self.local_pair(wo, wi) else {
-            return (Vec3::ZERO, 0.0);
-        };
-        let eta = self.interface.eta(entering);
-        let s = if entering { 1.0 } else { -1.0 };
-        let t = self.wo_terms::<LAYERED>(o, s, eta, albedo_terms);
-        self.eval_pdf_local::<EVAL, PDF, LAYERED>(o, i, eta, &t)
-    }
-
     /// Samples wi. `u_lobe` chooses the lobe (and, remapped, reflection against refraction); `u`
     /// samples the direction within it.
     #[inline(always)]
@@ -451,182 +410,6 @@ impl Bsdf {
             return self.lambert_sample(wo, u);
         }
         self.general_sample(wo, u_lobe, u)
-    }
-
-    /// [`Bsdf::sample`] for every material but the pure Lambertian, out of line (materials with
-    /// layers in a copy of their own).
-    #[inline(never)]
-    fn general_sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
-        if self.layered {
-            return self.layered_sample(wo, u_lobe, u);
-        }
-        self.general_sample_in::<false>(wo, u_lobe, u, |co| self.row.lookup(co))
-    }
-
-    /// [`Bsdf::general_sample`] of a material with layers.
-    #[inline(never)]
-    fn layered_sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
-        self.general_sample_in::<true>(wo, u_lobe, u, |co| self.row.lookup(co))
-    }
-
-    /// `albedo_terms` as in [`Bsdf::general_eval_pdf_in`].
-    #[inline(always)]
-    fn general_sample_in<const LAYERED: bool>(
-        &self,
-        wo: Vec3,
-        u_lobe: f32,
-        u: Vec2,
-        albedo_terms: impl FnOnce(f32) -> (f32, f32),
-    ) -> Option<BsdfSample> {
-        let lo = self.frame.to_local(wo);
-        if lo.z == 0.0 || lo.z.is_nan() {
-            return None;
-        }
-        let s = if lo.z > 0.0 { 1.0 } else { -1.0 };
-        let o = Vec3::new(lo.x, lo.y, lo.z.abs());
-        let eta = self.interface.eta(lo.z > 0.0);
-        let t = self.wo_terms::<LAYERED>(o, s, eta, albedo_terms);
-        let [p_d, p_s, p_t] = t.p;
-        let lt = &t.layers;
-        let p_base = p_d + p_s + p_t;
-        let p_layers = lt.p_coat + lt.p_sheen;
-        if p_base + p_layers <= 0.0 {
-            return None;
-        }
-        let unflip = |i: Vec3| Vec3::new(i.x, i.y, i.z * s);
-        let (i, transmit) = if LAYERED && p_layers > 0.0 && u_lobe >= p_base {
-            // The layers' lobes take the top of u_lobe's range, so that a material without them
-            // chooses among the others exactly as before.
-            if u_lobe < p_base + lt.p_coat || lt.p_sheen == 0.0 {
-                if self.coat.smooth {
-                    let i = from_coat(&lt.coat_frame, mirror(lt.oc));
-                    if i.z <= 0.0 {
-                        // Mirrored below the shading surface by a tilted coat normal: lost.
-                        return None;
-                    }
-                    let w = Vec3::splat(lt.coat_f / lt.p_coat);
-                    return self.finish(wo, lo.z, unflip(i), w, lt.p_coat, true);
-                }
-                let m = self.coat.ggx.sample_visible_normal(lt.oc, u);
-                (
-                    from_coat(&lt.coat_frame, dielectric::reflect(lt.oc, m)),
-                    false,
-                )
-            } else {
-                (lambert::sample(u), false)
-            }
-        } else if u_lobe < p_d {
-            (lambert::sample(u), false)
-        } else if u_lobe < p_d + p_s || p_t == 0.0 {
-            if self.spec_smooth {
-                let m = self.w_metal * conductor::mirror(self.params.base_color, o.z)
-                    + (self.w_base * self.layer.weight) * self.layer.fresnel(o.z);
-                let m = if LAYERED { m * lt.base } else { m };
-                return self.finish(wo, lo.z, unflip(mirror(o)), m / p_s, p_s, true);
-            }
-            (
-                dielectric::reflect(o, self.ggx.sample_visible_normal(o, u)),
-                false,
-            )
-        } else {
-            let u2 = ((u_lobe - p_d - p_s) / p_t).clamp(0.0, 1.0);
-            let base = self.params.base_color;
-            if self.trans_smooth {
-                // Under the layers.
-                let w_trans = if LAYERED {
-                    self.w_trans * lt.base
-                } else {
-                    self.w_trans
-                };
-                let sp = self.interface.split(o.z, eta, base);
-                if u2 < sp.p_r {
-                    let pdf = p_t * sp.p_r;
-                    return self.finish(
-                        wo,
-                        lo.z,
-                        unflip(mirror(o)),
-                        w_trans * sp.r / pdf,
-                        pdf,
-                        true,
-                    );
-                }
-                let pdf = p_t * (1.0 - sp.p_r);
-                if self.interface.thin {
-                    return self.finish(wo, lo.z, -lo, w_trans * sp.t / pdf, pdf, true);
-                }
-                let i = fresnel::refract(o, Vec3::Z, eta)?;
-                return self.finish(
-                    wo,
-                    lo.z,
-                    unflip(i),
-                    w_trans * sp.t / (eta * eta * pdf),
-                    pdf,
-                    true,
-                );
-            }
-            let m = self.ggx.sample_visible_normal(o, u);
-            let sp = self.interface.split(o.dot(m), eta, base);
-            let r = dielectric::reflect(o, m);
-            if u2 < sp.p_r {
-                (r, false)
-            } else if self.interface.thin {
-                (Vec3::new(r.x, r.y, -r.z), true)
-            } else {
-                (fresnel::refract(o, m, eta)?, true)
-            }
-        };
-        // A direction sampled on the wrong side (a reflection below the horizon, a refraction that
-        // grazes back up) is lost: `pdf` accounts for it.
-        if i.z == 0.0 || (i.z < 0.0) != transmit {
-            return None;
-        }
-        // Evaluate at the world-space wi that is returned, exactly as `eval_pdf(wo, wi)` does (same
-        // inputs, same code), so that weight = eval / pdf holds to the last bit even where rounding
-        // in the change of frame matters (near the horizon).
-        let wi = self.frame.to_world(unflip(i));
-        let li = self.frame.to_local(wi);
-        if li.z == 0.0 || li.z.is_nan() || !self.guard(wo, wi, lo.z, li.z) {
-            return None;
-        }
-        let i = Vec3::new(li.x, li.y, li.z * s);
-        let (f, pdf) = self.eval_pdf_local::<true, true, LAYERED>(o, i, eta, &t);
-        if pdf.is_nan() || pdf <= 0.0 || crate::math::is_black(f) {
-            return None;
-        }
-        Some(BsdfSample {
-            wi,
-            weight: f / pdf,
-            pdf,
-            delta: false,
-            transmitted: (li.z > 0.0) != (lo.z > 0.0),
-        })
-    }
-
-    /// Maps a local sample back to world space, applies the light-leak guard and packs it.
-    #[inline(always)]
-    fn finish(
-        &self,
-        wo: Vec3,
-        lo_z: f32,
-        li: Vec3,
-        weight: Vec3,
-        pdf: f32,
-        delta: bool,
-    ) -> Option<BsdfSample> {
-        if li.z == 0.0 || pdf.is_nan() || pdf <= 0.0 {
-            return None;
-        }
-        let wi = self.frame.to_world(li);
-        if !self.guard(wo, wi, lo_z, li.z) {
-            return None;
-        }
-        Some(BsdfSample {
-            wi,
-            weight,
-            pdf,
-            delta,
-            transmitted: (li.z > 0.0) != (lo_z > 0.0),
-        })
     }
 
     /// True when the geometric normal agrees with the shading frame on whether (wo, wi) is a
@@ -756,141 +539,5 @@ impl Bsdf {
             t.sheen_lambda_o = self.sheen.lambda(o.z);
         }
         (t, est_c, est_sh)
-    }
-
-    /// f·|cos θi| and/or the pdf of the non-delta lobes, in the local frame with `o.z > 0`.
-    #[inline(always)]
-    fn eval_pdf_local<const EVAL: bool, const PDF: bool, const LAYERED: bool>(
-        &self,
-        o: Vec3,
-        i: Vec3,
-        eta: f32,
-        t: &WoTerms,
-    ) -> (Vec3, f32) {
-        let (f, pdf) = self.base_eval_pdf_local::<EVAL, PDF>(o, i, eta, t);
-        if !LAYERED {
-            return (f, pdf);
-        }
-        self.layer_eval_pdf::<EVAL, PDF>(o, i, &t.layers, f, pdf)
-    }
-
-    /// Adds the clear coat's and the sheen's lobes to the base's `f` (scaled here by the layers'
-    /// base weight) and `pdf`.
-    #[inline(never)]
-    fn layer_eval_pdf<const EVAL: bool, const PDF: bool>(
-        &self,
-        o: Vec3,
-        i: Vec3,
-        t: &LayerTerms,
-        f: Vec3,
-        pdf: f32,
-    ) -> (Vec3, f32) {
-        let (mut f, mut pdf) = (f * t.base, pdf);
-        if i.z <= 0.0 {
-            return (f, pdf);
-        }
-        if self.coat_on && !self.coat.smooth && t.oc.z > 0.0 {
-            let (oc, ic) = (t.oc, to_coat(&t.coat_frame, i));
-            let h = (oc + ic).normalize_or_zero();
-            let g = &self.coat.ggx;
-            if EVAL && ic.z > 0.0 {
-                f += Vec3::splat(t.coat_f * g.d(h) * g.vis(oc, ic) * ic.z);
-            }
-            if PDF {
-                pdf += t.p_coat * g.reflection_pdf(oc, h);
-            }
-        }
-        if self.sheen_on {
-            if EVAL {
-                let e = self.sheen.eval(o, i, t.sheen_lambda_o);
-                f += (t.sheen_w * e) * self.sheen.color;
-            }
-            if PDF {
-                pdf += t.p_sheen * lambert::pdf(i.z);
-            }
-        }
-        (f, pdf)
-    }
-
-    /// [`Bsdf::eval_pdf_local`] of the material under the layers (all of it, without layers).
-    #[inline(always)]
-    fn base_eval_pdf_local<const EVAL: bool, const PDF: bool>(
-        &self,
-        o: Vec3,
-        i: Vec3,
-        eta: f32,
-        t: &WoTerms,
-    ) -> (Vec3, f32) {
-        let base = self.params.base_color;
-        let mut f = Vec3::ZERO;
-        let mut pdf = 0.0;
-        let trans_rough = self.trans_on && !self.trans_smooth;
-        if i.z > 0.0 {
-            if EVAL {
-                f += (t.kd * lambert::eval(i.z)) * base;
-            }
-            if PDF {
-                pdf += t.p[0] * lambert::pdf(i.z);
-            }
-            if !self.spec_smooth && (self.spec_on || trans_rough) {
-                let h = (o + i).normalize();
-                let oh = o.dot(h).max(0.0);
-                let d = self.ggx.d(h);
-                let split = if trans_rough {
-                    Some(self.interface.split(oh, eta, base))
-                } else {
-                    None
-                };
-                if EVAL {
-                    let mut c = self.w_metal * conductor::fresnel(base, oh)
-                        + (self.w_base * self.layer.weight) * self.layer.fresnel(oh);
-                    if let Some(sp) = split {
-                        c += self.w_trans * sp.r;
-                    }
-                    f += c * (d * self.ggx.vis(o, i) * i.z);
-                }
-                if PDF {
-                    let rp = self.ggx.reflection_pdf(o, h);
-                    pdf += t.p[1] * rp;
-                    if let Some(sp) = split {
-                        pdf += t.p[2] * rp * sp.p_r;
-                    }
-                }
-            }
-        } else if trans_rough {
-            if self.interface.thin {
-                // The reflection lobe mirrored through the surface.
-                let ir = Vec3::new(i.x, i.y, -i.z);
-                let h = (o + ir).normalize();
-                let d = self.ggx.d(h);
-                let sp = self.interface.split(o.dot(h).max(0.0), eta, base);
-                if EVAL {
-                    f = (self.w_trans * d * self.ggx.vis(o, ir) * ir.z) * sp.t;
-                }
-                if PDF {
-                    pdf = t.p[2] * (1.0 - sp.p_r) * self.ggx.reflection_pdf(o, h);
-                }
-            } else if let Some((m, om, im)) = refraction_half_vector(o, i, eta) {
-                let sp = self.interface.split(om, eta, base);
-                let d = self.ggx.d(m);
-                let den = om + eta * im;
-                let den2 = den * den;
-                if EVAL {
-                    // f_t |cos θi| = T D G2 |i·m| (o·m) / (cos θo (o·m + η i·m)²); the η² of the
-                    // Jacobian cancels against the 1/η² of radiance transport.
-                    f = (self.w_trans * d * self.ggx.g2(o, i) * -im * om / (o.z * den2)) * sp.t;
-                }
-                if PDF {
-                    pdf = t.p[2]
-                        * (1.0 - sp.p_r)
-                        * self.ggx.visible_normal_pdf(o, m)
-                        * eta
-                        * eta
-                        * -im
-                        / den2;
-                }
-            }
-        }
-        (f, pdf)
     }
 }

@@ -224,6 +224,9 @@ pub(super) struct Lanes<'a> {
     /// Each lane's BSDF at its hit, where its material is general (`Lanes::shade_general`);
     /// None elsewhere.
     general: Box<[Option<Bsdf>; LANES]>,
+    /// Each hit's tangent with its handedness (`Scene::hit_tangent`), where some mesh has
+    /// tangents: read by `shade_texels` and taken again by `shade_general`.
+    tangent4: [Option<glam::Vec4>; LANES],
 }
 
 impl<'a> Lanes<'a> {
@@ -310,6 +313,7 @@ impl<'a> Lanes<'a> {
             alpha: scene.any_alpha(),
             any_general: diffuse.materials.iter().any(|m| m.general),
             general: Box::new([None; LANES]),
+            tangent4: [None; LANES],
             shadow: [false; LANES],
             shadow_o: V3::ZERO,
             shadow_d: V3::ZERO,

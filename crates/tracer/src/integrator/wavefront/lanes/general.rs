@@ -28,8 +28,9 @@ impl Lanes<'_> {
             let Some(hit) = self.found[i] else {
                 continue;
             };
+            // `shade_texels` read the tangent (it runs wherever some mesh has tangents).
             let tangent = match self.tangents {
-                true => scene.hit_tangent(&hit),
+                true => self.tangent4[i],
                 false => None,
             };
             let (ns, ng) = (self.ns.get(i), self.ng.get(i));

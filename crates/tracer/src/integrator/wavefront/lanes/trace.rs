@@ -123,6 +123,7 @@ impl Lanes<'_> {
             };
             self.tangent
                 .set(i, tangent.map_or(glam::Vec3::ZERO, |t| t.truncate()));
+            self.tangent4[i] = tangent;
             let material = self.material[i];
             if !self.materials[material as usize].textured {
                 continue;
