@@ -146,7 +146,7 @@ async fn plans_over_the_limits_are_refused_before_they_are_built() {
 /// over the JSON limit too; a slice that claims a tile other than its task's, or comes without
 /// the task's lease, is refused before its pixels are decoded: the largest allocation stays
 /// around the body's size, where decoding the claimed 40,000 pixels would take 2.9 MB. (A body
-/// over the largest slice of its task's tile is refused before it is read: `connections.rs`.)
+/// over the largest slice of its task's tile is refused before it is read: `connections/`.)
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slice_uploads_allocate_no_more_than_their_tile() {
     let _serial = SERIAL.lock().await;

@@ -1,5 +1,5 @@
 //! Histogram bins over the sphere of directions for the BSDF chi-square tests
-//! (`bsdf_distributions.rs`, `layer_lobes.rs`).
+//! (`bsdf_distributions/`, `layer_lobes/`).
 
 use glam::{DVec3, Vec3};
 use pathfarm_tracer::stats::SphereBins;

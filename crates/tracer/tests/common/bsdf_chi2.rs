@@ -1,4 +1,4 @@
-//! The BSDF sampling check shared by `bsdf_distributions.rs` and `layer_lobes.rs`: draw samples,
+//! The BSDF sampling check shared by `bsdf_distributions/` and `layer_lobes/`: draw samples,
 //! check each against eval and pdf, histogram the directions and run the chi-square test against
 //! the pdf integrated over the bins, at four view angles on each side asked for.
 
