@@ -17,6 +17,7 @@ pub mod camera;
 pub mod fuzzing; // the checks of the fuzz targets (fuzz/), shared with tests/fuzz_corpus.rs
 pub mod geometry;
 pub mod gltf;
+pub mod guide;
 pub mod integrator;
 mod isa;
 pub mod light;

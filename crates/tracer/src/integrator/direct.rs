@@ -3,6 +3,7 @@
 
 use crate::bsdf::Bsdf;
 use crate::geometry::Ray;
+use crate::guide::GuideCell;
 use crate::light::{choose_by_contribution, PunctualSample};
 use crate::math::{is_black, offset_ray_origin, Frame};
 use crate::sampler::{dims, PixelSampler};
@@ -25,9 +26,23 @@ pub(crate) struct Vertex<'a> {
     pub bsdf: &'a Bsdf,
     /// Absorption of the medium the vertex is in (shadow rays through it are attenuated).
     pub medium: Option<Vec3>,
+    /// The caustic guide's cell, where the continuation is drawn from its mixture with the BSDF:
+    /// the BSDF strategy's density in the MIS weights is then the mixture's.
+    pub guide: Option<GuideCell<'a>>,
 }
 
 impl Vertex<'_> {
+    /// The BSDF's f · |cos θi| towards `wi`, and the density with which the continuation is drawn
+    /// there (the BSDF's, or its mixture with the caustic guide).
+    #[inline]
+    fn eval_pdf(&self, wi: Vec3) -> (Vec3, f32) {
+        let (f, pdf) = self.bsdf.eval_pdf(self.wo, wi);
+        match &self.guide {
+            Some(cell) => (f, cell.mix_pdf(pdf, wi)),
+            None => (f, pdf),
+        }
+    }
+
     /// A ray leaving the vertex towards `wi`, its origin offset to the side `wi` goes to.
     #[inline]
     fn spawn(&self, wi: Vec3) -> Ray {
@@ -196,7 +211,7 @@ pub(crate) fn light_query(
     let es = env.sample(s.bounce2(depth, dims::LIGHT_POINT))?;
     let pdf = p_env * es.pdf;
     let (f, bsdf_pdf) = if mis {
-        v.bsdf.eval_pdf(v.wo, es.wi)
+        v.eval_pdf(es.wi)
     } else {
         (v.bsdf.eval(v.wo, es.wi), 0.0)
     };
@@ -259,7 +274,7 @@ fn area_light_query(
     let le = material.emission(&scene.textures, &uv, g.cos_l > 0.0);
     // With MIS the BSDF's pdf is needed too: evaluate both in one pass over the lobes.
     let (f, bsdf_pdf) = if mis {
-        v.bsdf.eval_pdf(v.wo, g.wi)
+        v.eval_pdf(g.wi)
     } else {
         (v.bsdf.eval(v.wo, g.wi), 0.0)
     };

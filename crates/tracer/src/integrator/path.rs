@@ -39,6 +39,7 @@ pub fn trace_path(
     // Area lights or an environment: what the shared light sample finds.
     let has_sampled = scene.lights.has_sampled();
     let has_punctual = !scene.lights.punctual.is_empty();
+    let caustics = scene.caustic_guide();
 
     let mut depth = 0u32;
     // The current ray's hit when it was traced together with the previous vertex's shadow ray.
@@ -112,6 +113,12 @@ pub fn trace_path(
 
         let bsdf = scene.bsdf_at(&si);
         let wo = -ray.d;
+        // Where the caustic guide knows this point, the continuation is drawn from its mixture
+        // with the BSDF (`guide`).
+        let guide = match bsdf.has_non_delta() {
+            true => caustics.and_then(|g| g.cell(si.p)),
+            false => None,
+        };
         let vertex = Vertex {
             p: si.p,
             clearance: si.clearance,
@@ -119,6 +126,7 @@ pub fn trace_path(
             wo,
             bsdf: &bsdf,
             medium,
+            guide,
         };
 
         // 2. Direct lighting for the non-delta lobes. The area light's shadow ray is traced later,
@@ -156,16 +164,18 @@ pub fn trace_path(
         }
 
         // 3. Continue the path.
-        // A pure Lambertian has one lobe: its dimension is not drawn at all.
-        let u_lobe = if bsdf.single_lobe() {
-            0.0
-        } else {
-            sampler.bounce1(depth, dims::BSDF_LOBE)
+        let u_dir = sampler.bounce2(depth, dims::BSDF_DIR);
+        let sampled = match &guide {
+            // The lobe's dimension chooses between the guide and the BSDF, and then within it.
+            Some(cell) => {
+                let u_mix = sampler.bounce1(depth, dims::BSDF_LOBE);
+                cell.sample_mixture(&bsdf, wo, si.ng, u_mix, u_dir)
+            }
+            // A pure Lambertian has one lobe: its dimension is not drawn at all.
+            None if bsdf.single_lobe() => bsdf.sample(wo, 0.0, u_dir),
+            None => bsdf.sample(wo, sampler.bounce1(depth, dims::BSDF_LOBE), u_dir),
         };
-        let Some(bs) = bsdf
-            .sample(wo, u_lobe, sampler.bounce2(depth, dims::BSDF_DIR))
-            .filter(|bs| !is_black(bs.weight))
-        else {
+        let Some(bs) = sampled.filter(|bs| !is_black(bs.weight)) else {
             l += shadow_alone(scene, shadow);
             break;
         };

@@ -392,6 +392,11 @@ impl AreaLights {
         self.sampled.iter().zip(self.triangles.iter().copied())
     }
 
+    /// Light `i` of [`AreaLights::sampled`], with its triangle index in the mesh.
+    pub(crate) fn sampled_light(&self, i: usize) -> Option<(&LightTriangle, u32)> {
+        Some((self.sampled.get(i)?, *self.triangles.get(i)?))
+    }
+
     /// The distribution light triangles are chosen from (in proportion to power).
     pub(crate) fn distribution(&self) -> &Distribution1D {
         &self.distribution

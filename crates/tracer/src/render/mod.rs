@@ -25,6 +25,9 @@ pub fn render_tile(
     tile: Tile,
     samples: Range<u32>,
 ) -> Accumulation {
+    // The caustic guide is built (once per scene) before the parallel loop, so that every thread
+    // traces its photons, rather than one while the others wait for it.
+    scene.caustic_guide();
     let rows: Vec<(Vec<PixelAccum>, u64, u64, Vec<InvalidSample>)> = (tile.y0
         ..tile.y0 + tile.height)
         .into_par_iter()
@@ -171,6 +174,7 @@ pub fn render_image(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Accumulation {
     let tiles = Tile::grid(settings.width, settings.height, tile_size.max(1));
+    scene.caustic_guide(); // before the parallel loop (see `render_tile`)
     let done: Vec<Accumulation> = tiles
         .par_iter()
         .map(|&t| {

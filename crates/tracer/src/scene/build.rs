@@ -141,6 +141,7 @@ impl Scene {
         Scene {
             bsdf_templates,
             diffuse,
+            caustics: std::sync::OnceLock::new(),
             mesh,
             bvh,
             instances,

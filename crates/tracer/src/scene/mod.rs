@@ -4,6 +4,7 @@
 
 mod build;
 mod bundle;
+mod caustics;
 mod error;
 mod intersect;
 mod parts;
@@ -51,6 +52,8 @@ pub struct Scene {
     bsdf_templates: Vec<Option<Bsdf>>,
     /// What the wavefront integrator needs, for a scene it can render. Derived at build time.
     pub(crate) diffuse: Option<DiffuseScene>,
+    /// The caustic guide, built on first use (`caustics.rs`).
+    caustics: std::sync::OnceLock<Option<Arc<crate::guide::CausticGuide>>>,
 }
 
 impl Scene {

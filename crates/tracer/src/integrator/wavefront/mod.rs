@@ -10,8 +10,9 @@
 //! never fuses a multiply and an add on its own). Tested sample by sample against `trace_path`.
 //!
 //! It takes every scene (see [`DiffuseScene`]) lit by emissive triangles, punctual lamps or the
-//! environment, rendered with MIS and the Sobol sampler on an x86-64 processor with
-//! AVX2 or AVX-512; everything else runs the scalar integrator, with the same result it always
+//! environment, rendered with MIS and the Sobol sampler on an x86-64 processor with AVX2 or
+//! AVX-512, unless the scene has a caustic guide (`crate::guide`), whose mixture only the scalar
+//! integrator draws; everything else runs the scalar integrator, with the same result it always
 //! had. Its vector code models pure Lambertian and glossy materials (a rough metal, a Lambertian
 //! base under a rough specular layer, or a mix: `bsdf::GlossyLobes`, evaluated and sampled in the
 //! lanes by the BSDF's own code), untextured or with textures that keep their kind (a base
@@ -240,7 +241,8 @@ impl<'a> Wavefront<'a> {
         let diffuse = scene.diffuse.as_ref()?;
         let supported =
             settings.direct == DirectStrategy::Mis && settings.sampler == SamplerKind::Sobol;
-        if !supported {
+        // The caustic guide's mixture is drawn by the scalar integrator only (for now).
+        if !supported || scene.caustic_guide().is_some() {
             return None;
         }
         Some(Wavefront {

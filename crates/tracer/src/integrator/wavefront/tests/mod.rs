@@ -21,8 +21,12 @@ fn parts(name: &str) -> SceneParts {
         .unwrap_or_else(|e| panic!("{name}: {e}"))
 }
 
+/// The scene built, without the caustic guide, whose mixture the lanes do not draw (a scene with
+/// one goes to the scalar integrator: `Wavefront::new`).
 fn scene(parts: SceneParts) -> Scene {
-    Scene::build(parts).expect("scene builds")
+    Scene::build(parts)
+        .expect("scene builds")
+        .without_caustic_guide()
 }
 
 /// Renders `samples` of a grid of pixels both ways and compares every result.
