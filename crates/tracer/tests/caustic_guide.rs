@@ -7,7 +7,7 @@ mod common;
 
 use common::image_mean_and_stderr;
 use pathfarm_tracer::gltf::{load_parts, LoadOptions, NoExternalResources};
-use pathfarm_tracer::{render_image, Accumulation, RenderSettings, Scene};
+use pathfarm_tracer::{render_image, render_tile, Accumulation, RenderSettings, Scene, Tile};
 use std::path::PathBuf;
 
 fn scene(name: &str) -> Scene {
@@ -82,4 +82,33 @@ fn guided_and_unguided_renders_agree_and_the_guide_lowers_the_noise() {
         na < 0.95 * nb,
         "the guide should lower the caustics' noise: {na} against {nb} without it"
     );
+}
+
+/// Two tiles rendered at once on one pool (a worker's task lanes), the guide not yet built: the
+/// first to need it builds it while the other waits, and neither waits on itself (a guide built
+/// with rayon inside its `OnceLock` let the builder's thread steal the other tile, which then
+/// waited on the same lock on the same thread, for ever).
+#[test]
+fn tiles_rendered_at_once_on_one_pool_wait_for_one_build_of_the_guide() {
+    let scene = scene("caustics.gltf");
+    let settings = RenderSettings::new(32, 32);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("a pool of two threads");
+    let tile = |y0| Tile {
+        x0: 0,
+        y0,
+        width: 32,
+        height: 16,
+    };
+    let tiles = [tile(0), tile(16)];
+    let (a, b) = pool.install(|| {
+        rayon::join(
+            || render_tile(&scene, &settings, tiles[0], 0..4),
+            || render_tile(&scene, &settings, tiles[1], 0..4),
+        )
+    });
+    assert!(scene.caustic_guide().is_some());
+    assert_eq!(a.pixels.len() + b.pixels.len(), 32 * 32);
 }

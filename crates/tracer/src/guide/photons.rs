@@ -11,12 +11,11 @@ use crate::sampler::{hash_words, independent_sample};
 use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle};
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
-use rayon::prelude::*;
 use std::f32::consts::PI;
 
 /// Photons per scene (2¹⁹ left the peers' caustics scene 1.2× noisier than 2²⁰).
 const PHOTONS: u32 = 1 << 20;
-/// Photons per parallel chunk (their landings are collected in chunk order).
+/// Photons per chunk (a thread takes a run of chunks; their landings are collected in order).
 const CHUNK: u32 = 1 << 14;
 /// Specular bounces a photon follows before it is given up.
 const MAX_SPECULAR: u32 = 12;
@@ -46,16 +45,33 @@ pub(super) fn trace(scene: &Scene) -> Option<CausticGuide> {
         casters: &casters,
         key: hash_words(&[0x6361_7573, 0x7469_6373]),
     };
-    let chunks: Vec<Vec<Landing>> = (0..PHOTONS / CHUNK)
-        .into_par_iter()
-        .map(|c| {
-            let mut out = Vec::new();
-            for i in c * CHUNK..(c + 1) * CHUNK {
-                shoot.photon(i, &guide, &mut out);
-            }
-            out
-        })
-        .collect();
+    // Plain threads, one run of chunks each, not rayon: the guide is built inside a `OnceLock`'s
+    // initialiser, often on a rayon thread of the render pool, and a rayon thread waiting for
+    // its photon jobs would steal work from its pool, such as another task's tile, which would
+    // then wait on the same `OnceLock` on the same thread: a deadlock. Chunks joined in order.
+    let guide_ref = &guide;
+    let shoot = &shoot;
+    let threads = rayon::current_num_threads().clamp(1, 64) as u32;
+    let chunks = PHOTONS / CHUNK;
+    let per_thread = chunks.div_ceil(threads);
+    let chunks: Vec<Vec<Landing>> = std::thread::scope(|scope| {
+        let runs: Vec<_> = (0..threads)
+            .map(|t| {
+                scope.spawn(move || {
+                    let mut out = Vec::new();
+                    let first = (t * per_thread).min(chunks) * CHUNK;
+                    let end = ((t + 1) * per_thread).min(chunks) * CHUNK;
+                    for i in first..end {
+                        shoot.photon(i, guide_ref, &mut out);
+                    }
+                    out
+                })
+            })
+            .collect();
+        runs.into_iter()
+            .map(|run| run.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+            .collect()
+    });
     let mut landings: Vec<Landing> = chunks.into_iter().flatten().collect();
     // A stable sort: equal (cell, bin) keep the photons' order, so every sum below is made in
     // the same order on every machine.

@@ -25,8 +25,8 @@ pub fn render_tile(
     tile: Tile,
     samples: Range<u32>,
 ) -> Accumulation {
-    // The caustic guide is built (once per scene) before the parallel loop, so that every thread
-    // traces its photons, rather than one while the others wait for it.
+    // The caustic guide is built (once per scene, on threads of its own) before the parallel
+    // loop rather than in it, where the loop's threads would wait for it one by one.
     scene.caustic_guide();
     let rows: Vec<(Vec<PixelAccum>, u64, u64, Vec<InvalidSample>)> = (tile.y0
         ..tile.y0 + tile.height)
