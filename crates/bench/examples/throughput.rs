@@ -4,7 +4,9 @@
 //! 327,680-triangle displaced sphere of `pathfarm bench speed`), or the path of a `.glb` (such as
 //! `scenes/suite/instanced.glb`; with `:flat` after it, its instanced meshes flattened into world
 //! triangles, to compare the two levels with one). `+sky` after any of them lights the scene with
-//! a uniform sky as well (radiance 0.6, 0.75, 1.0: the peer comparison's environment scene's).
+//! a uniform sky as well (radiance 0.6, 0.75, 1.0: the peer comparison's environment scene's), and
+//! `+unguided` after that renders it without its caustic guide (built, where it has one, before
+//! the clock starts).
 //! Prints samples and rays per second and a hash of the accumulation: the hash must not change
 //! unless the image is meant to.
 
@@ -18,9 +20,13 @@ use std::path::Path;
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let full_name = args.first().map_or("cornell", String::as_str);
-    let (name, sky) = match full_name.strip_suffix("+sky") {
+    let (name, unguided) = match full_name.strip_suffix("+unguided") {
         Some(name) => (name, true),
         None => (full_name, false),
+    };
+    let (name, sky) = match name.strip_suffix("+sky") {
+        Some(name) => (name, true),
+        None => (name, false),
     };
     let threads: usize = args.get(1).map_or(Ok(2), |s| s.parse())?;
     let spp: u32 = args.get(2).map_or(Ok(64), |s| s.parse())?;
@@ -51,6 +57,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         false => scene,
     };
+    let scene = match unguided {
+        true => scene.without_caustic_guide(),
+        false => scene,
+    };
+    // The caustic guide (where the scene has one) is built before the clock starts: what is
+    // timed is the samples.
+    if let Some(guide) = scene.caustic_guide() {
+        println!("caustic guide: {} cells", guide.cells());
+    }
     let settings = pathfarm_bench::speed::settings(256, 256, 1);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)

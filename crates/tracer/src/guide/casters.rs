@@ -20,6 +20,11 @@ pub(super) struct Caster {
 /// The scene's caster clusters, in the order of their grid cells (the same for every build of
 /// the same scene). Empty where no world-space triangle is specular.
 pub(super) fn casters(scene: &Scene) -> Vec<Caster> {
+    // Most scenes have no specular material: then no triangle need be looked at.
+    let any_specular = (0..scene.materials.len() as u32).any(|m| scene.is_specular_material(m));
+    if !any_specular {
+        return Vec::new();
+    }
     let (lo, hi) = (scene.info.bounds_min, scene.info.bounds_max);
     let cell = ((hi - lo).max_element() / CLUSTER_CELLS).max(1e-6);
     let mut boxes: BTreeMap<[i64; 3], (Vec3, Vec3)> = BTreeMap::new();

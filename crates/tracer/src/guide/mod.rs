@@ -48,6 +48,9 @@ pub struct CausticGuide {
     dims: [u32; 3],
     /// Cells with a guide, sorted by key.
     keys: Vec<u64>,
+    /// Per grid cell (by key), its index in `keys`, or `u32::MAX` where it has no guide: a path
+    /// vertex finds its cell in one load instead of a search.
+    index: Vec<u32>,
     /// Per cell (same order as `keys`), the range of its bins in `bins`.
     ranges: Vec<(u32, u32)>,
     /// (bin, cumulative probability up to and including this bin), by bin within each cell.
@@ -74,8 +77,8 @@ impl CausticGuide {
     #[inline]
     pub fn cell(&self, p: Vec3) -> Option<GuideCell<'_>> {
         let key = self.key(p)?;
-        let i = self.keys.binary_search(&key).ok()?;
-        let (start, end) = self.ranges[i];
+        let i = *self.index.get(key as usize)?;
+        let (start, end) = *self.ranges.get(i as usize)?;
         Some(GuideCell {
             bins: &self.bins[start as usize..end as usize],
         })
@@ -88,7 +91,7 @@ impl CausticGuide {
 
     /// Bytes the guide holds.
     pub fn bytes(&self) -> usize {
-        self.keys.len() * 8 + self.ranges.len() * 8 + self.bins.len() * 8
+        self.keys.len() * 8 + self.index.len() * 4 + self.ranges.len() * 8 + self.bins.len() * 8
     }
 
     #[inline]
@@ -108,9 +111,32 @@ impl CausticGuide {
 #[inline]
 fn bin_of(w: Vec3) -> usize {
     let band = (((w.z + 1.0) * 0.5 * BANDS as f32) as usize).min(BANDS - 1);
-    let phi = w.y.atan2(w.x); // (−π, π]
-    let slice = (((phi + PI) * (SLICES as f32 / (2.0 * PI))) as usize).min(SLICES - 1);
-    band * SLICES + slice
+    band * SLICES + slice_of(w.x, w.y)
+}
+
+/// tan(k · π/16) for k = 1, 2, 3: the slices' edges within an octant.
+const SLICE_EDGES: [f32; 3] = [0.198_912_37, 0.414_213_57, 0.668_178_6];
+const _: () = assert!(SLICES == 32, "slice_of counts four slices per octant");
+
+/// The slice of azimuth φ = atan2(y, x) ∈ (−π, π], ⌊(φ + π) / (2π) · 32⌋, found by comparisons
+/// with the slices' edges instead of an arctangent (on the sample path, twice per guided vertex):
+/// the same bits on every machine, as only products and comparisons decide it.
+#[inline]
+fn slice_of(x: f32, y: f32) -> usize {
+    let (ax, ay) = (x.abs(), y.abs());
+    // ⌊α / (π/16)⌋ of the angle α ∈ [0, π/2] of (|x|, |y|): 0–3 below the diagonal, 4–7 above.
+    let below = |a: f32, b: f32| SLICE_EDGES.iter().filter(|&&t| a >= b * t).count();
+    let k = match ay <= ax {
+        true => below(ay, ax),
+        false => 7 - below(ax, ay),
+    };
+    // φ = α, π − α, −α or −π + α by quadrant; ⌊φ / (π/16)⌋ + 16 of each.
+    match (x < 0.0, y < 0.0) {
+        (false, false) => 16 + k,
+        (true, false) => 31 - k,
+        (false, true) => 15 - k,
+        (true, true) => k,
+    }
 }
 
 /// A direction uniform within bin `bin`, from `u` in [0, 1)².
@@ -118,9 +144,11 @@ fn bin_of(w: Vec3) -> usize {
 fn direction_in(bin: usize, u: Vec2) -> Vec3 {
     let (band, slice) = (bin / SLICES, bin % SLICES);
     let z = -1.0 + 2.0 * (band as f32 + u.x) / BANDS as f32;
-    let phi = -PI + 2.0 * PI * (slice as f32 + u.y) / SLICES as f32;
+    // φ in turns, −½ to ½ (−π to π).
+    let turns = (slice as f32 + u.y) / SLICES as f32 - 0.5;
+    let (sin, cos) = crate::math::det::sin_cos_turns(turns);
     let r = (1.0 - z * z).max(0.0).sqrt();
-    Vec3::new(r * phi.cos(), r * phi.sin(), z.clamp(-1.0, 1.0))
+    Vec3::new(r * cos, r * sin, z.clamp(-1.0, 1.0))
 }
 
 impl GuideCell<'_> {
@@ -150,7 +178,7 @@ impl GuideCell<'_> {
     /// The mixture's density of `w`, where the BSDF's (non-delta) density is `bsdf_pdf`.
     #[inline]
     pub fn mix_pdf(&self, bsdf_pdf: f32, w: Vec3) -> f32 {
-        MIX * self.pdf(w) + (1.0 - MIX) * bsdf_pdf
+        mix_densities(self.pdf(w), bsdf_pdf)
     }
 
     /// The continuation from the mixture (see the module documentation): `u_mix` chooses the
@@ -192,17 +220,25 @@ impl GuideCell<'_> {
                 ..bs
             });
         }
-        let (f, bsdf_pdf) = bsdf.eval_pdf(wo, bs.wi);
-        let pdf = self.mix_pdf(bsdf_pdf, bs.wi);
+        // The BSDF's sample carries f · |cos| / p and its density p (the one `Bsdf::eval_pdf`
+        // gives, which MIS relies on everywhere): no second evaluation.
+        let pdf = self.mix_pdf(bs.pdf, bs.wi);
         if pdf.is_nan() || pdf <= 0.0 {
             return None;
         }
         Some(BsdfSample {
-            weight: f / pdf,
+            weight: bs.weight * (bs.pdf / pdf),
             pdf,
             ..bs
         })
     }
+}
+
+/// The mixture's density where the guide's is `guide_pdf` and the BSDF's `bsdf_pdf` (one home for
+/// the formula: the wavefront's lanes mix the densities they evaluate in their own loops).
+#[inline(always)]
+pub(crate) fn mix_densities(guide_pdf: f32, bsdf_pdf: f32) -> f32 {
+    MIX * guide_pdf + (1.0 - MIX) * bsdf_pdf
 }
 
 /// The largest `f32` below 1.

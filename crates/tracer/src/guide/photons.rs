@@ -29,14 +29,14 @@ type Landing = (u64, u16, f32);
 
 /// The guide of `scene` (see [`CausticGuide::build`]).
 pub(super) fn trace(scene: &Scene) -> Option<CausticGuide> {
-    let casters = casters(scene);
-    if casters.is_empty() {
-        return None;
-    }
     // Only emissive triangles: a path meets them, but never a lamp (a point or a direction), so
     // a lamp's caustics are beyond every path's reach and guiding towards them wastes samples.
     let area = &scene.lights.area;
     if area.is_empty() || area.total_power().is_nan() || area.total_power() <= 0.0 {
+        return None;
+    }
+    let casters = casters(scene);
+    if casters.is_empty() {
         return None;
     }
     let mut guide = empty_grid(scene);
@@ -95,6 +95,7 @@ fn empty_grid(scene: &Scene) -> CausticGuide {
         inv_cell: 1.0 / cell,
         dims: [size.x as u32, size.y as u32, size.z as u32],
         keys: Vec::new(),
+        index: Vec::new(),
         ranges: Vec::new(),
         bins: Vec::new(),
         photons: 0,
@@ -138,6 +139,11 @@ fn fill(guide: &mut CausticGuide, landings: &[Landing]) {
         guide.ranges.push((first, guide.bins.len() as u32));
     }
     debug_assert!(guide.bins.iter().all(|&(b, _)| usize::from(b) < BINS));
+    let [nx, ny, nz] = guide.dims;
+    guide.index = vec![u32::MAX; nx as usize * ny as usize * nz as usize];
+    for (i, &key) in guide.keys.iter().enumerate() {
+        guide.index[key as usize] = i as u32;
+    }
 }
 
 /// What shooting a photon needs.
@@ -247,8 +253,8 @@ fn toward(p: Vec3, caster: Caster, u: Vec2) -> (Vec3, f32) {
     let cos_max = (1.0 - r2 / d2).max(0.0).sqrt();
     let cos = 1.0 - u.x * (1.0 - cos_max);
     let sin = (1.0 - cos * cos).max(0.0).sqrt();
-    let phi = 2.0 * PI * u.y;
-    let local = Vec3::new(sin * phi.cos(), sin * phi.sin(), cos);
+    let (sin_phi, cos_phi) = crate::math::det::sin_cos_turns(u.y);
+    let local = Vec3::new(sin * cos_phi, sin * sin_phi, cos);
     let w = Frame::from_z(to / d2.sqrt()).to_world(local);
     (w, 2.0 * PI * (1.0 - cos_max))
 }

@@ -29,7 +29,7 @@ impl Scene {
     }
 
     /// The same scene rendered without a caustic guide: every continuation drawn from the BSDF
-    /// alone (for comparisons, and for the wavefront's tests, whose lanes do not draw it).
+    /// alone (for comparisons).
     pub fn without_caustic_guide(mut self) -> Self {
         self.caustics = OnceLock::from(None);
         self
@@ -38,9 +38,7 @@ impl Scene {
     /// Whether material `material` has delta lobes only (a perfect mirror, smooth glass) at every
     /// point: the guide's casters. (A textured one is not counted.)
     pub(crate) fn is_specular_material(&self, material: u32) -> bool {
-        match self.bsdf_templates.get(material as usize) {
-            Some(Some(bsdf)) => !bsdf.has_non_delta(),
-            _ => false,
-        }
+        self.bsdf_template(material)
+            .is_some_and(|bsdf| !bsdf.has_non_delta())
     }
 }

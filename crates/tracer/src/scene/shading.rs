@@ -29,6 +29,12 @@ impl Scene {
         self.bsdf_of(si.material, si.ns, si.ng, si.tangent, || si.uv)
     }
 
+    /// Material `material`'s BSDF template (`Bsdf::at` makes its BSDF at a point), where it has
+    /// one (not textured).
+    pub(crate) fn bsdf_template(&self, material: u32) -> Option<&Bsdf> {
+        self.bsdf_templates.get(material as usize)?.as_ref()
+    }
+
     /// [`Scene::bsdf_at`] at a hit whose normals (`ns`, `ng`) and tangent are known, its texture
     /// coordinates read only if the material is textured (the wavefront's lanes, which make the
     /// surface's parts in their own steps).

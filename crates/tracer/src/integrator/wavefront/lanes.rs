@@ -17,7 +17,8 @@
 //! 5. `scatter` (vector, `scatter.rs`): the light sample's contribution and shadow ray, the BSDF sample, Russian
 //!    roulette and the next ray (for a Lambertian, and for a glossy material where the scene has
 //!    one: its BSDF made again in the lanes, `glossy.rs`; a specular or general material's lanes
-//!    take theirs after it, lane by lane: `scatter_lane_by_lane`, `general.rs`);
+//!    take theirs after it, lane by lane: `scatter_lane_by_lane`, `general.rs`, as do the lanes
+//!    whose continuation the caustic guide's mixture draws: `guided.rs`);
 //! 6. `trace_shadows` (scalar, `trace.rs`): each shadow ray, together with the lane's next ray
 //!    when the path goes on (as `trace_path` does), and the results of the paths that ended.
 //!
@@ -34,6 +35,7 @@
 mod builds;
 mod general;
 mod glossy;
+mod guided;
 mod lamps;
 mod lights;
 mod normals;
@@ -49,6 +51,7 @@ use refill::CameraRays;
 use super::lights::LightTable;
 use super::{DiffuseMaterial, DiffuseScene, LANES, V3};
 use crate::bsdf::Bsdf;
+use crate::guide::{CausticGuide, GuideCell};
 use crate::integrator::PathResult;
 use crate::isa::{Isa, Kind};
 use crate::light::Environment;
@@ -227,6 +230,18 @@ pub(super) struct Lanes<'a> {
     /// Each hit's tangent with its handedness (`Scene::hit_tangent`), where some mesh has
     /// tangents: read by `shade_texels` and taken again by `shade_general`.
     tangent4: [Option<glam::Vec4>; LANES],
+
+    // The caustic guide (`guided.rs`), in a scene that has one.
+    guide: Option<&'a CausticGuide>,
+    /// The lane's continuation is drawn from the guide's mixture (its vertex has non-delta lobes
+    /// and lies in a cell of the guide's, `cells`): its light sample's MIS weight takes the
+    /// mixture's density, from the guide's density `guide_pdf` of the light's direction.
+    guided: B,
+    guide_pdf: F,
+    cells: [Option<GuideCell<'a>>; LANES],
+    /// A textured material's BSDF at the lane's hit, before `Bsdf::at` (`Scene::textured_bsdf`),
+    /// kept by `shade_texels` in a scene with a guide for the guided lanes' samples.
+    texel_bsdf: Box<[Option<Bsdf>; LANES]>,
 }
 
 impl<'a> Lanes<'a> {
@@ -314,6 +329,11 @@ impl<'a> Lanes<'a> {
             any_general: diffuse.materials.iter().any(|m| m.general),
             general: Box::new([None; LANES]),
             tangent4: [None; LANES],
+            guide: scene.caustic_guide(),
+            guided: [false; LANES],
+            guide_pdf: [0.0; LANES],
+            cells: [None; LANES],
+            texel_bsdf: Box::new([None; LANES]),
             shadow: [false; LANES],
             shadow_o: V3::ZERO,
             shadow_d: V3::ZERO,
@@ -347,6 +367,9 @@ impl<'a> Lanes<'a> {
             if self.punctual {
                 self.light_punctual_for(isa);
             }
+            if self.guide.is_some() {
+                self.find_guide_cells();
+            }
             if self.sampled_environment {
                 self.light_environment_for(isa);
             }
@@ -360,7 +383,7 @@ impl<'a> Lanes<'a> {
             if self.sampled_environment {
                 self.take_environment_shadows_for(isa);
             }
-            if self.any_specular || self.any_general {
+            if self.any_specular || self.any_general || self.guide.is_some() {
                 self.scatter_lane_by_lane();
             }
             self.trace_shadows_for(isa, &mut each);

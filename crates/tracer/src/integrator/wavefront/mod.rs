@@ -241,8 +241,7 @@ impl<'a> Wavefront<'a> {
         let diffuse = scene.diffuse.as_ref()?;
         let supported =
             settings.direct == DirectStrategy::Mis && settings.sampler == SamplerKind::Sobol;
-        // The caustic guide's mixture is drawn by the scalar integrator only (for now).
-        if !supported || scene.caustic_guide().is_some() {
+        if !supported {
             return None;
         }
         Some(Wavefront {

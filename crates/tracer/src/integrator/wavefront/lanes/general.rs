@@ -3,7 +3,8 @@
 //! continuation alone is its own, and a general one (`DiffuseMaterial::general`: a clear coat, a
 //! sheen, rough transmission, textures that change its kind), whose BSDF is made at each hit
 //! (`shade_general`), evaluated where the vector steps evaluate the others' (`GlossyLanes`
-//! takes its values) and sampled here.
+//! takes its values) and sampled here; and the lanes the caustic guide guides (`guided.rs`),
+//! whose continuation is drawn from its mixture with their BSDF, as `trace_path` draws it.
 
 use super::{Lanes, LANES};
 use crate::integrator::path::survival;
@@ -67,7 +68,14 @@ impl Lanes<'_> {
                         made = template.at(ns, ng, self.frame_tangent(i));
                         &made
                     }
-                    None => continue,
+                    // A guided lane's (`guided.rs`): its Lambertian or glossy BSDF.
+                    None => match self.guided_bsdf(i) {
+                        Some(bsdf) => {
+                            made = bsdf;
+                            &made
+                        }
+                        None => continue,
+                    },
                 },
             };
             let depth = self.depth[i];
@@ -84,10 +92,13 @@ impl Lanes<'_> {
             ];
             let [u0, u1, u_lobe, u_rr] =
                 owen_sobol_group_lanewise(self.key[i], self.index_rev[i], group, offsets);
-            let Some(bs) = bsdf
-                .sample(wo, u_lobe, Vec2::new(u0, u1))
-                .filter(|bs| !is_black(bs.weight))
-            else {
+            let u = Vec2::new(u0, u1);
+            let sampled = match self.cells[i].filter(|_| self.guided[i]) {
+                // As `trace_path`: the lobe's value chooses between the guide and the BSDF.
+                Some(cell) => cell.sample_mixture(bsdf, wo, ng, u_lobe, u),
+                None => bsdf.sample(wo, u_lobe, u),
+            };
+            let Some(bs) = sampled.filter(|bs| !is_black(bs.weight)) else {
                 continue;
             };
             let mut beta = self.beta.get(i) * bs.weight;

@@ -167,6 +167,7 @@ impl Lanes<'_> {
         let (albedos, betas) = (self.albedo, self.beta);
         let (wis, radiances, pdfs) = (self.env_wi, self.env_radiance, self.env_pdf);
         let (ca, cb, cc) = (self.corner_a, self.corner_b, self.corner_c);
+        let (guided, guide_pdfs) = (self.guided, self.guide_pdf);
         let (mut ok, mut values, mut origins) = ([false; LANES], V3::ZERO, V3::ZERO);
         let (glossy_f, glossy_pdf) = match GLOSSY {
             true => glossy.eval_pdf(&nss, &ngs, &ds, &wis),
@@ -179,6 +180,10 @@ impl Lanes<'_> {
             let (f, bsdf_pdf) = match GLOSSY && glossy.shaded[i] {
                 true => (glossy_f.get(i), glossy_pdf[i]),
                 false => (f, bsdf_pdf),
+            };
+            let bsdf_pdf = match guided[i] {
+                true => crate::guide::mix_densities(guide_pdfs[i], bsdf_pdf),
+                false => bsdf_pdf,
             };
             let (radiance, pdf) = (radiances.get(i), pdfs[i]);
             let query = environment_value(radiance, pdf, f, bsdf_pdf, true);

@@ -4,6 +4,7 @@
 
 use super::{GlossyLanes, Lanes, B, F, LANES, V3};
 use crate::bsdf::lambert_at;
+use crate::guide::mix_densities;
 use crate::integrator::direct::LightGeometry;
 use crate::integrator::path::survival;
 use crate::math::{is_black, offset_unit_normal, spawn_clearance, Frame};
@@ -80,6 +81,7 @@ impl Lanes<'_> {
             self.light_pdf_area,
         );
         let (light_front, light_back, mut rays) = (self.light_front, self.light_back, self.rays);
+        let (guided, guide_pdfs) = (self.guided, self.guide_pdf);
         let (mut shadows, mut shadow_o, mut shadow_d) = ([false; LANES], V3::ZERO, V3::ZERO);
         let (mut shadow_t_max, mut shadow_value) = ([0.0; LANES], V3::ZERO);
         let mut light_wi = V3::ZERO;
@@ -117,6 +119,11 @@ impl Lanes<'_> {
             let (f, bsdf_pdf) = match GLOSSY && glossy.shaded[i] {
                 true => (glossy_f.get(i), glossy_pdf[i]),
                 false => (f, bsdf_pdf),
+            };
+            // A guided lane's continuation is drawn from the caustic guide's mixture (`guided.rs`).
+            let bsdf_pdf = match guided[i] {
+                true => mix_densities(guide_pdfs[i], bsdf_pdf),
+                false => bsdf_pdf,
             };
             let query = g.value(light_pdf[i], le, f, bsdf_pdf, Vec3::ONE, true);
             // `&`, not `&&`: the short-circuit's branch kept this whole loop scalar
@@ -227,7 +234,8 @@ impl Lanes<'_> {
                 sampled_ok[i],
             );
             let mut beta_next = beta * weight;
-            let mut cont = go && sampled && !is_black(beta_next);
+            // A guided lane's continuation is `scatter_lane_by_lane`'s.
+            let mut cont = go && !guided[i] && sampled && !is_black(beta_next);
 
             // 4. Russian roulette.
             let survive = survival(rr, depth, beta_next);

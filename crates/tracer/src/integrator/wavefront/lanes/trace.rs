@@ -137,6 +137,10 @@ impl Lanes<'_> {
             };
             self.albedo.set(i, albedo);
             self.diffuse_on[i] = bsdf.has_non_delta();
+            if self.guide.is_some() {
+                // For a guided lane's sample (`Lanes::guided_bsdf`).
+                self.texel_bsdf[i] = Some(bsdf);
+            }
         }
     }
 

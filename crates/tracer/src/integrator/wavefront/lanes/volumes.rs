@@ -74,6 +74,10 @@ impl Lanes<'_> {
                 (None, Some(lobes)) => lobes.at(ns, ng, self.frame_tangent(i)).eval_pdf(wo, g.wi),
                 (None, None) => lambert_at::eval_pdf(ns, ng, self.albedo.get(i), wo, g.wi),
             };
+            let bsdf_pdf = match self.guided[i] {
+                true => crate::guide::mix_densities(self.guide_pdf[i], bsdf_pdf),
+                false => bsdf_pdf,
+            };
             let pdf_area = self.light_pdf_area[i];
             let t = transmittance(sigma, g.dist);
             let value = g.value(pdf_area, le, f, bsdf_pdf, t, true);

@@ -8,6 +8,7 @@ use crate::scene::{Scene, SceneParts};
 use crate::settings::{DirectStrategy, RenderSettings, RussianRoulette, SamplerKind};
 use glam::{Vec3, Vec4};
 
+mod guided;
 mod lights;
 mod materials;
 mod textures;
@@ -21,12 +22,9 @@ fn parts(name: &str) -> SceneParts {
         .unwrap_or_else(|e| panic!("{name}: {e}"))
 }
 
-/// The scene built, without the caustic guide, whose mixture the lanes do not draw (a scene with
-/// one goes to the scalar integrator: `Wavefront::new`).
+/// The scene built (with its caustic guide, where it has one).
 fn scene(parts: SceneParts) -> Scene {
-    Scene::build(parts)
-        .expect("scene builds")
-        .without_caustic_guide()
+    Scene::build(parts).expect("scene builds")
 }
 
 /// Renders `samples` of a grid of pixels both ways and compares every result.
