@@ -36,7 +36,7 @@ const BIN_SOLID_ANGLE: f32 = 4.0 * PI / BINS as f32;
 /// The guide's share of the continuation samples where a cell has a guide. On the peers' caustics
 /// scene 0.3 and 0.5 measured the same error (docs/benchmarks.md); the smaller share costs less
 /// where a cell's light is mostly not caustic.
-const MIX: f32 = 0.3;
+pub(crate) const MIX: f32 = 0.3;
 /// Cells with fewer photons than this have no guide (their directions would be mostly noise).
 const MIN_PHOTONS: u32 = 16;
 
@@ -53,6 +53,8 @@ pub struct CausticGuide {
     index: Vec<u32>,
     /// Per cell (same order as `keys`), the range of its bins in `bins`.
     ranges: Vec<(u32, u32)>,
+    /// Per cell (same order), which bins it has.
+    occupancy: Vec<Occupancy>,
     /// (bin, cumulative probability up to and including this bin), by bin within each cell.
     bins: Vec<(u16, f32)>,
     /// Photons traced and landed, for the log.
@@ -64,6 +66,42 @@ pub struct CausticGuide {
 #[derive(Clone, Copy, Debug)]
 pub struct GuideCell<'a> {
     bins: &'a [(u16, f32)],
+    occupied: &'a Occupancy,
+}
+
+/// Which of the [`BINS`] bins a cell has, as a bit set with each word's count of the bits
+/// before it: a bin's place among the cell's bins in one count instead of a search (the
+/// density is read twice per guided vertex).
+#[derive(Clone, Debug, PartialEq)]
+struct Occupancy {
+    words: [u64; BINS / 64],
+    before: [u16; BINS / 64],
+}
+
+impl Occupancy {
+    /// The bit set of `bins` (sorted by bin, each bin once).
+    fn of(bins: &[(u16, f32)]) -> Occupancy {
+        let mut words = [0u64; BINS / 64];
+        for &(bin, _) in bins {
+            words[usize::from(bin) / 64] |= 1 << (bin % 64);
+        }
+        let mut before = [0u16; BINS / 64];
+        for k in 1..words.len() {
+            before[k] = before[k - 1] + words[k - 1].count_ones() as u16;
+        }
+        Occupancy { words, before }
+    }
+
+    /// The index of `bin` among the cell's bins, if it has it.
+    #[inline]
+    fn rank(&self, bin: usize) -> Option<usize> {
+        let (word, bit) = (self.words[bin / 64], bin % 64);
+        if word >> bit & 1 == 0 {
+            return None;
+        }
+        let below = word & ((1u64 << bit) - 1);
+        Some(usize::from(self.before[bin / 64]) + below.count_ones() as usize)
+    }
 }
 
 impl CausticGuide {
@@ -81,6 +119,7 @@ impl CausticGuide {
         let (start, end) = *self.ranges.get(i as usize)?;
         Some(GuideCell {
             bins: &self.bins[start as usize..end as usize],
+            occupied: self.occupancy.get(i as usize)?,
         })
     }
 
@@ -91,7 +130,11 @@ impl CausticGuide {
 
     /// Bytes the guide holds.
     pub fn bytes(&self) -> usize {
-        self.keys.len() * 8 + self.index.len() * 4 + self.ranges.len() * 8 + self.bins.len() * 8
+        self.keys.len() * 8
+            + self.index.len() * 4
+            + self.ranges.len() * 8
+            + self.occupancy.len() * std::mem::size_of::<Occupancy>()
+            + self.bins.len() * 8
     }
 
     #[inline]
@@ -155,14 +198,11 @@ impl GuideCell<'_> {
     /// The guide's density (solid angle) of `w`.
     #[inline]
     pub fn pdf(&self, w: Vec3) -> f32 {
-        let bin = bin_of(w) as u16;
-        match self.bins.binary_search_by_key(&bin, |&(b, _)| b) {
-            Ok(i) => {
-                let below = if i == 0 { 0.0 } else { self.bins[i - 1].1 };
-                (self.bins[i].1 - below) / BIN_SOLID_ANGLE
-            }
-            Err(_) => 0.0,
-        }
+        let Some(i) = self.occupied.rank(bin_of(w)) else {
+            return 0.0;
+        };
+        let below = if i == 0 { 0.0 } else { self.bins[i - 1].1 };
+        (self.bins[i].1 - below) / BIN_SOLID_ANGLE
     }
 
     /// A direction drawn from the guide: a bin by `u_bin`, a point in it by `u`.

@@ -4,7 +4,7 @@
 //! divided out), so a cell's bins weigh directions as the caustic irradiance they bring.
 
 use super::casters::{casters, Caster};
-use super::{bin_of, CausticGuide, BINS, MIN_PHOTONS};
+use super::{bin_of, CausticGuide, Occupancy, BINS, MIN_PHOTONS};
 use crate::geometry::Ray;
 use crate::math::{luminance, offset_ray_origin, spawn_clearance, Frame};
 use crate::sampler::{hash_words, independent_sample};
@@ -97,6 +97,7 @@ fn empty_grid(scene: &Scene) -> CausticGuide {
         keys: Vec::new(),
         index: Vec::new(),
         ranges: Vec::new(),
+        occupancy: Vec::new(),
         bins: Vec::new(),
         photons: 0,
         landed: 0,
@@ -137,6 +138,9 @@ fn fill(guide: &mut CausticGuide, landings: &[Landing]) {
         }
         guide.keys.push(key);
         guide.ranges.push((first, guide.bins.len() as u32));
+        guide
+            .occupancy
+            .push(Occupancy::of(&guide.bins[first as usize..]));
     }
     debug_assert!(guide.bins.iter().all(|&(b, _)| usize::from(b) < BINS));
     let [nx, ny, nz] = guide.dims;

@@ -59,7 +59,11 @@ fn the_bins_have_equal_solid_angles() {
 #[test]
 fn a_cell_density_integrates_to_one_and_matches_its_samples() {
     let bins = cell_bins(&[(7, 1.0), (200, 3.0), (201, 0.5), (400, 2.0)]);
-    let cell = GuideCell { bins: &bins };
+    let occupied = Occupancy::of(&bins);
+    let cell = GuideCell {
+        bins: &bins,
+        occupied: &occupied,
+    };
     let mut rng = uniform_stream(9);
     // ∫ pdf dω by uniform directions.
     let n = 400_000;
@@ -119,7 +123,11 @@ fn the_mixture_estimates_the_bsdf_integral_without_bias() {
         (bin_of(Vec3::new(0.6, 0.0, 0.8)) as u16, 1.0),
         (bin_of(-Vec3::Z) as u16, 1.0),
     ]);
-    let cell = GuideCell { bins: &bins };
+    let occupied = Occupancy::of(&bins);
+    let cell = GuideCell {
+        bins: &bins,
+        occupied: &occupied,
+    };
     let mut rng = uniform_stream(13);
     let n = 400_000;
     let (mut sum, mut sum2, mut guided) = (0.0f64, 0.0f64, 0u32);
@@ -177,7 +185,11 @@ fn a_delta_lobe_keeps_its_direction_and_carries_the_bsdf_share() {
         None,
     );
     let bins = cell_bins(&[(bin_of(Vec3::Z) as u16, 1.0)]);
-    let cell = GuideCell { bins: &bins };
+    let occupied = Occupancy::of(&bins);
+    let cell = GuideCell {
+        bins: &bins,
+        occupied: &occupied,
+    };
     let wo = Vec3::new(0.6, 0.0, 0.8);
     let plain = mirror
         .sample(wo, 0.5, Vec2::new(0.3, 0.7))

@@ -2,13 +2,17 @@
 //! lane whose vertex has non-delta lobes and lies in one of the guide's cells is *guided*. Its
 //! light sample's MIS weight takes the mixture's density (`guide::mix_densities` of the guide's
 //! density of the light's direction, found here, and the BSDF's, which the vector steps evaluate
-//! as for every lane), and its continuation is drawn from the mixture by `scatter_lane_by_lane`
-//! (`general.rs`), which `scatter` leaves the guided lanes to. A scene without a guide runs none
-//! of this.
+//! as for every lane), and its continuation is drawn from the mixture: where the mixture draws the
+//! BSDF's branch of a Lambertian, `scatter` keeps its own sample of the BSDF reweighed (the same
+//! direction: a Lambertian ignores the lobe's value), and otherwise `scatter_lane_by_lane`
+//! (`general.rs`) draws it. A scene without a guide runs none of this.
 
-use super::{Lanes, LANES};
+use super::{Lanes, B, F, LANES, V3};
 use crate::bsdf::Bsdf;
+use crate::guide::MIX;
 use crate::integrator::direct::LightGeometry;
+use crate::math::is_black;
+use crate::sampler::{bounce_dim, dims, owen_sobol_group_lanewise};
 
 impl Lanes<'_> {
     /// Each lane's guide cell and whether it is guided, and the guide's density of its light
@@ -57,5 +61,54 @@ impl Lanes<'_> {
             _ => self.scene.bsdf_template(self.material[i])?,
         };
         Some(template.at(self.ns.get(i), self.ng.get(i), self.frame_tangent(i)))
+    }
+
+    /// In `scatter`, after its BSDF samples (`wi`, `weight`, `pdf`, `ok`): each guided
+    /// Lambertian lane whose mixture draws the BSDF's branch takes its sample reweighed as
+    /// `GuideCell::sample_mixture` weighs it (a Lambertian ignores the lobe's value, so its sample
+    /// is the one the branch would draw), tested as `trace_path` tests it. `glossy`: in a scene
+    /// with glossy lanes, which lanes are glossy and the lobe values `scatter` drew for them
+    /// all. Returns the guided lanes left to `scatter_lane_by_lane` (`scatter` leaves them in
+    /// `guided` for it).
+    #[inline(always)]
+    pub(super) fn mix_lambert_samples(
+        &self,
+        glossy: Option<(B, &F)>,
+        wi: &V3,
+        weight: &mut V3,
+        pdf: &mut F,
+        ok: &mut B,
+    ) -> B {
+        let mut lane_by_lane = self.guided;
+        for i in 0..LANES {
+            let glossy_lane = glossy.is_some_and(|(on, _)| on[i]);
+            let Some(cell) = self.cells[i] else {
+                continue;
+            };
+            if !self.guided[i] || glossy_lane || self.general[i].is_some() {
+                continue;
+            }
+            // The lobe's value chooses between the guide and the BSDF (drawn here, for the
+            // guided lanes alone, where `scatter` did not draw it for every lane).
+            let u_mix = match glossy {
+                Some((_, u_lobe)) => u_lobe[i],
+                None => {
+                    let group = bounce_dim(self.depth[i], dims::BSDF_DIR);
+                    let offset = [dims::BSDF_LOBE - dims::BSDF_DIR];
+                    owen_sobol_group_lanewise(self.key[i], self.index_rev[i], group, offset)[0]
+                }
+            };
+            if u_mix < MIX {
+                continue;
+            }
+            lane_by_lane[i] = false;
+            let (w, p) = (wi.get(i), pdf[i]);
+            let mixed = cell.mix_pdf(p, w);
+            let reweighed = weight.get(i) * (p / mixed);
+            ok[i] &= !(mixed.is_nan() || mixed <= 0.0 || is_black(reweighed));
+            weight.set(i, reweighed);
+            pdf[i] = mixed;
+        }
+        lane_by_lane
     }
 }

@@ -216,6 +216,18 @@ impl Lanes<'_> {
                 }
             }
         }
+        // Guided lanes (`guided.rs`): a Lambertian whose mixture draws the BSDF's branch keeps the
+        // sample above, reweighed; the others continue lane by lane.
+        let lane_by_lane = match self.guide {
+            Some(_) => self.mix_lambert_samples(
+                GLOSSY.then_some((glossy.on, &u_lobe)),
+                &sampled_wi,
+                &mut sampled_weight,
+                &mut sampled_pdf,
+                &mut sampled_ok,
+            ),
+            None => [false; LANES],
+        };
         for i in 0..LANES {
             let go = gos[i];
             let p = ps.get(i);
@@ -234,8 +246,8 @@ impl Lanes<'_> {
                 sampled_ok[i],
             );
             let mut beta_next = beta * weight;
-            // A guided lane's continuation is `scatter_lane_by_lane`'s.
-            let mut cont = go && !guided[i] && sampled && !is_black(beta_next);
+            // The other guided lanes' continuation is `scatter_lane_by_lane`'s.
+            let mut cont = go && !lane_by_lane[i] && sampled && !is_black(beta_next);
 
             // 4. Russian roulette.
             let survive = survival(rr, depth, beta_next);
@@ -257,5 +269,6 @@ impl Lanes<'_> {
         (self.shadow_t_max, self.shadow_value, self.rays) = (shadow_t_max, shadow_value, rays);
         (self.beta, self.bsdf_pdf, self.mis, self.o, self.d) = (betas, pdfs, mis, os, new_ds);
         (self.depth, self.cont) = (new_depths, conts);
+        self.guided = lane_by_lane;
     }
 }
