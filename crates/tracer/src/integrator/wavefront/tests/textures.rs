@@ -62,6 +62,9 @@ fn textures_are_read_as_the_scalar_integrator_reads_them() {
     (m.metallic, m.roughness) = (1.0, 0.0);
     let mirror = scene(mirror);
     assert!(mirror.diffuse.as_ref().is_some_and(|d| d.tangents));
+    // The mirror under the area light has a caustic guide: the textured, normal-mapped floor's
+    // guided lanes sample its mixture with their texels' BSDF (`Lanes::guided_bsdf`).
+    assert!(mirror.caustic_guide().is_some());
     assert_same_bits(&mirror, &settings(59, RussianRoulette::Auto, None), 0..6);
     let rough = p.materials[sphere]
         .metallic_roughness_texture
